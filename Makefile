@@ -1,0 +1,39 @@
+# qz_drake: `make demo` runs the main job, `make test` runs the tests. Both create .venv first.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.qz_installed
+OUT ?= out/demo
+# Tests marked slow run too unless PYTEST_MARK is overridden (e.g. PYTEST_MARK="not slow").
+PYTEST_MARK ?=
+PYTEST_ARGS ?=
+
+.PHONY: setup demo test test-fast bench urdf clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	# The CPU build of torch (a bare `torch` would pull a multi-GB CUDA build).
+	$(PY) -m pip install -q torch==2.13.0
+	$(PY) -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/qz demo --out $(OUT)
+
+test: $(STAMP)
+	$(PY) -m pytest -q $(if $(PYTEST_MARK),-m "$(PYTEST_MARK)") $(PYTEST_ARGS)
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
+
+bench: $(STAMP)
+	$(VENV)/bin/qz bench all --json
+
+urdf: $(STAMP)
+	$(PY) scripts/make_urdf.py
+
+clean:
+	rm -rf out .pytest_cache

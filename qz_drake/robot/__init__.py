@@ -1,0 +1,1 @@
+"""qz_drake.robot."""
