@@ -1,0 +1,146 @@
+"""The ``qz`` command.
+
+Subcommands are registered by the modules in ``_COMMAND_MODULES``; each has
+``register(subparsers)`` and sets ``func(args) -> exit code`` on its parsers. Errors a user
+can cause (QzError) print one line and exit with status 2; a failed solve or a fall is a
+reported outcome with exit status 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+from pathlib import Path
+
+from qz_drake.errors import ConfigError, QzError
+
+# Modules that add subcommands; a module that is not there yet is skipped.
+_COMMAND_MODULES = (
+    "qz_drake.trajopt.commands",
+    "qz_drake.planning.commands",
+    "qz_drake.classification.commands",
+    "qz_drake.capability.commands",
+)
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit 2, as for every other bad input
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def parse_key_values(items: list[str] | None, field: str = "--param") -> dict[str, float]:
+    """Parses ``k=v`` pairs into floats, naming the bad item on error."""
+    out: dict[str, float] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"{field} = {item!r}: expected KEY=VALUE")
+        try:
+            out[key] = float(value)
+        except ValueError:
+            raise ConfigError(f"{field} {key} = {value!r}: not a number") from None
+    return out
+
+
+def _cmd_simulate(args) -> int:
+    from qz_drake.config import load_scenario
+    from qz_drake.simulation import simulate
+
+    scenario = load_scenario(args.scenario)
+    if args.duration is not None and not args.duration > 0:
+        raise ConfigError(f"--duration = {args.duration}: must be positive")
+    result = simulate(scenario, duration=args.duration, out_dir=args.out)
+    print(json.dumps(result.metrics))
+    return 0 if result.metrics["success"] else 1
+
+
+def _cmd_terrain(args) -> int:
+    from qz_drake.config import TerrainConfig
+    from qz_drake.station import make_heightmap
+    from qz_drake.viz.plots import plot_heightmap
+
+    config = TerrainConfig(kind=args.name, params=parse_key_values(args.param))
+    heightmap = make_heightmap(config, seed=args.seed)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    plot_heightmap(heightmap, out, title=f"{args.name} (seed {args.seed})")
+    if args.save:
+        heightmap.save_npz(args.save)
+    print(json.dumps({"png": str(out), "shape": list(heightmap.heights.shape),
+                      "resolution": heightmap.resolution,
+                      "min_height": float(heightmap.heights.min()),
+                      "max_height": float(heightmap.heights.max())}))
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    from qz_drake.demo import run_demo
+
+    metrics = run_demo(args.out, duration=args.duration)
+    print(json.dumps(metrics))
+    return 0 if metrics["success"] else 1
+
+
+def _cmd_bench(args) -> int:
+    from qz_drake.bench import run_suite
+
+    result = run_suite(args.suite, repeats=args.repeats, quick=args.quick)
+    print(json.dumps(result, indent=None if args.json else 2))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _OneLineParser(prog="qz", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineParser)
+
+    p = sub.add_parser("simulate", help="simulate a scenario file")
+    p.add_argument("scenario", help="scenario YAML file (see scenarios/)")
+    p.add_argument("--out", default="out/simulate", help="output folder")
+    p.add_argument("--duration", type=float, default=None, help="override the simulated time [s]")
+    p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("terrain", help="draw a generated terrain as a PNG")
+    p.add_argument("name", help="terrain kind, e.g. stairs, rough, grid_map")
+    p.add_argument("--out", required=True, help="PNG file to write")
+    p.add_argument("--param", action="append", metavar="KEY=VALUE", help="generator parameter")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--save", default=None, help="also save the heightmap as .npz")
+    p.set_defaults(func=_cmd_terrain)
+
+    p = sub.add_parser("demo", help="the main job on the embedded default world")
+    p.add_argument("--out", default="out/demo", help="output folder")
+    p.add_argument("--duration", type=float, default=None, help="simulated time per run [s]")
+    p.set_defaults(func=_cmd_demo)
+
+    p = sub.add_parser("bench", help="run a benchmark suite (see benchmarks/)")
+    p.add_argument("suite", help="sim, blc, astar, costmap, or all")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.add_argument("--repeats", type=int, default=None, help="runs per case (median reported)")
+    p.add_argument("--quick", action="store_true", help="a small subset of the suite")
+    p.set_defaults(func=_cmd_bench)
+
+    for name in _COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as e:
+            if e.name == name:
+                continue
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except QzError as e:
+        print(f"qz {args.command}: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,191 @@
+"""Scenario configuration: typed dataclasses with a YAML form (pydrake.common.yaml).
+
+A scenario file holds only what differs from the defaults below; ``save_scenario`` writes it
+back that way. Every field a user can mistype is checked with a message naming its dotted
+path (``scenario.terrain.knd: unknown field ...``) before Drake's typed loader runs.
+"""
+
+
+import dataclasses
+import math
+import typing
+from pathlib import Path
+
+import yaml
+from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
+
+from qz_drake.errors import ConfigError, bad_value
+
+
+@dataclasses.dataclass
+class TerrainConfig:
+    # A generator of qz_drake.terrain (flat, slope, stairs, step, gap, pits, waves, rough,
+    # obstacles, long_range, material_floor), "grid_map" (the packaged grid_map image) or "file".
+    kind: str = "flat"
+    # Generator parameters in SI units, e.g. {rise: 0.1, count: 2} for stairs; for grid_map:
+    # resolution [m], min_height [m], max_height [m].
+    params: dict[str, float] = dataclasses.field(default_factory=dict)
+    # Heightmap file (.npz or a map-server .yaml) when kind is "file".
+    file: str = ""
+    # Contact geometry: "auto", "boxes" (point contact) or "mesh" (hydroelastic).
+    contact: str = "auto"
+    # Ground material where the map has no per-cell labels: concrete, wood or foam.
+    material: str = "concrete"
+    # Part of the map simulated [xmin, xmax, ymin, ymax] in metres; empty: the controller's
+    # reach (standing: 2 m around the start). Contact geometry cost grows with the area.
+    region: list[float] = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
+class RobotConfig:
+    # Body topology, one of qz_drake.robot.topology.TOPOLOGY_NAMES.
+    topology: str = "nominal"
+    # Extra mass on the trunk (paper 002: up to 20 kg). [kg]
+    payload_kg: float = 0.0
+    # Initial base position on the map. [m]
+    initial_xy: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0])
+    # Initial heading. [rad]
+    initial_yaw: float = 0.0
+
+
+@dataclasses.dataclass
+class SimulationConfig:
+    # Simulated time. [s]
+    duration: float = 5.0
+    # Discrete plant step; 2 ms keeps the explicit joint PD stable with the reflected inertia. [s]
+    time_step: float = 0.002
+    # Drake's discrete contact approximation: lagged (fast, default), similar, sap or tamsi.
+    discrete_contact_approximation: str = "lagged"
+
+
+@dataclasses.dataclass
+class ControllerConfig:
+    # "stand": joint PD (paper 000 Eq. 7) holding the topology's standing pose.
+    kind: str = "stand"
+    # Joint stiffness. [N*m/rad]
+    kp: float = 1500.0
+    # Joint damping. [N*m*s/rad]
+    kd: float = 30.0
+
+
+@dataclasses.dataclass
+class SuccessCriteria:
+    # Largest allowed deviation of the base height from the planned / nominal height. [m]
+    max_base_height_error: float = 0.02
+    # Largest allowed trunk tilt. [deg]
+    max_tilt_deg: float = 30.0
+    # Largest allowed final distance to the goal (walking scenarios). [m]
+    max_final_xy_error: float = 0.15
+
+
+@dataclasses.dataclass
+class Scenario:
+    # A short name, used in file names and reports.
+    name: str = "stand_flat"
+    # What the scenario shows and how success is judged, in a sentence or two.
+    description: str = ""
+    # Seeds every random process of the scenario (terrain generators, noise).
+    random_seed: int = 0
+    terrain: TerrainConfig = dataclasses.field(default_factory=TerrainConfig)
+    robot: RobotConfig = dataclasses.field(default_factory=RobotConfig)
+    simulation: SimulationConfig = dataclasses.field(default_factory=SimulationConfig)
+    controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
+    success: SuccessCriteria = dataclasses.field(default_factory=SuccessCriteria)
+
+
+DISCRETE_APPROXIMATIONS = ("lagged", "similar", "sap", "tamsi")
+CONTROLLER_KINDS = ("stand",)
+
+
+def _check_fields(schema, data, path: str) -> None:
+    """Raises ConfigError for a key that no dataclass field of ``schema`` has."""
+    if not dataclasses.is_dataclass(schema) or data is None:
+        return
+    if not isinstance(data, dict):
+        raise bad_value(path, data, "expected a mapping of fields")
+    hints = typing.get_type_hints(schema)
+    fields = {f.name for f in dataclasses.fields(schema)}
+    for key, value in data.items():
+        if key not in fields:
+            raise bad_value(f"{path}.{key}", value,
+                            f"unknown field (valid: {', '.join(sorted(fields))})")
+        _check_fields(hints[key], value, f"{path}.{key}")
+
+
+def _positive(path: str, value: float) -> None:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise bad_value(path, value, "must be a finite positive number")
+
+
+def validate_scenario(scenario: Scenario) -> Scenario:
+    """Checks values that the YAML types cannot; returns the scenario."""
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+    from qz_drake.terrain import TERRAIN_KINDS, get_material
+    from qz_drake.terrain.drake_geometry import CONTACT_KINDS
+
+    t = scenario.terrain
+    kinds = tuple(TERRAIN_KINDS) + ("grid_map", "file")
+    if t.kind not in kinds:
+        raise bad_value("scenario.terrain.kind", t.kind, f"unknown terrain kind (valid: {', '.join(kinds)})")
+    if t.kind == "file" and not t.file:
+        raise bad_value("scenario.terrain.file", t.file, "required when terrain.kind is 'file'")
+    for key, value in t.params.items():
+        if not math.isfinite(value):
+            raise bad_value(f"scenario.terrain.params.{key}", value, "must be finite")
+    if "resolution" in t.params:
+        _positive("scenario.terrain.params.resolution", t.params["resolution"])
+    if t.region and (len(t.region) != 4 or not all(math.isfinite(v) for v in t.region)
+                     or t.region[1] <= t.region[0] or t.region[3] <= t.region[2]):
+        raise bad_value("scenario.terrain.region", t.region, "expected [xmin, xmax, ymin, ymax] with min < max")
+    if t.contact not in CONTACT_KINDS:
+        raise bad_value("scenario.terrain.contact", t.contact, f"expected one of {', '.join(CONTACT_KINDS)}")
+    try:
+        get_material(t.material)
+    except Exception as e:  # re-raise with the scenario's field path
+        raise bad_value("scenario.terrain.material", t.material, str(e)) from None
+    r = scenario.robot
+    if r.topology not in TOPOLOGY_NAMES:
+        raise bad_value("scenario.robot.topology", r.topology, f"expected one of {', '.join(TOPOLOGY_NAMES)}")
+    if not (0.0 <= r.payload_kg <= 20.0):
+        raise bad_value("scenario.robot.payload_kg", r.payload_kg, "must be within [0, 20] kg")
+    if len(r.initial_xy) != 2 or not all(math.isfinite(v) for v in r.initial_xy):
+        raise bad_value("scenario.robot.initial_xy", r.initial_xy, "expected two finite numbers")
+    s = scenario.simulation
+    _positive("scenario.simulation.duration", s.duration)
+    _positive("scenario.simulation.time_step", s.time_step)
+    if s.discrete_contact_approximation not in DISCRETE_APPROXIMATIONS:
+        raise bad_value("scenario.simulation.discrete_contact_approximation",
+                        s.discrete_contact_approximation,
+                        f"expected one of {', '.join(DISCRETE_APPROXIMATIONS)}")
+    c = scenario.controller
+    if c.kind not in CONTROLLER_KINDS:
+        raise bad_value("scenario.controller.kind", c.kind, f"expected one of {', '.join(CONTROLLER_KINDS)}")
+    _positive("scenario.controller.kp", c.kp)
+    _positive("scenario.controller.kd", c.kd)
+    return scenario
+
+
+def load_scenario_text(text: str, source: str = "<string>") -> Scenario:
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{source}: not valid YAML ({str(e).splitlines()[0]})") from None
+    _check_fields(Scenario, raw if raw is not None else {}, "scenario")
+    try:
+        scenario = yaml_load_typed(schema=Scenario, data=text if raw else "{}")
+    except (RuntimeError, ValueError, TypeError) as e:
+        raise ConfigError(f"{source}: {e}") from None
+    return validate_scenario(scenario)
+
+
+def load_scenario(path) -> Scenario:
+    """Loads and validates a scenario YAML file."""
+    path = Path(path)
+    if not path.is_file():
+        raise bad_value("scenario", str(path), "no such file")
+    return load_scenario_text(path.read_text(), str(path))
+
+
+def save_scenario(scenario: Scenario, path) -> None:
+    """Writes only the fields that differ from the defaults."""
+    Path(path).write_text(yaml_dump_typed(scenario, defaults=Scenario()))

@@ -1,0 +1,199 @@
+"""The station: Qingzhui's MultibodyPlant on a terrain, behind the ports of DESIGN.md.
+
+``make_station(scenario, meshcat)`` returns a Diagram with
+
+* input ``joint_torque`` (18, leg-major URDF joint order, [N*m]);
+* outputs ``state`` (49, see qz_drake.systems.state_layout), ``joint_torque_measured`` (18),
+  ``imu`` (10: orientation quaternion, gyro, accelerometer), ``foot_contact`` (6, 1.0 = in
+  contact);
+* simulation-only outputs for monitors and metrics (never for controllers):
+  ``trunk_contact`` (1), ``foot_normal_force`` (6), ``contact_results``, ``body_poses``.
+
+The build is a straight line: plant -> terrain -> robot -> contact properties -> finalize ->
+sensors -> visualizer. Controllers are added by the caller (see qz_drake.simulation).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+from pydrake.geometry import (CollisionFilterDeclaration, GeometrySet, Meshcat,
+                              MeshcatVisualizer, MeshcatVisualizerParams, Role, RoleAssign)
+from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.sensors import Accelerometer, Gyroscope
+
+from qz_drake.config import Scenario, TerrainConfig
+from qz_drake.errors import ConfigError, bad_value
+from qz_drake.robot import kinematics
+from qz_drake.robot.model import JointOrder, add_qingzhui
+from qz_drake.robot.params import DEFAULT_PARAMS, NUM_LEGS, QingzhuiParams
+from qz_drake.robot.topology import Topology, get_topology
+from qz_drake.systems.sensors import FootContactSensor, ImuAssembler
+from qz_drake.systems.state_layout import make_state
+from qz_drake.terrain.drake_geometry import add_heightmap_to_plant, make_robot_proximity_properties
+
+GRAVITY = 9.81
+
+
+def make_heightmap(config: TerrainConfig, seed: int = 0):
+    """The HeightMap a scenario's terrain section describes."""
+    from qz_drake.terrain import HeightMap, grid_map_terrain, make_terrain
+
+    if config.kind == "file":
+        path = Path(config.file)
+        if not path.is_file():
+            raise bad_value("scenario.terrain.file", config.file, "no such file")
+        return HeightMap.load(path)
+    if config.kind == "grid_map":
+        allowed = {"resolution", "min_height", "max_height"}
+        for key in config.params:
+            if key not in allowed:
+                raise bad_value(f"scenario.terrain.params.{key}", config.params[key],
+                                f"unknown grid_map parameter (valid: {', '.join(sorted(allowed))})")
+        return grid_map_terrain(**config.params)
+    return make_terrain(config.kind, seed=seed, **config.params)
+
+
+def standing_state(heightmap, topology: Topology, xy=(0.0, 0.0), yaw: float = 0.0,
+                   params: QingzhuiParams = DEFAULT_PARAMS) -> np.ndarray:
+    """A station state standing on the terrain: base level at the nominal height above the mean
+    ground under the feet, each foot placed on the ground by leg IK (topology's bends)."""
+    R = RollPitchYaw(0.0, 0.0, yaw).ToRotationMatrix().matrix()
+    p_B = topology.footholds_B
+    feet_xy = np.asarray(xy, dtype=float) + (p_B[:, :2] @ R[:2, :2].T)
+    ground = heightmap.height(feet_xy[:, 0], feet_xy[:, 1])
+    base_z = float(np.mean(ground)) + params.standing_height
+    q = np.zeros((NUM_LEGS, 3))
+    for i in range(NUM_LEGS):
+        p_WF = np.array([feet_xy[i, 0], feet_xy[i, 1], ground[i] + params.foot_radius])
+        p_BF = R.T @ (p_WF - np.array([xy[0], xy[1], base_z]))
+        q[i], ok = kinematics.leg_inverse_kinematics(i, p_BF, topology.bends[i], params)
+        if not ok:
+            raise bad_value("scenario.robot.initial_xy", list(xy),
+                            f"the terrain under leg {i} is out of reach for a standing pose",
+                            ConfigError)
+    return make_state([xy[0], xy[1], base_z], [0.0, 0.0, yaw], q.reshape(-1))
+
+
+# Half-width of the simulated terrain around a standing robot's start. [m]
+STANDING_REGION_HALF_WIDTH = 2.0
+
+
+def default_region(scenario: Scenario) -> list[float]:
+    """The part of the map a scenario's controller can reach."""
+    x, y = scenario.robot.initial_xy
+    r = STANDING_REGION_HALF_WIDTH
+    return [x - r, x + r, y - r, y + r]
+
+
+def _crop_to(heightmap, region):
+    xmin, xmax, ymin, ymax = heightmap.bounds
+    if region[0] <= xmin and region[1] >= xmax and region[2] <= ymin and region[3] >= ymax:
+        return heightmap
+    try:
+        return heightmap.crop(*region)
+    except ConfigError:
+        raise
+    except Exception as e:
+        raise bad_value("scenario.terrain.region", list(region), f"does not overlap the map ({e})") from None
+
+
+@dataclasses.dataclass
+class StationInfo:
+    """What a caller of make_station may need to know about what was built."""
+
+    heightmap: object
+    contact_representation: str
+    params: QingzhuiParams
+    topology: Topology
+    initial_state: np.ndarray
+
+
+def _set_robot_contact(plant, scene_graph, instance, *, hydroelastic: bool, material) -> None:
+    """Feet and trunk collide with the terrain with material-matched properties; the robot's
+    own bodies never collide with each other."""
+    inspector = scene_graph.model_inspector()
+    source = plant.get_source_id()
+    robot_geometries = []
+    for b in plant.GetBodyIndices(instance):
+        for g in plant.GetCollisionGeometriesForBody(plant.get_body(b)):
+            robot_geometries.append(g)
+            props = make_robot_proximity_properties(
+                hydroelastic=hydroelastic, material=material,
+                friction=material.static_friction)
+            scene_graph.AssignRole(source, g, props, RoleAssign.kReplace)
+    del inspector
+    scene_graph.collision_filter_manager().Apply(
+        CollisionFilterDeclaration().ExcludeWithin(GeometrySet(robot_geometries)))
+
+
+def make_station(scenario: Scenario, meshcat: Meshcat | None = None, *,
+                 mesh_dir: str | Path | None = None) -> tuple[Diagram, StationInfo]:
+    """Builds the simulated station for a scenario; returns (diagram, info)."""
+    from qz_drake.terrain import get_material
+
+    builder = DiagramBuilder()
+    sim = scenario.simulation
+    plant, scene_graph = AddMultibodyPlant(
+        MultibodyPlantConfig(time_step=sim.time_step,
+                             discrete_contact_approximation=sim.discrete_contact_approximation,
+                             contact_model="hydroelastic_with_fallback"), builder)
+    plant.set_name("plant")
+    heightmap = make_heightmap(scenario.terrain, scenario.random_seed)
+    region = scenario.terrain.region or default_region(scenario)
+    heightmap = _crop_to(heightmap, region)
+    representation = add_heightmap_to_plant(plant, heightmap, contact=scenario.terrain.contact,
+                                            default_material=scenario.terrain.material,
+                                            mesh_dir=mesh_dir)
+    params = dataclasses.replace(DEFAULT_PARAMS, payload_mass=scenario.robot.payload_kg)
+    instance = add_qingzhui(plant, params)
+    material = get_material(scenario.terrain.material)
+    _set_robot_contact(plant, scene_graph, instance, hydroelastic=representation == "mesh",
+                       material=material)
+    plant.Finalize()
+
+    order = JointOrder(plant, instance)
+    if not (np.array_equal(order.q_index, np.arange(7, 25)) and np.array_equal(order.u_index, np.arange(18))):
+        raise RuntimeError("the plant's joint ordering differs from the station's state layout")
+    topology = get_topology(scenario.robot.topology, params)
+    x0 = standing_state(heightmap, topology, scenario.robot.initial_xy, scenario.robot.initial_yaw, params)
+    plant.SetDefaultPositions(x0[:25])
+
+    base = plant.GetBodyByName("base", instance)
+    gravity = plant.gravity_field().gravity_vector()
+    gyro = builder.AddSystem(Gyroscope(base, RigidTransform()))
+    accel = builder.AddSystem(Accelerometer(base, RigidTransform(), gravity))
+    builder.Connect(plant.get_body_poses_output_port(), gyro.get_body_poses_input_port())
+    builder.Connect(plant.get_body_spatial_velocities_output_port(), gyro.get_body_velocities_input_port())
+    builder.Connect(plant.get_body_poses_output_port(), accel.get_body_poses_input_port())
+    builder.Connect(plant.get_body_spatial_velocities_output_port(), accel.get_body_velocities_input_port())
+    builder.Connect(plant.get_body_spatial_accelerations_output_port(),
+                    accel.get_body_accelerations_input_port())
+    imu = builder.AddSystem(ImuAssembler(plant=plant, base_body_index=base.index()))
+    builder.Connect(plant.get_body_poses_output_port(), imu.GetInputPort("body_poses"))
+    builder.Connect(gyro.get_measurement_output_port(), imu.GetInputPort("angular_velocity"))
+    builder.Connect(accel.get_measurement_output_port(), imu.GetInputPort("acceleration"))
+    contact = builder.AddSystem(FootContactSensor(plant=plant, instance=instance))
+    builder.Connect(plant.get_contact_results_output_port(), contact.GetInputPort("contact_results"))
+
+    builder.ExportInput(plant.get_actuation_input_port(instance), "joint_torque")
+    builder.ExportOutput(plant.get_state_output_port(instance), "state")
+    builder.ExportOutput(plant.get_net_actuation_output_port(instance), "joint_torque_measured")
+    builder.ExportOutput(imu.GetOutputPort("imu"), "imu")
+    builder.ExportOutput(contact.GetOutputPort("foot_contact"), "foot_contact")
+    builder.ExportOutput(contact.GetOutputPort("trunk_contact"), "trunk_contact")
+    builder.ExportOutput(contact.GetOutputPort("foot_normal_force"), "foot_normal_force")
+    builder.ExportOutput(plant.get_contact_results_output_port(), "contact_results")
+    builder.ExportOutput(plant.get_body_poses_output_port(), "body_poses")
+
+    if meshcat is not None:
+        MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat,
+                                       MeshcatVisualizerParams(role=Role.kIllustration))
+    diagram = builder.Build()
+    diagram.set_name("station")
+    return diagram, StationInfo(heightmap=heightmap, contact_representation=representation,
+                                params=params, topology=topology, initial_state=x0)

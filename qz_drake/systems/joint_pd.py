@@ -1,0 +1,118 @@
+"""Joint PD with compensation of the legs' gravity and Coriolis torques (paper 000, Eq. 7).
+
+    tau = Kp (q_des - q) + Kd (v_des - v) + tau_ext - J^T f_des
+
+tau_ext cancels gravity and the Coriolis/centrifugal terms on the leg joints, computed by the
+controller's own model of the robot (a MultibodyPlant without contact, as Drake's
+InverseDynamicsController does): the controller sees only the station's ports. The last term
+is an optional feedforward of desired foot forces f_des (world frame, e.g. the BLC's stance
+forces), mapped to joint torques through each foot's Jacobian; with it the PD only corrects
+errors instead of carrying the body's weight.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import JacobianWrtVariable
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from qz_drake.robot.model import JointOrder, add_qingzhui
+from qz_drake.robot.params import DEFAULT_PARAMS, LEG_NAMES, NUM_JOINTS, QingzhuiParams
+from qz_drake.systems.state_layout import JOINT_Q, JOINT_V, STATE_SIZE
+
+
+class RobotControlModel:
+    """The controller's model of Qingzhui: gravity, bias and foot Jacobians at a measured state."""
+
+    def __init__(self, params: QingzhuiParams = DEFAULT_PARAMS):
+        self.plant = MultibodyPlant(0.0)
+        self.instance = add_qingzhui(self.plant, params)
+        self.plant.Finalize()
+        self.context = self.plant.CreateDefaultContext()
+        self.order = JointOrder(self.plant, self.instance)
+        self._feet = [self.plant.GetFrameByName(f"{leg}_foot", self.instance) for leg in LEG_NAMES]
+        self._world = self.plant.world_frame()
+        if not (np.array_equal(self.order.q_index, np.arange(7, 25))
+                and np.array_equal(self.order.v_index, np.arange(6, 24))):
+            raise RuntimeError("unexpected joint ordering in the control plant")
+
+    def set_state(self, x: np.ndarray) -> None:
+        self.plant.SetPositionsAndVelocities(self.context, x)
+
+    def leg_compensation(self) -> np.ndarray:
+        """Joint torques (18) cancelling gravity and Coriolis terms on the legs."""
+        tau_g = self.plant.CalcGravityGeneralizedForces(self.context)
+        bias = self.plant.CalcBiasTerm(self.context)
+        return (bias - tau_g)[self.order.v_index]
+
+    def foot_force_torques(self, f_W: np.ndarray) -> np.ndarray:
+        """Joint torques (18) that make the feet push with -f_W, i.e. that balance ground
+        reaction forces f_W (6, 3) acting on the feet: tau = -J^T f."""
+        tau = np.zeros(NUM_JOINTS)
+        for i, frame in enumerate(self._feet):
+            if not np.any(f_W[i]):
+                continue
+            J = self.plant.CalcJacobianTranslationalVelocity(
+                self.context, JacobianWrtVariable.kV, frame, np.zeros(3), self._world, self._world)
+            cols = self.order.v_index[3 * i:3 * i + 3]
+            tau[3 * i:3 * i + 3] = -J[:, cols].T @ f_W[i]
+        return tau
+
+    def foot_positions_W(self) -> np.ndarray:
+        return np.array([self.plant.CalcPointsPositions(self.context, f, np.zeros(3), self._world)[:, 0]
+                         for f in self._feet])
+
+
+class JointPdController(LeafSystem):
+    """Eq. 7 of paper 000 for all 18 joints.
+
+    .. pydrake_system::
+
+        name: JointPdController
+        input_ports:
+        - state
+        - desired_state
+        - foot_force_feedforward (optional)
+        output_ports:
+        - joint_torque
+
+    ``desired_state`` holds q_des (18) then v_des (18), leg-major URDF coordinates;
+    ``foot_force_feedforward`` (18) holds the desired ground reaction force on each foot in
+    world coordinates, 3 per foot; left unconnected it is zero.
+
+    Args:
+        kp: joint stiffness Kp. [N*m/rad]
+        kd: joint damping Kd. [N*m*s/rad]
+        params: robot parameters of the controller's model.
+        effort_limit: torques are clipped to +-effort_limit. [N*m]
+    """
+
+    def __init__(self, *, kp: float, kd: float, params: QingzhuiParams = DEFAULT_PARAMS,
+                 effort_limit: float | None = None):
+        super().__init__()
+        self._kp = np.broadcast_to(np.asarray(kp, dtype=float), (NUM_JOINTS,)).copy()
+        self._kd = np.broadcast_to(np.asarray(kd, dtype=float), (NUM_JOINTS,)).copy()
+        self._limit = params.effort_limit if effort_limit is None else effort_limit
+        self._model = RobotControlModel(params)
+        self._state = self.DeclareVectorInputPort("state", STATE_SIZE)
+        self._desired = self.DeclareVectorInputPort("desired_state", 2 * NUM_JOINTS)
+        self._feedforward = self.DeclareVectorInputPort("foot_force_feedforward", 3 * 6)
+        self.DeclareVectorOutputPort("joint_torque", NUM_JOINTS, self._calc_torque)
+
+    @property
+    def model(self) -> RobotControlModel:
+        return self._model
+
+    def _calc_torque(self, context, output: BasicVector):
+        x = self._state.Eval(context)
+        desired = self._desired.Eval(context)
+        q, v = x[JOINT_Q], x[JOINT_V]
+        tau = self._kp * (desired[:NUM_JOINTS] - q) + self._kd * (desired[NUM_JOINTS:] - v)
+        self._model.set_state(x)
+        tau += self._model.leg_compensation()
+        if self._feedforward.HasValue(context):
+            f = self._feedforward.Eval(context).reshape(6, 3)
+            tau += self._model.foot_force_torques(f)
+        output.SetFromVector(np.clip(tau, -self._limit, self._limit))
+

@@ -1,0 +1,122 @@
+"""Sensor systems of the simulated station: foot contact from contact results and the IMU."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.multibody.plant import ContactResults, MultibodyPlant
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from qz_drake.robot.params import LEG_NAMES
+from qz_drake.systems.state_layout import IMU_SIZE
+
+
+class FootContactSensor(LeafSystem):
+    """Which feet touch the terrain, and whether the trunk does, from the plant's contact results.
+
+    A foot counts as in contact when the normal force on it exceeds ``force_threshold``.
+
+    .. pydrake_system::
+
+        name: FootContactSensor
+        input_ports:
+        - contact_results
+        output_ports:
+        - foot_contact
+        - foot_normal_force
+        - trunk_contact
+
+    Args:
+        plant: the station's plant (finalized), used to map bodies to feet.
+        instance: Qingzhui's model instance.
+        force_threshold: smallest normal force that counts as contact. [N]
+    """
+
+    def __init__(self, *, plant: MultibodyPlant, instance, force_threshold: float = 5.0):
+        super().__init__()
+        self._threshold = force_threshold
+        inspector_bodies = {}
+        for i, leg in enumerate(LEG_NAMES):
+            inspector_bodies[int(plant.GetBodyByName(f"{leg}_foot", instance).index())] = i
+        self._foot_of_body = inspector_bodies
+        self._trunk = int(plant.GetBodyByName("base", instance).index())
+        self._robot_bodies = {int(b) for b in plant.GetBodyIndices(instance)}
+        # Hydroelastic results name geometries, not bodies.
+        self._body_of_geometry = {}
+        for b in plant.GetBodyIndices(instance):
+            for g in plant.GetCollisionGeometriesForBody(plant.get_body(b)):
+                self._body_of_geometry[g] = int(b)
+        self._contact_port = self.DeclareAbstractInputPort("contact_results",
+                                                           plant.get_contact_results_output_port().Allocate())
+        self.DeclareVectorOutputPort("foot_contact", 6, self._calc_contact)
+        self.DeclareVectorOutputPort("foot_normal_force", 6, self._calc_force)
+        self.DeclareVectorOutputPort("trunk_contact", 1, self._calc_trunk)
+
+    def _forces(self, context) -> tuple[np.ndarray, float]:
+        results: ContactResults = self._contact_port.Eval(context)
+        foot = np.zeros(6)
+        trunk = 0.0
+        for k in range(results.num_point_pair_contacts()):
+            info = results.point_pair_contact_info(k)
+            f = np.linalg.norm(info.contact_force())
+            for body in (int(info.bodyA_index()), int(info.bodyB_index())):
+                if body in self._foot_of_body:
+                    foot[self._foot_of_body[body]] += f
+                elif body == self._trunk:
+                    trunk += f
+        for k in range(results.num_hydroelastic_contacts()):
+            info = results.hydroelastic_contact_info(k)
+            f = np.linalg.norm(info.F_Ac_W().translational())
+            surface = info.contact_surface()
+            for g in (surface.id_M(), surface.id_N()):
+                body = self._body_of_geometry.get(g)
+                if body in self._foot_of_body:
+                    foot[self._foot_of_body[body]] += f
+                elif body == self._trunk:
+                    trunk += f
+        return foot, trunk
+
+    def _calc_contact(self, context, output: BasicVector):
+        foot, _ = self._forces(context)
+        output.SetFromVector((foot > self._threshold).astype(float))
+
+    def _calc_force(self, context, output: BasicVector):
+        output.SetFromVector(self._forces(context)[0])
+
+    def _calc_trunk(self, context, output: BasicVector):
+        output.SetFromVector([float(self._forces(context)[1] > self._threshold)])
+
+
+class ImuAssembler(LeafSystem):
+    """Packs the IMU vector: base orientation, gyroscope and accelerometer measurements.
+
+    .. pydrake_system::
+
+        name: ImuAssembler
+        input_ports:
+        - body_poses
+        - angular_velocity
+        - acceleration
+        output_ports:
+        - imu
+
+    Output: quaternion w x y z of the base in world (4), angular velocity in the base frame
+    (3) [rad/s], proper acceleration (specific force, as an accelerometer reads; +g up at rest)
+    in the base frame (3) [m/s^2].
+    """
+
+    def __init__(self, *, plant: MultibodyPlant, base_body_index):
+        super().__init__()
+        self._base = int(base_body_index)
+        self._poses = self.DeclareAbstractInputPort("body_poses",
+                                                    plant.get_body_poses_output_port().Allocate())
+        self._gyro = self.DeclareVectorInputPort("angular_velocity", 3)
+        self._accel = self.DeclareVectorInputPort("acceleration", 3)
+        self.DeclareVectorOutputPort("imu", IMU_SIZE, self._calc_imu)
+
+    def _calc_imu(self, context, output: BasicVector):
+        X_WB = self._poses.Eval(context)[self._base]
+        out = np.zeros(IMU_SIZE)
+        out[0:4] = X_WB.rotation().ToQuaternion().wxyz()
+        out[4:7] = self._gyro.Eval(context)
+        out[7:10] = self._accel.Eval(context)
+        output.SetFromVector(out)
