@@ -31,6 +31,9 @@ from qz_drake.errors import TerrainError, bad_value
 from qz_drake.terrain.materials import GroundMaterial, get_material
 
 CONTACT_KINDS = ("auto", "boxes", "mesh")
+# Registering boxes costs quadratic time in their number (5k boxes: 41 s measured); past this
+# many, "boxes" is refused with an error rather than taking minutes.
+MAX_FORCED_BOXES = 1500
 # Boxes reach this far below the lowest cell so feet never fall under the terrain. [m]
 _BOX_FLOOR_DEPTH = 0.5
 _TERRAIN_RGBA = np.array([0.55, 0.6, 0.5, 1.0])
@@ -148,7 +151,7 @@ def add_heightmap_to_plant(plant: MultibodyPlant, heightmap, *, contact: str = "
         heightmap, "materials", None) is not None else None
     boxes = None
     if contact in ("auto", "boxes"):
-        boxes = decompose_into_boxes(h, labels, None if contact == "boxes" else max_boxes)
+        boxes = decompose_into_boxes(h, labels, MAX_FORCED_BOXES if contact == "boxes" else max_boxes)
     world = plant.world_body()
     res = heightmap.resolution
     if boxes is not None:
@@ -169,7 +172,8 @@ def add_heightmap_to_plant(plant: MultibodyPlant, heightmap, *, contact: str = "
                                          _MATERIAL_RGBA.get(material.name, _TERRAIN_RGBA))
         return "boxes"
     if contact == "boxes":
-        raise bad_value("terrain.contact", contact, "this map does not decompose into boxes",
+        raise bad_value("terrain.contact", contact,
+                        f"this map needs more than {MAX_FORCED_BOXES} boxes; use 'mesh' or 'auto'",
                         TerrainError)
     directory = Path(mesh_dir) if mesh_dir is not None else Path(tempfile.mkdtemp(prefix="qz_terrain_"))
     directory.mkdir(parents=True, exist_ok=True)
