@@ -52,6 +52,26 @@ def _standing_controller(builder, station, info, scenario: Scenario):
     return controller
 
 
+def add_tracking_controller(builder, station, info, plan, *, kp: float, kd: float):
+    """Wires plan -> InverseKinematicsTracker -> JointPdController (Eq. 7) -> station; returns
+    (tracker, controller). ``plan`` is a BodyFeetTrajectory held in a constant source."""
+    from pydrake.common.value import AbstractValue
+    from pydrake.systems.primitives import ConstantValueSource
+
+    from qz_drake.systems.ik_tracker import InverseKinematicsTracker
+
+    source = builder.AddSystem(ConstantValueSource(AbstractValue.Make(plan)))
+    tracker = builder.AddSystem(InverseKinematicsTracker(topology=info.topology, params=info.params))
+    controller = builder.AddSystem(JointPdController(kp=kp, kd=kd, params=info.params))
+    builder.Connect(source.get_output_port(), tracker.GetInputPort("trajectory"))
+    builder.Connect(station.GetOutputPort("state"), controller.GetInputPort("state"))
+    builder.Connect(tracker.GetOutputPort("desired_state"), controller.GetInputPort("desired_state"))
+    builder.Connect(tracker.GetOutputPort("foot_force_feedforward"),
+                    controller.GetInputPort("foot_force_feedforward"))
+    builder.Connect(controller.GetOutputPort("joint_torque"), station.GetInputPort("joint_torque"))
+    return tracker, controller
+
+
 def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Meshcat | None = None,
              out_dir: str | Path | None = None) -> SimulationResult:
     """Simulates a scenario; writes recording.html, metrics.json and plots to out_dir if given."""

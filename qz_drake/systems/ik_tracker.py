@@ -1,0 +1,117 @@
+"""Trajectory tracking by inverse kinematics (paper 000, section II-B).
+
+A body-and-feet trajectory (the BLC's solution, or any object with the same sampling methods)
+becomes joint references: at time t each foot's planned world position is expressed in the
+planned body frame and solved by leg IK in the topology's bend direction,
+q_des = Invk(p_i, r, theta); the joint rate is the difference quotient of Eq. 7,
+v_des = (q(t + dt) - q(t)) / dt. The stance feet's planned ground reaction forces are passed
+on as feedforward, so that JointPdController (Eq. 7 with gravity and Coriolis compensation)
+only corrects errors. The position-command output carries q_des for a station in position
+mode (as the paper drives the real robot).
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RollPitchYaw
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from qz_drake.robot import kinematics
+from qz_drake.robot.params import DEFAULT_PARAMS, NUM_JOINTS, NUM_LEGS, QingzhuiParams
+from qz_drake.robot.topology import Topology
+
+
+class BodyFeetTrajectory(Protocol):
+    """What the tracker needs of a plan; times are simulation times. [s]"""
+
+    start_time: float
+    end_time: float
+
+    def base_position(self, t: float) -> np.ndarray: ...  # (3,) world [m]
+
+    def base_rpy(self, t: float) -> np.ndarray: ...  # (3,) roll, pitch, yaw [rad]
+
+    def foot_positions(self, t: float) -> np.ndarray: ...  # (6, 3) foot-sphere centres, world [m]
+
+    def foot_forces(self, t: float) -> np.ndarray: ...  # (6, 3) ground reaction forces, world [N]
+
+    def contact(self, t: float) -> np.ndarray: ...  # (6,) bool
+
+
+def joint_reference(trajectory: BodyFeetTrajectory, t: float, topology: Topology,
+                    params: QingzhuiParams = DEFAULT_PARAMS) -> tuple[np.ndarray, np.ndarray]:
+    """q_des (18) by leg IK at time t (clamped to the plan), and a reachability mask (6,)."""
+    t = float(np.clip(t, trajectory.start_time, trajectory.end_time))
+    R_WB = RollPitchYaw(trajectory.base_rpy(t)).ToRotationMatrix().matrix()
+    p_BF = (trajectory.foot_positions(t) - trajectory.base_position(t)) @ R_WB
+    q = np.zeros((NUM_LEGS, 3))
+    ok = np.zeros(NUM_LEGS, dtype=bool)
+    for i in range(NUM_LEGS):
+        q[i], ok[i] = kinematics.leg_inverse_kinematics(i, p_BF[i], topology.bends[i], params)
+    return q.reshape(-1), ok
+
+
+class InverseKinematicsTracker(LeafSystem):
+    """Joint references and force feedforward from a body-and-feet trajectory.
+
+    .. pydrake_system::
+
+        name: InverseKinematicsTracker
+        input_ports:
+        - trajectory
+        output_ports:
+        - desired_state
+        - foot_force_feedforward
+        - position_command
+        - contact_plan
+
+    ``trajectory`` is an abstract input holding a BodyFeetTrajectory (or None: hold the first
+    reference seen). ``desired_state`` is q_des (18) then v_des (18) for JointPdController;
+    ``foot_force_feedforward`` the planned stance forces (18, world); ``position_command``
+    q_des alone; ``contact_plan`` the planned contact flags (6).
+
+    The references are updated at ``rate`` (the paper's controllers exchange them at 200 Hz)
+    and held in between; the joint PD runs at every plant step.
+
+    Args:
+        topology: the body topology (knee bend per leg) the IK uses.
+        params: robot parameters.
+        rate: reference update rate. [Hz]
+    """
+
+    def __init__(self, *, topology: Topology, params: QingzhuiParams = DEFAULT_PARAMS,
+                 rate: float = 200.0):
+        super().__init__()
+        self._topology = topology
+        self._params = params
+        # The Delta T of Eq. 7: one update period.
+        self._dt = 1.0 / rate
+        self._trajectory = self.DeclareAbstractInputPort("trajectory", AbstractValue.Make(object()))
+        # Held references: q_des (18), v_des (18), forces (18), contact (6).
+        self._held = self.DeclareDiscreteState(2 * NUM_JOINTS + 3 * NUM_LEGS + NUM_LEGS)
+        self.DeclarePeriodicDiscreteUpdateEvent(self._dt, 0.0, self._update)
+        self.DeclareInitializationDiscreteUpdateEvent(self._update)
+        n = NUM_JOINTS
+        self.DeclareVectorOutputPort("desired_state", 2 * n, self._output(0, 2 * n))
+        self.DeclareVectorOutputPort("foot_force_feedforward", 3 * NUM_LEGS, self._output(2 * n, 3 * n))
+        self.DeclareVectorOutputPort("position_command", n, self._output(0, n))
+        self.DeclareVectorOutputPort("contact_plan", NUM_LEGS, self._output(3 * n, 3 * n + NUM_LEGS))
+
+    def _output(self, start: int, stop: int):
+        def calc(context, output: BasicVector):
+            output.SetFromVector(context.get_discrete_state(self._held).get_value()[start:stop])
+        return calc
+
+    def _update(self, context, discrete_state):
+        plan: BodyFeetTrajectory = self._trajectory.Eval(context)
+        t = context.get_time()
+        q0, _ = joint_reference(plan, t, self._topology, self._params)
+        q1, _ = joint_reference(plan, t + self._dt, self._topology, self._params)
+        v = (q1 - q0) / self._dt if t + self._dt <= plan.end_time else np.zeros(NUM_JOINTS)
+        tc = float(np.clip(t, plan.start_time, plan.end_time))
+        contact = plan.contact(tc)
+        forces = np.where(contact[:, None], plan.foot_forces(tc), 0.0)
+        discrete_state.set_value(self._held, np.concatenate([q0, v, forces.reshape(-1), contact.astype(float)]))

@@ -1,0 +1,136 @@
+"""A kinematic alternating-tripod walking plan: the heuristic the BLC's optimisation improves on.
+
+Body: minimum-jerk motion from start to goal (position and yaw), at the standing height above
+the mean ground under its nominal footholds. Feet: tripod A (MF, RB, LB) and B (MB, RF, LF)
+swing in alternate phases of equal length; each foot lands on the nominal foothold of the body
+pose half a stance later (a Raibert-style placement that keeps the foot centred in its
+kinematic box), at the terrain's height, and swings over the ground between with a fixed apex
+clearance. Stance feet share the body weight equally. It is a BodyFeetTrajectory for the
+InverseKinematicsTracker, a fallback when an optimisation fails, and an initial guess.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from qz_drake.errors import ConfigError, bad_value
+from qz_drake.robot.params import DEFAULT_PARAMS, NUM_LEGS, TRIPOD_A, TRIPOD_B, QingzhuiParams
+from qz_drake.robot.topology import Topology
+
+GRAVITY = 9.81
+# Fraction of a swing in which the foot covers its horizontal distance.
+SWING_HORIZONTAL_FRACTION = 0.75
+
+
+def _min_jerk(s):
+    s = np.clip(s, 0.0, 1.0)
+    return s**3 * (10 - 15 * s + 6 * s**2)
+
+
+@dataclasses.dataclass
+class TripodGaitPlan:
+    """Body and feet of an alternating tripod walk; satisfies BodyFeetTrajectory."""
+
+    heightmap: object
+    topology: Topology
+    start_xy_yaw: tuple[float, float, float]
+    goal_xy_yaw: tuple[float, float, float]
+    start_time: float
+    duration: float
+    # Duration of one swing (= one stance) phase. [s]
+    phase_duration: float = 0.4
+    # Swing apex above the higher of lift-off, landing and the ground in between. [m]
+    swing_clearance: float = 0.08
+    params: QingzhuiParams = DEFAULT_PARAMS
+
+    def __post_init__(self):
+        if not self.duration > 0:
+            raise bad_value("duration", self.duration, "must be positive", ConfigError)
+        if not self.phase_duration > 0:
+            raise bad_value("phase_duration", self.phase_duration, "must be positive", ConfigError)
+        self.num_phases = max(2, int(math.ceil(self.duration / self.phase_duration)))
+        self.end_time = self.start_time + self.num_phases * self.phase_duration + self.phase_duration
+        # Foot placements: for each leg, a list of (land_time, position) with the first at start.
+        self._holds: list[list[tuple[float, np.ndarray]]] = []
+        for leg in range(NUM_LEGS):
+            first_swing = 0 if leg in TRIPOD_A else 1
+            holds = [(self.start_time, self._foothold(leg, self.start_time))]
+            for k in range(first_swing, self.num_phases, 2):
+                land = self.start_time + (k + 1) * self.phase_duration
+                holds.append((land, self._foothold(leg, min(land + self.phase_duration / 2,
+                                                            self.start_time + self.duration))))
+            self._holds.append(holds)
+
+    # -- body -----------------------------------------------------------------------------
+    def _pose_2d(self, t: float) -> tuple[float, float, float]:
+        s = float(_min_jerk((t - self.start_time) / self.duration))
+        x0, y0, yaw0 = self.start_xy_yaw
+        x1, y1, yaw1 = self.goal_xy_yaw
+        dyaw = math.atan2(math.sin(yaw1 - yaw0), math.cos(yaw1 - yaw0))
+        return x0 + s * (x1 - x0), y0 + s * (y1 - y0), yaw0 + s * dyaw
+
+    def _nominal_world(self, t: float) -> np.ndarray:
+        x, y, yaw = self._pose_2d(t)
+        c, s = math.cos(yaw), math.sin(yaw)
+        p = self.topology.footholds_B[:, :2]
+        return np.stack([x + c * p[:, 0] - s * p[:, 1], y + s * p[:, 0] + c * p[:, 1]], axis=1)
+
+    def base_position(self, t: float) -> np.ndarray:
+        x, y, _ = self._pose_2d(t)
+        xy = self._nominal_world(t)
+        ground = float(np.mean(self.heightmap.height(xy[:, 0], xy[:, 1])))
+        return np.array([x, y, ground + self.params.standing_height])
+
+    def base_rpy(self, t: float) -> np.ndarray:
+        return np.array([0.0, 0.0, self._pose_2d(t)[2]])
+
+    # -- feet -----------------------------------------------------------------------------
+    def _foothold(self, leg: int, t: float) -> np.ndarray:
+        xy = self._nominal_world(t)[leg]
+        return np.array([xy[0], xy[1], float(self.heightmap.height(xy[0], xy[1])) + self.params.foot_radius])
+
+    def _swing(self, leg: int, t: float):
+        """(lift, land, s) if the leg swings at t, else None."""
+        holds = self._holds[leg]
+        for k in range(1, len(holds)):
+            land = holds[k][0]
+            lift = land - self.phase_duration
+            if lift <= t < land:
+                return holds[k - 1][1], holds[k][1], (t - lift) / self.phase_duration
+        return None
+
+    def foot_positions(self, t: float) -> np.ndarray:
+        out = np.zeros((NUM_LEGS, 3))
+        for leg in range(NUM_LEGS):
+            swing = self._swing(leg, t)
+            if swing is None:
+                out[leg] = [p for land, p in self._holds[leg] if land <= t + 1e-12][-1] \
+                    if t >= self._holds[leg][0][0] else self._holds[leg][0][1]
+                continue
+            a, b, s = swing
+            # The foot reaches its landing point over the ground before it descends the last
+            # part: a foot that lags its target and touches down early would drag and shove.
+            blend = float(_min_jerk(s / SWING_HORIZONTAL_FRACTION))
+            p = a + blend * (b - a)
+            line = a[None, :2] + np.linspace(0, 1, 9)[:, None] * (b - a)[None, :2]
+            ground = float(np.max(self.heightmap.height(line[:, 0], line[:, 1]))) + self.params.foot_radius
+            apex = max(a[2], b[2], ground) + self.swing_clearance
+            base = a[2] + blend * (b[2] - a[2])
+            p[2] = base + (apex - min(a[2], b[2])) * math.sin(math.pi * s) if s < 1 else b[2]
+            out[leg] = p
+        return out
+
+    def contact(self, t: float) -> np.ndarray:
+        return np.array([self._swing(leg, t) is None for leg in range(NUM_LEGS)])
+
+    def foot_forces(self, t: float) -> np.ndarray:
+        stance = self.contact(t)
+        f = np.zeros((NUM_LEGS, 3))
+        f[stance, 2] = self.params.total_mass * GRAVITY / max(int(stance.sum()), 1)
+        return f
+
+
+__all__ = ["TripodGaitPlan", "TRIPOD_A", "TRIPOD_B"]

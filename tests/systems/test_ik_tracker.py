@@ -1,0 +1,70 @@
+"""IK tracking of a body-and-feet plan: references by hand, and a 1 m walk in simulation."""
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput
+
+from qz_drake.config import Scenario, TerrainConfig
+from qz_drake.robot import kinematics
+from qz_drake.robot.topology import get_topology
+from qz_drake.simulation import add_tracking_controller
+from qz_drake.station import make_station
+from qz_drake.systems.ik_tracker import joint_reference
+from qz_drake.systems.reference_gait import TripodGaitPlan
+from qz_drake.systems.state_layout import tilt_deg
+from qz_drake.terrain import make_terrain
+
+
+def _plan(topology="nominal", **kw):
+    return TripodGaitPlan(heightmap=make_terrain("flat"), topology=get_topology(topology),
+                          start_xy_yaw=(0.0, 0.0, 0.0), goal_xy_yaw=(1.0, 0.0, 0.0),
+                          start_time=0.5, duration=4.0, **kw)
+
+
+def test_plan_alternates_tripods_and_keeps_stance_feet_still():
+    plan = _plan()
+    assert plan.contact(0.6).tolist() == [False, True, False, True, False, True]  # A swings first
+    assert plan.contact(1.0).tolist() == [True, False, True, False, True, False]
+    # A stance foot does not move; a swinging one rises above the ground.
+    np.testing.assert_allclose(plan.foot_positions(1.0)[0], plan.foot_positions(1.2)[0])
+    assert plan.foot_positions(0.7)[0, 2] > 0.03 + 0.05
+    # Three stance feet carry the weight.
+    assert plan.foot_forces(1.0)[:, 2].sum() == pytest.approx(plan.params.total_mass * 9.81)
+    np.testing.assert_allclose(plan.base_position(plan.end_time)[:2], [1.0, 0.0], atol=1e-9)
+
+
+def test_joint_reference_reproduces_the_planned_feet():
+    plan = _plan("front_bend")
+    for t in (0.5, 0.7, 1.9, 3.3):
+        q, ok = joint_reference(plan, t, plan.topology)
+        assert ok.all()
+        # Forward kinematics of the references put the feet where the plan says, relative to
+        # the planned body (flat, level body: a translation).
+        p_B = kinematics.all_foot_positions(q)
+        np.testing.assert_allclose(p_B + plan.base_position(t), plan.foot_positions(t), atol=1e-9)
+
+
+def test_walks_one_metre_on_flat_ground():
+    scenario = Scenario(terrain=TerrainConfig(kind="flat", contact="boxes", region=[-2, 4, -2, 2]))
+    builder = DiagramBuilder()
+    station_diagram, info = make_station(scenario)
+    station = builder.AddSystem(station_diagram)
+    plan = TripodGaitPlan(heightmap=info.heightmap, topology=info.topology, start_xy_yaw=(0, 0, 0),
+                          goal_xy_yaw=(1.0, 0, 0), start_time=0.5, duration=4.0)
+    add_tracking_controller(builder, station, info, plan, kp=1500.0, kd=30.0)
+    log = LogVectorOutput(station.GetOutputPort("state"), builder, 0.01)
+    trunk = LogVectorOutput(station.GetOutputPort("trunk_contact"), builder, 0.01)
+    simulator = Simulator(builder.Build())
+    simulator.AdvanceTo(plan.end_time + 0.5)
+    context = simulator.get_context()
+    x = log.FindLog(context).data().T
+    times = log.FindLog(context).sample_times()
+    planned = np.array([plan.base_position(t) for t in times])
+    final_error = np.linalg.norm(x[-1, 4:6] - [1.0, 0.0])
+    rms = np.sqrt(np.mean(np.sum((x[:, 4:7] - planned) ** 2, axis=1)))
+    assert final_error < 0.15
+    assert rms < 0.06
+    assert max(tilt_deg(s) for s in x) < 5.0
+    assert not trunk.FindLog(context).data().any()
