@@ -59,9 +59,31 @@ class SimulationConfig:
 
 
 @dataclasses.dataclass
+class Waypoint:
+    # Position on the map. [m]
+    x: float = 0.0
+    y: float = 0.0
+    # Heading on arrival. [rad]
+    yaw: float = 0.0
+    # Topology to walk this leg of the route in.
+    topology: str = "nominal"
+
+
+@dataclasses.dataclass
 class ControllerConfig:
-    # "stand": joint PD (paper 000 Eq. 7) holding the topology's standing pose.
+    # "stand": joint PD (paper 000 Eq. 7) holding the topology's standing pose;
+    # "walk": missions along `route`, planned by `planner`, tracked by IK + joint PD.
     kind: str = "stand"
+    # Mission planner for "walk": "tripod" (kinematic alternating tripod plan).
+    planner: str = "tripod"
+    # Waypoints of the route for "walk", from the start.
+    route: list[Waypoint] = dataclasses.field(default_factory=list)
+    # Longest local mission along the route. [m]
+    mission_length: float = 1.0
+    # Average walking speed of a mission. [m/s]
+    speed: float = 0.25
+    # One tripod swing (= stance) phase. [s]
+    phase_duration: float = 0.4
     # Joint stiffness. [N*m/rad]
     kp: float = 1500.0
     # Joint damping. [N*m*s/rad]
@@ -94,7 +116,8 @@ class Scenario:
 
 
 DISCRETE_APPROXIMATIONS = ("lagged", "similar", "sap", "tamsi")
-CONTROLLER_KINDS = ("stand",)
+CONTROLLER_KINDS = ("stand", "walk")
+PLANNERS = ("tripod",)
 
 
 def _check_fields(schema, data, path: str) -> None:
@@ -109,7 +132,13 @@ def _check_fields(schema, data, path: str) -> None:
         if key not in fields:
             raise bad_value(f"{path}.{key}", value,
                             f"unknown field (valid: {', '.join(sorted(fields))})")
-        _check_fields(hints[key], value, f"{path}.{key}")
+        hint = hints[key]
+        if typing.get_origin(hint) is list and isinstance(value, list):
+            (item,) = typing.get_args(hint)
+            for k, entry in enumerate(value):
+                _check_fields(item, entry, f"{path}.{key}[{k}]")
+        else:
+            _check_fields(hint, value, f"{path}.{key}")
 
 
 def _positive(path: str, value: float) -> None:
@@ -160,6 +189,19 @@ def validate_scenario(scenario: Scenario) -> Scenario:
     c = scenario.controller
     if c.kind not in CONTROLLER_KINDS:
         raise bad_value("scenario.controller.kind", c.kind, f"expected one of {', '.join(CONTROLLER_KINDS)}")
+    if c.planner not in PLANNERS:
+        raise bad_value("scenario.controller.planner", c.planner, f"expected one of {', '.join(PLANNERS)}")
+    if c.kind == "walk" and not c.route:
+        raise bad_value("scenario.controller.route", c.route, "a walking scenario needs at least one waypoint")
+    for k, w in enumerate(c.route):
+        if w.topology not in TOPOLOGY_NAMES:
+            raise bad_value(f"scenario.controller.route[{k}].topology", w.topology,
+                            f"expected one of {', '.join(TOPOLOGY_NAMES)}")
+        if not all(math.isfinite(v) for v in (w.x, w.y, w.yaw)):
+            raise bad_value(f"scenario.controller.route[{k}]", [w.x, w.y, w.yaw], "must be finite")
+    _positive("scenario.controller.mission_length", c.mission_length)
+    _positive("scenario.controller.speed", c.speed)
+    _positive("scenario.controller.phase_duration", c.phase_duration)
     _positive("scenario.controller.kp", c.kp)
     _positive("scenario.controller.kd", c.kd)
     return scenario

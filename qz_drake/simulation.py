@@ -75,6 +75,8 @@ def add_tracking_controller(builder, station, info, plan, *, kp: float, kd: floa
 def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Meshcat | None = None,
              out_dir: str | Path | None = None) -> SimulationResult:
     """Simulates a scenario; writes recording.html, metrics.json and plots to out_dir if given."""
+    if scenario.controller.kind == "walk":
+        return walk(scenario, meshcat=meshcat, out_dir=out_dir, max_duration=duration)
     builder = DiagramBuilder()
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
@@ -150,4 +152,182 @@ def standing_metrics(scenario: Scenario, info, times, states, trunk) -> dict:
         "final_rpy_rad": base_rpy(states[-1]).tolist(),
         "xy_drift_m": float(xy_drift),
         "trunk_terrain_contacts": trunk_contacts,
+    }
+
+
+# Turning rate a mission allows for. [rad/s]
+_TURN_RATE = 0.4
+# Shortest mission. [s]
+_MIN_MISSION_DURATION = 1.2
+# A tilt beyond this ends the run as a fall. [deg]
+_FALL_TILT_DEG = 60.0
+
+
+def _tripod_planner(heightmap, params, control):
+    from qz_drake.robot.topology import get_topology
+    from qz_drake.systems.reference_gait import TripodGaitPlan
+
+    def plan(start, target, topology, start_time):
+        x0, y0, yaw0 = start.xy_yaw
+        dist = float(np.hypot(target[0] - x0, target[1] - y0))
+        dyaw = abs(np.arctan2(np.sin(target[2] - yaw0), np.cos(target[2] - yaw0)))
+        duration = max(dist / control.speed, dyaw / _TURN_RATE, _MIN_MISSION_DURATION)
+        return TripodGaitPlan(heightmap=heightmap, topology=get_topology(topology, params),
+                              start_xy_yaw=start.xy_yaw, goal_xy_yaw=tuple(target), start_time=start_time,
+                              duration=duration, phase_duration=control.phase_duration, params=params,
+                              start_feet_W=start.feet_W), ""
+    return plan
+
+
+def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | Path | None = None,
+         max_duration: float | None = None) -> SimulationResult:
+    """Walks a scenario's route: missions planned from the measured state, IK + joint PD."""
+    from qz_drake.robot.kinematics import all_foot_positions
+    from qz_drake.systems.ik_tracker import InverseKinematicsTracker
+    from qz_drake.systems.mission_sequencer import MissionSequencer, MissionStart, split_route
+
+    out = Path(out_dir) if out_dir is not None else None
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        meshcat = meshcat or Meshcat()
+    control = scenario.controller
+    builder = DiagramBuilder()
+    station_diagram, info = make_station(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh")
+    station = builder.AddSystem(station_diagram)
+    x0 = info.initial_state
+    targets = split_route(tuple(x0[4:6]), [(w.x, w.y, w.yaw, w.topology) for w in control.route],
+                          control.mission_length)
+    planner = _tripod_planner(info.heightmap, info.params, control)
+    feet0 = all_foot_positions(x0[7:25], info.params) + x0[4:7]
+    # The first mission starts after 0.5 s of standing (the robot settles on the ground).
+    first, _ = planner(MissionStart(0.5, (x0[4], x0[5], scenario.robot.initial_yaw), feet0),
+                       targets[0][:3], targets[0][3], 0.5)
+    sequencer = builder.AddSystem(MissionSequencer(targets=targets, planner=planner, first_plan=first,
+                                                   params=info.params))
+    tracker = builder.AddSystem(InverseKinematicsTracker(topology=info.topology, params=info.params))
+    controller = builder.AddSystem(JointPdController(kp=control.kp, kd=control.kd, params=info.params))
+    builder.Connect(station.GetOutputPort("state"), sequencer.GetInputPort("state"))
+    builder.Connect(sequencer.GetOutputPort("plan"), tracker.GetInputPort("trajectory"))
+    builder.Connect(station.GetOutputPort("state"), controller.GetInputPort("state"))
+    builder.Connect(tracker.GetOutputPort("desired_state"), controller.GetInputPort("desired_state"))
+    builder.Connect(tracker.GetOutputPort("foot_force_feedforward"), controller.GetInputPort("foot_force_feedforward"))
+    builder.Connect(controller.GetOutputPort("joint_torque"), station.GetInputPort("joint_torque"))
+    period = 1.0 / LOG_RATE
+    state_log = LogVectorOutput(station.GetOutputPort("state"), builder, period)
+    contact_log = LogVectorOutput(station.GetOutputPort("foot_contact"), builder, period)
+    trunk_log = LogVectorOutput(station.GetOutputPort("trunk_contact"), builder, period)
+    desired_log = LogVectorOutput(tracker.GetOutputPort("desired_state"), builder, period)
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    simulator.Initialize()
+    limit = scenario.simulation.duration if max_duration is None else max_duration
+    if meshcat is not None:
+        meshcat.StartRecording()
+    wall_start = time.perf_counter()
+    context = simulator.get_context()
+    station_context = station.GetMyContextFromRoot(context)
+    fell = False
+    while context.get_time() < limit:
+        simulator.AdvanceTo(min(limit, context.get_time() + 0.5))
+        x = station.GetOutputPort("state").Eval(station_context)
+        if tilt_deg(x) > _FALL_TILT_DEG:
+            fell = True
+            break
+        last = sequencer.log.plans[-1]
+        if sequencer.done and context.get_time() >= last.end_time + 0.5:
+            break
+    wall = time.perf_counter() - wall_start
+    if meshcat is not None:
+        meshcat.StopRecording()
+    times = state_log.FindLog(context).sample_times()
+    states = state_log.FindLog(context).data().T
+    contacts = contact_log.FindLog(context).data().T
+    trunk = trunk_log.FindLog(context).data()[0]
+    desired = desired_log.FindLog(context).data().T
+    metrics = walking_metrics(scenario, info, sequencer.log, targets, times, states, contacts, trunk, desired,
+                              fell=fell, timed_out=not sequencer.done or context.get_time() >= limit)
+    sim_time = float(context.get_time())
+    metrics.update(sim_time_s=sim_time, wall_time_s=wall, realtime_factor=sim_time / wall if wall > 0 else 0.0,
+                   terrain_contact=info.contact_representation, planner=control.planner)
+    files = {}
+    if out is not None:
+        from qz_drake.viz.plots import plot_walk
+        from qz_drake.viz.recording import save_recording
+
+        files["recording"] = str(save_recording(meshcat, out / "recording.html"))
+        files.update(plot_walk(times, states, contacts, desired, sequencer.log, info, out))
+        (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        files["metrics"] = str(out / "metrics.json")
+    return SimulationResult(metrics=metrics, times=times, states=states, foot_contact=contacts,
+                            trunk_contact=trunk, files=files)
+
+
+def _planned_base(plans, times):
+    """The planned base position at each time (the plan in force then), NaN before the first."""
+    out = np.full((len(times), 3), np.nan)
+    for plan in plans:
+        for k, t in enumerate(times):
+            if plan.start_time <= t:
+                out[k] = plan.base_position(min(t, plan.end_time))
+    return out
+
+
+def _foot_slip(times, states, contacts, params) -> float:
+    """Largest horizontal drift of a foot during one continuous contact. [m]"""
+    from qz_drake.robot.kinematics import all_foot_positions
+    from qz_drake.systems.state_layout import base_pose
+
+    worst = 0.0
+    feet = np.array([all_foot_positions(x[7:25], params) @ base_pose(x).rotation().matrix().T
+                     + x[4:7] for x in states])
+    for leg in range(6):
+        start = None
+        for k in range(len(times)):
+            if contacts[k, leg] > 0.5:
+                start = k if start is None else start
+                worst = max(worst, float(np.linalg.norm(feet[k, leg, :2] - feet[start, leg, :2])))
+            else:
+                start = None
+    return worst
+
+
+def walking_metrics(scenario, info, log, targets, times, states, contacts, trunk, desired, *, fell: bool,
+                    timed_out: bool) -> dict:
+    """The metrics of issue 4: success, final error, tilt, contacts, slip, tracking, solves."""
+    goal = np.array(targets[-1][:2])
+    final_error = float(np.linalg.norm(states[-1, 4:6] - goal))
+    tilts = np.array([tilt_deg(x) for x in states])
+    planned = _planned_base(log.plans, times)
+    valid = ~np.isnan(planned[:, 0])
+    tracking = float(np.sqrt(np.mean(np.sum((states[valid, 4:7] - planned[valid]) ** 2, axis=1))))
+    joint_rms = float(np.sqrt(np.mean((states[:, JOINT_Q] - desired[:, :18]) ** 2)))
+    trunk_contacts = int(np.count_nonzero(trunk > 0.5))
+    crit = scenario.success
+    fell = fell or bool(tilts.max() > crit.max_tilt_deg)
+    reasons = []
+    if log.failures:
+        reasons.append(f"mission {log.failures[0][0]} could not be planned: {log.failures[0][1]}")
+    if fell:
+        reasons.append("fell")
+    if trunk_contacts:
+        reasons.append("trunk touched the terrain")
+    if final_error > crit.max_final_xy_error:
+        reasons.append(f"final base {final_error:.2f} m from the goal")
+    if timed_out and not reasons:
+        reasons.append("ran out of simulated time")
+    return {
+        "scenario": scenario.name,
+        "success": not reasons,
+        "reason": "; ".join(reasons),
+        "final_xy_error_m": final_error,
+        "max_tilt_deg": float(tilts.max()),
+        "trunk_terrain_contacts": trunk_contacts,
+        "max_foot_slip_m": _foot_slip(times, states, contacts, info.params),
+        "tracking_rms_m": tracking,
+        "joint_tracking_rms_rad": joint_rms,
+        "missions": len(log.plans),
+        "planner_failures": len(log.failures),
+        # The tripod planner is kinematic: no BLC solves until the BLC is the planner.
+        "blc_solves": 0,
+        "blc_failures": 0,
     }

@@ -84,10 +84,12 @@ STANDING_REGION_HALF_WIDTH = 2.0
 
 
 def default_region(scenario: Scenario) -> list[float]:
-    """The part of the map a scenario's controller can reach."""
-    x, y = scenario.robot.initial_xy
+    """The part of the map a scenario's controller can reach: the start and every waypoint of
+    its route, with a margin of STANDING_REGION_HALF_WIDTH."""
+    xs = [scenario.robot.initial_xy[0]] + [w.x for w in scenario.controller.route]
+    ys = [scenario.robot.initial_xy[1]] + [w.y for w in scenario.controller.route]
     r = STANDING_REGION_HALF_WIDTH
-    return [x - r, x + r, y - r, y + r]
+    return [min(xs) - r, max(xs) + r, min(ys) - r, max(ys) + r]
 
 
 def _crop_to(heightmap, region):

@@ -108,8 +108,10 @@ class InverseKinematicsTracker(LeafSystem):
     def _update(self, context, discrete_state):
         plan: BodyFeetTrajectory = self._trajectory.Eval(context)
         t = context.get_time()
-        q0, _ = joint_reference(plan, t, self._topology, self._params)
-        q1, _ = joint_reference(plan, t + self._dt, self._topology, self._params)
+        # A plan may carry its own topology (missions can change it); else the tracker's.
+        topology = getattr(plan, "topology", None) or self._topology
+        q0, _ = joint_reference(plan, t, topology, self._params)
+        q1, _ = joint_reference(plan, t + self._dt, topology, self._params)
         v = (q1 - q0) / self._dt if t + self._dt <= plan.end_time else np.zeros(NUM_JOINTS)
         tc = float(np.clip(t, plan.start_time, plan.end_time))
         contact = plan.contact(tc)

@@ -45,6 +45,8 @@ class TripodGaitPlan:
     # Swing apex above the higher of lift-off, landing and the ground in between. [m]
     swing_clearance: float = 0.08
     params: QingzhuiParams = DEFAULT_PARAMS
+    # Measured foot-sphere centres at the start (6, 3); None: nominal footholds on the ground.
+    start_feet_W: np.ndarray | None = None
 
     def __post_init__(self):
         if not self.duration > 0:
@@ -57,7 +59,9 @@ class TripodGaitPlan:
         self._holds: list[list[tuple[float, np.ndarray]]] = []
         for leg in range(NUM_LEGS):
             first_swing = 0 if leg in TRIPOD_A else 1
-            holds = [(self.start_time, self._foothold(leg, self.start_time))]
+            first = (self._foothold(leg, self.start_time) if self.start_feet_W is None
+                     else np.asarray(self.start_feet_W[leg], dtype=float))
+            holds = [(self.start_time, first)]
             for k in range(first_swing, self.num_phases, 2):
                 land = self.start_time + (k + 1) * self.phase_duration
                 holds.append((land, self._foothold(leg, min(land + self.phase_duration / 2,

@@ -63,3 +63,65 @@ def plot_standing(times, states, contacts, info, path: str | Path) -> Path:
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return Path(path)
+
+
+def plot_walk(times, states, contacts, desired, log, info, out_dir: str | Path) -> dict:
+    """Planned vs tracked base path and height, foot heights with contact phases, joint
+    tracking error. Returns {name: path}."""
+    from qz_drake.robot.kinematics import all_foot_positions
+    from qz_drake.systems.state_layout import base_pose
+
+    out = Path(out_dir)
+    files = {}
+    planned = np.full((len(times), 3), np.nan)
+    for plan in log.plans:
+        for k, t in enumerate(times):
+            if plan.start_time <= t:
+                planned[k] = plan.base_position(min(t, plan.end_time))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+    axes[0].plot(planned[:, 0], planned[:, 1], "k--", label="planned")
+    axes[0].plot(states[:, 4], states[:, 5], "C0", label="tracked")
+    targets = np.array([t[:2] for t in log.targets])
+    axes[0].plot(targets[:, 0], targets[:, 1], "r^", label="mission targets")
+    axes[0].set_xlabel("x [m]")
+    axes[0].set_ylabel("y [m]")
+    axes[0].set_aspect("equal", adjustable="datalim")
+    axes[0].legend()
+    axes[1].plot(times, planned[:, 2], "k--", label="planned")
+    axes[1].plot(times, states[:, 6], "C0", label="tracked")
+    axes[1].set_xlabel("time [s]")
+    axes[1].set_ylabel("base height [m]")
+    axes[1].legend()
+    fig.suptitle("base: planned vs tracked")
+    fig.tight_layout()
+    files["base_plot"] = str(out / "base_path.png")
+    fig.savefig(files["base_plot"], dpi=100)
+    plt.close(fig)
+
+    feet = np.array([all_foot_positions(x[7:25], info.params) @ base_pose(x).rotation().matrix().T + x[4:7]
+                     for x in states])
+    fig, axes = plt.subplots(6, 1, figsize=(10, 9), sharex=True)
+    for i, leg in enumerate(LEG_NAMES):
+        axes[i].plot(times, feet[:, i, 2], "C0")
+        lo, hi = feet[:, i, 2].min(), feet[:, i, 2].max() + 1e-3
+        axes[i].fill_between(times, lo, hi, where=contacts[:, i] > 0.5, color="g", alpha=0.2, step="post")
+        axes[i].set_ylabel(leg)
+    axes[-1].set_xlabel("time [s] (green: foot in contact)")
+    fig.suptitle("foot heights [m] and contact phases")
+    fig.tight_layout()
+    files["feet_plot"] = str(out / "foot_heights.png")
+    fig.savefig(files["feet_plot"], dpi=100)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(10, 3.5))
+    error = np.degrees(np.abs(states[:, 7:25] - desired[:, :18]))
+    ax.plot(times, error.max(axis=1), label="max over joints")
+    ax.plot(times, np.sqrt(np.mean(error**2, axis=1)), label="RMS over joints")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("joint tracking error [deg]")
+    ax.legend()
+    fig.tight_layout()
+    files["joint_plot"] = str(out / "joint_tracking.png")
+    fig.savefig(files["joint_plot"], dpi=100)
+    plt.close(fig)
+    return files

@@ -1,0 +1,124 @@
+"""Chains local missions along a route (paper 000, section III-B).
+
+A route is a list of waypoints, each with a topology. The sequencer splits it into missions no
+longer than ``mission_length`` and, when a mission's plan ends, plans the next one from the
+*measured* state (base pose and feet), so that tracking errors do not accumulate. The planner is
+any callable ``plan(start, target, topology, start_time) -> (plan or None, reason)``: the
+kinematic tripod plan now, the BLC's optimisation once it is wired in.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Callable
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem
+
+from qz_drake.robot.kinematics import all_foot_positions
+from qz_drake.systems.state_layout import STATE_SIZE, base_pose, base_rpy
+
+
+@dataclasses.dataclass
+class MissionStart:
+    """The measured start of a mission."""
+
+    time: float
+    xy_yaw: tuple[float, float, float]
+    feet_W: np.ndarray  # (6, 3) measured foot-sphere centres
+
+
+@dataclasses.dataclass
+class MissionLog:
+    """What happened to each mission."""
+
+    targets: list = dataclasses.field(default_factory=list)
+    topologies: list = dataclasses.field(default_factory=list)
+    start_times: list = dataclasses.field(default_factory=list)
+    failures: list = dataclasses.field(default_factory=list)  # (index, reason)
+    plans: list = dataclasses.field(default_factory=list)
+
+
+def split_route(start_xy: tuple[float, float], route: list[tuple[float, float, float, str]],
+                mission_length: float) -> list[tuple[float, float, float, str]]:
+    """Local targets (x, y, yaw, topology) no further apart than mission_length along a route
+    of waypoints (x, y, yaw, topology). Intermediate targets face along their segment."""
+    targets = []
+    px, py = start_xy
+    for x, y, yaw, topology in route:
+        dist = math.hypot(x - px, y - py)
+        pieces = max(1, int(math.ceil(dist / mission_length - 1e-9)))
+        heading = math.atan2(y - py, x - px) if dist > 1e-9 else yaw
+        for k in range(1, pieces + 1):
+            s = k / pieces
+            targets.append((px + s * (x - px), py + s * (y - py), yaw if k == pieces else heading, topology))
+        px, py = x, y
+    return targets
+
+
+class MissionSequencer(LeafSystem):
+    """Gives the tracker its current plan, replanning from the measured state per mission.
+
+    .. pydrake_system::
+
+        name: MissionSequencer
+        input_ports:
+        - state
+        output_ports:
+        - plan
+
+    Args:
+        targets: local targets (x, y, yaw, topology), e.g. from :func:`split_route`.
+        planner: ``planner(start: MissionStart, target, topology, start_time)`` returning
+            ``(plan, reason)``; plan None means the mission failed (reason says why).
+        first_plan: the plan of the first mission (made from the known initial state).
+        check_period: how often the sequencer looks for a finished mission. [s]
+    """
+
+    def __init__(self, *, targets, planner: Callable, first_plan, params, check_period: float = 0.05):
+        super().__init__()
+        self._targets = list(targets)
+        self._planner = planner
+        self._params = params
+        self.log = MissionLog()
+        self._state = self.DeclareVectorInputPort("state", STATE_SIZE)
+        self._index = self.DeclareAbstractState(AbstractValue.Make(0))
+        self._plan = self.DeclareAbstractState(AbstractValue.Make(first_plan))
+        self.DeclareAbstractOutputPort("plan", lambda: AbstractValue.Make(first_plan), self._calc_plan)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(check_period, 0.0, self._update)
+        self.log.targets.append(self._targets[0])
+        self.log.topologies.append(self._targets[0][3])
+        self.log.start_times.append(first_plan.start_time)
+        self.log.plans.append(first_plan)
+
+    @property
+    def done(self) -> bool:
+        return len(self.log.plans) >= len(self._targets) or bool(self.log.failures)
+
+    def _calc_plan(self, context, output):
+        output.set_value(context.get_abstract_state(self._plan).get_value())
+
+    def _update(self, context, state):
+        index = context.get_abstract_state(self._index).get_value()
+        plan = context.get_abstract_state(self._plan).get_value()
+        t = context.get_time()
+        if t < plan.end_time or index + 1 >= len(self._targets) or self.log.failures:
+            return
+        x = self._state.Eval(context)
+        X_WB = base_pose(x)
+        feet_B = all_foot_positions(x[7:25], self._params)
+        feet_W = feet_B @ X_WB.rotation().matrix().T + X_WB.translation()
+        start = MissionStart(time=t, xy_yaw=(x[4], x[5], base_rpy(x)[2]), feet_W=feet_W)
+        target = self._targets[index + 1]
+        new_plan, reason = self._planner(start, target[:3], target[3], t)
+        self.log.targets.append(target)
+        self.log.topologies.append(target[3])
+        self.log.start_times.append(t)
+        if new_plan is None:
+            self.log.failures.append((index + 1, reason))
+            return
+        self.log.plans.append(new_plan)
+        state.get_mutable_abstract_state(self._index).set_value(index + 1)
+        state.get_mutable_abstract_state(self._plan).set_value(new_plan)

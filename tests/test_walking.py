@@ -1,0 +1,69 @@
+"""Walking scenarios: missions along a route, metrics, failure as a result, and the demo."""
+
+import json
+
+import numpy as np
+import pytest
+
+from qz_drake.cli import main
+from qz_drake.config import ControllerConfig, Scenario, TerrainConfig, Waypoint, load_scenario_text
+from qz_drake.errors import ConfigError
+from qz_drake.simulation import simulate
+from qz_drake.systems.mission_sequencer import split_route
+from qz_drake.viz.recording import recording_summary
+
+
+def test_split_route_into_missions():
+    targets = split_route((0.0, 0.0), [(2.5, 0.0, 0.0, "nominal"), (2.5, 1.0, 1.0, "split_up")], 1.0)
+    np.testing.assert_allclose([t[:2] for t in targets],
+                               [(2.5 / 3, 0), (5 / 3, 0), (2.5, 0), (2.5, 1.0)], atol=1e-12)
+    assert [t[3] for t in targets] == ["nominal"] * 3 + ["split_up"]
+    assert targets[-1][2] == 1.0
+
+
+def test_walks_a_route_on_flat_ground(tmp_path):
+    scenario = Scenario(name="walk", terrain=TerrainConfig(kind="flat", params={"length": 6.0}),
+                        controller=ControllerConfig(kind="walk", route=[Waypoint(x=1.5), Waypoint(x=2.0, y=0.5)]))
+    scenario.simulation.duration = 20.0
+    result = simulate(scenario, out_dir=tmp_path)
+    m = result.metrics
+    assert m["success"], m
+    assert m["final_xy_error_m"] < 0.15 and m["trunk_terrain_contacts"] == 0
+    assert m["missions"] == 3 and m["tracking_rms_m"] < 0.06
+    for key in ("max_tilt_deg", "max_foot_slip_m", "blc_solves", "blc_failures", "sim_time_s",
+                "wall_time_s", "realtime_factor"):
+        assert key in m
+    assert recording_summary(tmp_path / "recording.html")["has_animation"]
+    for name in ("base_path.png", "foot_heights.png", "joint_tracking.png", "metrics.json"):
+        assert (tmp_path / name).is_file()
+
+
+def test_an_unreachable_goal_in_too_little_time_is_a_reported_failure(tmp_path, capsys):
+    path = tmp_path / "s.yaml"
+    path.write_text("name: short\nsimulation: {duration: 2.0}\n"
+                    "controller: {kind: walk, route: [{x: 3.0}]}\n")
+    code = main(["simulate", str(path), "--out", str(tmp_path / "o")])
+    metrics = json.loads(capsys.readouterr().out)
+    assert code == 1 and not metrics["success"] and metrics["reason"]
+    assert json.loads((tmp_path / "o" / "metrics.json").read_text())["success"] is False
+
+
+@pytest.mark.parametrize("text, field", [
+    ("controller: {kind: walk}", "scenario.controller.route"),
+    ("controller: {kind: walk, route: [{x: 1.0, topolgy: nominal}]}", r"scenario.controller.route\[0\].topolgy"),
+    ("controller: {kind: walk, route: [{x: 1.0, topology: flat}]}", r"scenario.controller.route\[0\].topology"),
+    ("controller: {kind: run}", "scenario.controller.kind"),
+])
+def test_bad_walking_scenarios_name_the_field(text, field):
+    with pytest.raises(ConfigError, match=field):
+        load_scenario_text(text)
+
+
+def test_demo_writes_recording_picture_and_metrics(tmp_path):
+    from qz_drake.demo import run_demo
+
+    summary = run_demo(tmp_path)
+    assert summary["success"], summary
+    assert recording_summary(tmp_path / "recording.html")["has_animation"]
+    assert (tmp_path / "world.png").stat().st_size > 10_000
+    assert json.loads((tmp_path / "metrics.json").read_text())["runs"]["walk_grid_map"]["success"]
