@@ -30,6 +30,8 @@ test-fast: $(STAMP)
 	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
 
 bench: $(STAMP)
+	# pyastar2d, the C++ A* that `qz bench astar` compares against.
+	$(PY) -m pip install -q -e '.[bench]'
 	$(VENV)/bin/qz bench all --json
 
 urdf: $(STAMP)
