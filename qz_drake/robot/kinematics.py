@@ -102,6 +102,21 @@ def foot_jacobian(leg: int | str, q_leg: np.ndarray,
     return params.R_BL(i) @ J_m @ _T
 
 
+def shank_rotation(leg: int | str, q_leg: np.ndarray, params: QingzhuiParams = DEFAULT_PARAMS) -> np.ndarray:
+    """Orientation of the shank (and the foot welded to it) in the base frame, (..., 3, 3):
+    R_BL Rx(m0) Rz(m2), since the parallelogram keeps the shank at the absolute angle m2."""
+    i = leg_index(leg)
+    m = urdf_to_motor(q_leg)
+    c0, s0 = np.cos(m[..., 0]), np.sin(m[..., 0])
+    c2, s2 = np.cos(m[..., 2]), np.sin(m[..., 2])
+    zero, one = np.zeros_like(c0), np.ones_like(c0)
+    Rx = np.stack([np.stack([one, zero, zero], -1), np.stack([zero, c0, -s0], -1),
+                   np.stack([zero, s0, c0], -1)], -2)
+    Rz = np.stack([np.stack([c2, -s2, zero], -1), np.stack([s2, c2, zero], -1),
+                   np.stack([zero, zero, one], -1)], -2)
+    return params.R_BL(i) @ Rx @ Rz
+
+
 def all_foot_positions(q: np.ndarray, params: QingzhuiParams = DEFAULT_PARAMS) -> np.ndarray:
     """All six feet in the base frame from the 18 URDF angles (..., 18) -> (..., 6, 3)."""
     q = np.asarray(q, dtype=float)
@@ -140,6 +155,32 @@ def leg_inverse_kinematics(leg: int | str, p_BF: np.ndarray, bend: int | str,
         lower, upper = params.joint_limits()
         reachable &= np.all((q >= lower - 1e-9) & (q <= upper + 1e-9), axis=-1)
     return q, reachable
+
+
+def all_legs_inverse_kinematics(p_BF: np.ndarray, bends, params: QingzhuiParams = DEFAULT_PARAMS
+                                ) -> tuple[np.ndarray, np.ndarray]:
+    """Leg IK for all six feet at once: p_BF (..., 6, 3), bends (6,) -> q (..., 6, 3), ok (..., 6).
+
+    The same solution as :func:`leg_inverse_kinematics` leg by leg, vectorised across legs
+    (the tracker calls it hundreds of times per simulated second)."""
+    hips = np.array(params.hip_positions, dtype=float)
+    R = np.stack([params.R_BL(i) for i in range(NUM_LEGS)])
+    signs = np.array([bend_sign(b) for b in bends], dtype=float)
+    l1, l2 = params.thigh_length, params.shank_length
+    p_L = np.einsum("...li,lij->...lj", np.asarray(p_BF, dtype=float) - hips, R)
+    x, y, z = p_L[..., 0], p_L[..., 1], p_L[..., 2]
+    planar = np.hypot(y, z)
+    dist = np.hypot(x, planar)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_beta = (l1 * l1 + dist * dist - l2 * l2) / (2.0 * l1 * dist)
+    ok = (dist <= l1 + l2) & (dist >= abs(l1 - l2)) & (dist > 1e-9) & (y > 0.0)
+    beta = np.arccos(np.clip(np.where(np.isfinite(cos_beta), cos_beta, 1.0), -1.0, 1.0))
+    m1 = np.arctan2(planar, x) - signs * beta
+    m2 = np.arctan2(planar - l1 * np.sin(m1), x - l1 * np.cos(m1))
+    q = np.stack([np.arctan2(z, y), m1, m2 - m1], axis=-1)
+    lower, upper = params.joint_limits()
+    ok &= np.all((q >= lower - 1e-9) & (q <= upper + 1e-9), axis=-1)
+    return q, ok
 
 
 def solve_leg_inverse_kinematics(leg: int | str, p_BF: np.ndarray, bend: int | str,

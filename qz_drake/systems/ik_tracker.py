@@ -18,6 +18,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RollPitchYaw
 from pydrake.systems.framework import BasicVector, LeafSystem
+from scipy.spatial.transform import Rotation
 
 from qz_drake.robot import kinematics
 from qz_drake.robot.params import DEFAULT_PARAMS, NUM_JOINTS, NUM_LEGS, QingzhuiParams
@@ -40,17 +41,58 @@ class BodyFeetTrajectory(Protocol):
 
     def contact(self, t: float) -> np.ndarray: ...  # (6,) bool
 
+    # Optional: when the stance of `leg` in force at t began (None if it swings); enables
+    # the rolling compensation of joint_reference.
+    # def stance_start(self, leg: int, t: float) -> float | None: ...
 
-def joint_reference(trajectory: BodyFeetTrajectory, t: float, topology: Topology,
-                    params: QingzhuiParams = DEFAULT_PARAMS) -> tuple[np.ndarray, np.ndarray]:
-    """q_des (18) by leg IK at time t (clamped to the plan), and a reachability mask (6,)."""
-    t = float(np.clip(t, trajectory.start_time, trajectory.end_time))
+
+def _leg_ik(trajectory, t, topology, params):
     R_WB = RollPitchYaw(trajectory.base_rpy(t)).ToRotationMatrix().matrix()
     p_BF = (trajectory.foot_positions(t) - trajectory.base_position(t)) @ R_WB
-    q = np.zeros((NUM_LEGS, 3))
-    ok = np.zeros(NUM_LEGS, dtype=bool)
-    for i in range(NUM_LEGS):
-        q[i], ok[i] = kinematics.leg_inverse_kinematics(i, p_BF[i], topology.bends[i], params)
+    q, ok = kinematics.all_legs_inverse_kinematics(p_BF, topology.bends, params)
+    return q, ok, R_WB, p_BF
+
+
+def joint_reference(trajectory: BodyFeetTrajectory, t: float, topology: Topology,
+                    params: QingzhuiParams = DEFAULT_PARAMS, *,
+                    roll_compensation: bool = True,
+                    cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """q_des (18) by leg IK at time t (clamped to the plan), and a reachability mask (6,).
+
+    A stance foot is a sphere welded to its shank: as the shank turns, the sphere rolls and its
+    centre moves by dphi x (r n) (no slip), which would carry the body ahead of the plan by a
+    centimetre per step. With ``roll_compensation`` (and a plan that reports stance_start) the
+    IK target of a stance foot is shifted by the roll predicted from the planned shank rotation
+    since touchdown, so the rolling lands the body where it was planned. ``cache`` (a dict the
+    caller keeps per plan) saves the touchdown IK between calls.
+    """
+    t = float(np.clip(t, trajectory.start_time, trajectory.end_time))
+    q, ok, R_WB, p_BF = _leg_ik(trajectory, t, topology, params)
+    if roll_compensation and hasattr(trajectory, "stance_start"):
+        touchdowns = {}
+        for i in range(NUM_LEGS):
+            td = trajectory.stance_start(i, t)
+            if td is not None and td < t and ok[i]:
+                touchdowns.setdefault(td, []).append(i)
+        targets = p_BF.copy()
+        for td, legs in touchdowns.items():
+            key = (id(trajectory), td)
+            if cache is not None and key in cache:
+                q_td, ok_td, R_WB_td = cache[key]
+            else:
+                q_td, ok_td, R_WB_td, _ = _leg_ik(trajectory, td, topology, params)
+                if cache is not None:
+                    cache[key] = (q_td, ok_td, R_WB_td)
+            for i in legs:
+                if not ok_td[i]:
+                    continue
+                R_WS_td = R_WB_td @ kinematics.shank_rotation(i, q_td[i], params)
+                R_WS = R_WB @ kinematics.shank_rotation(i, q[i], params)
+                dphi = Rotation.from_matrix(R_WS @ R_WS_td.T).as_rotvec()
+                shift_W = np.cross(dphi, [0.0, 0.0, params.foot_radius])
+                targets[i] = p_BF[i] + R_WB.T @ shift_W
+        q_shifted, ok_shifted = kinematics.all_legs_inverse_kinematics(targets, topology.bends, params)
+        q = np.where(ok_shifted[:, None], q_shifted, q)
     return q.reshape(-1), ok
 
 
@@ -89,6 +131,8 @@ class InverseKinematicsTracker(LeafSystem):
         self._params = params
         # The Delta T of Eq. 7: one update period.
         self._dt = 1.0 / rate
+        # Touchdown IK per (plan, touchdown time), for the rolling compensation.
+        self._touchdown_cache: dict = {}
         self._trajectory = self.DeclareAbstractInputPort("trajectory", AbstractValue.Make(object()))
         # Held references: q_des (18), v_des (18), forces (18), contact (6).
         self._held = self.DeclareDiscreteState(2 * NUM_JOINTS + 3 * NUM_LEGS + NUM_LEGS)
@@ -110,8 +154,10 @@ class InverseKinematicsTracker(LeafSystem):
         t = context.get_time()
         # A plan may carry its own topology (missions can change it); else the tracker's.
         topology = getattr(plan, "topology", None) or self._topology
-        q0, _ = joint_reference(plan, t, topology, self._params)
-        q1, _ = joint_reference(plan, t + self._dt, topology, self._params)
+        if len(self._touchdown_cache) > 64:
+            self._touchdown_cache.clear()
+        q0, _ = joint_reference(plan, t, topology, self._params, cache=self._touchdown_cache)
+        q1, _ = joint_reference(plan, t + self._dt, topology, self._params, cache=self._touchdown_cache)
         v = (q1 - q0) / self._dt if t + self._dt <= plan.end_time else np.zeros(NUM_JOINTS)
         tc = float(np.clip(t, plan.start_time, plan.end_time))
         contact = plan.contact(tc)

@@ -127,6 +127,18 @@ class TripodGaitPlan:
             out[leg] = p
         return out
 
+    def __deepcopy__(self, memo):
+        # A plan is immutable once made; Drake copies abstract values (state, outputs) often,
+        # and a deep copy would copy the heightmap each time.
+        return self
+
+    def stance_start(self, leg: int, t: float) -> float | None:
+        """When the stance of `leg` in force at t began; None while it swings."""
+        if self._swing(leg, t) is not None:
+            return None
+        lands = [land for land, _ in self._holds[leg] if land <= t + 1e-12]
+        return lands[-1] if lands else self._holds[leg][0][0]
+
     def contact(self, t: float) -> np.ndarray:
         return np.array([self._swing(leg, t) is None for leg in range(NUM_LEGS)])
 

@@ -125,3 +125,30 @@ def test_foot_force_from_torque_inverts_the_static_balance(plant_setup):
         tau_m = kin.urdf_to_motor_torque(tau_holding)
         J_m = DEFAULT_PARAMS.R_BL(i) @ kin.leg_jacobian_motor(kin.urdf_to_motor(q_leg))
         np.testing.assert_allclose(-np.linalg.solve(J_m.T, tau_m), force, atol=1e-8)
+
+
+def test_shank_rotation_matches_drake(plant_setup):
+    plant, instance, context, order = plant_setup
+    rng = np.random.default_rng(5)
+    q_plant = plant.GetPositions(context)
+    q_legs = _random_leg_angles(rng, 6)
+    q_plant[order.q_index] = q_legs.reshape(-1)
+    plant.SetPositions(context, q_plant)
+    base = plant.GetBodyByName("base", instance).body_frame()
+    for i, leg in enumerate(LEG_NAMES):
+        shank = plant.GetFrameByName(f"{leg}_shank", instance)
+        R = shank.CalcPose(context, base).rotation().matrix()
+        np.testing.assert_allclose(kin.shank_rotation(i, q_legs[i]), R, atol=1e-9)
+
+
+@pytest.mark.parametrize("bends", [(1,) * 6, (-1, 1, -1, 1, -1, 1)])
+def test_all_legs_inverse_kinematics_matches_per_leg(bends):
+    rng = np.random.default_rng(6)
+    targets = np.array([DEFAULT_PARAMS.nominal_foothold(i) for i in range(6)]) + rng.uniform(-0.1, 0.1, (5, 6, 3))
+    targets[0, 2] = [0.0, 0.0, 2.0]  # one unreachable point
+    q, ok = kin.all_legs_inverse_kinematics(targets, bends)
+    for i in range(6):
+        q_i, ok_i = kin.leg_inverse_kinematics(i, targets[:, i], bends[i])
+        np.testing.assert_array_equal(ok[:, i], ok_i)
+        np.testing.assert_allclose(q[ok[:, i], i], q_i[ok_i], atol=1e-12)
+    assert not ok[0, 2]
