@@ -17,6 +17,7 @@ BENCHMARKS_DIR = Path(__file__).resolve().parents[1] / "benchmarks"
 # suite -> (file in benchmarks/, function); each function takes repeats= and quick= keywords.
 SUITES = {
     "sim": ("bench_sim.py", "run"),
+    "walk": ("bench_walk.py", "run"),
     "blc": ("bench_blc.py", "run"),
     "astar": ("bench_planning.py", "bench_astar"),
     "costmap": ("bench_planning.py", "bench_costmap"),

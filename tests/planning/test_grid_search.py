@@ -43,7 +43,6 @@ def _check_path(cost, result: GridPath, start, goal):
     assert result.cost == pytest.approx(_path_cost(cost, path), rel=1e-12)
 
 
-@pytest.mark.skipif(not (MOVINGAI / "arena.map.scen").is_file(), reason="shared Moving AI data missing")
 def test_arena_scenarios_match_optimal_octile_lengths():
     cost = _arena_costs()
     scenarios = [l.split("\t") for l in (MOVINGAI / "arena.map.scen").read_text().splitlines()[1:] if l.strip()]

@@ -14,7 +14,6 @@ SHARED_DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "grid_ma
 TERRAIN_PNG = SHARED_DATA / "terrain.png"
 GENERATED_PNG = SHARED_DATA / "heightmap_generated.png"
 PACKAGED = Path(__file__).resolve().parents[2] / "qz_drake" / "data"
-needs_shared_data = pytest.mark.skipif(not TERRAIN_PNG.is_file(), reason="shared grid_map data not present")
 
 
 def _small():
@@ -178,7 +177,6 @@ def test_from_image_orientation_and_scaling(tmp_path):
     assert hm.height(0.0, 0.1) == pytest.approx(0.4)
 
 
-@needs_shared_data
 def test_real_grid_map_terrain_png():
     hm = HeightMap.from_image(TERRAIN_PNG, 0.05, 0.0, 0.4)
     assert hm.shape == (500, 500)
@@ -195,7 +193,6 @@ def test_real_grid_map_terrain_png():
     assert x < 0 < y and hm.height(x, y) == pytest.approx(hm.heights[::-1][row, col])
 
 
-@needs_shared_data
 def test_real_16_bit_rgb_png():
     hm = HeightMap.from_image(GENERATED_PNG, 0.1, 0.0, 1.0)
     assert hm.shape == (195, 250)
@@ -206,7 +203,6 @@ def test_real_16_bit_rgb_png():
     assert len(np.unique(np.rint(hm.heights * 65535).astype(int) % 256)) > 100
 
 
-@needs_shared_data
 def test_packaged_grid_map_copy():
     assert (PACKAGED / "grid_map_terrain.png").read_bytes() == TERRAIN_PNG.read_bytes()
     assert (PACKAGED / "GRID_MAP_LICENSE").read_bytes() == (SHARED_DATA / "LICENSE").read_bytes()
