@@ -23,6 +23,25 @@ from qz_drake.robot.topology import Topology
 GRAVITY = 9.81
 # Fraction of a swing in which the foot covers its horizontal distance.
 SWING_HORIZONTAL_FRACTION = 0.75
+# Foothold selection: search radius around the nominal foothold [m] (inside the kinematic
+# box), grid step [m], clearance radius a safe point needs [m], and the height variation
+# tolerated within it [m].
+FOOTHOLD_SEARCH = 0.12
+FOOTHOLD_GRID = 0.02
+FOOTHOLD_CLEARANCE = 0.06
+FOOTHOLD_STEP = 0.02
+
+
+def _offsets() -> np.ndarray:
+    g = np.arange(-FOOTHOLD_SEARCH, FOOTHOLD_SEARCH + 1e-9, FOOTHOLD_GRID)
+    d = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
+    d = d[np.linalg.norm(d, axis=1) <= FOOTHOLD_SEARCH + 1e-9]
+    return d[np.argsort(np.linalg.norm(d, axis=1), kind="stable")]
+
+
+_FOOTHOLD_OFFSETS = _offsets()
+_RING = np.array([[FOOTHOLD_CLEARANCE * np.cos(a), FOOTHOLD_CLEARANCE * np.sin(a)]
+                  for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)] + [[0.0, 0.0]])
 
 
 def _min_jerk(s):
@@ -93,7 +112,19 @@ class TripodGaitPlan:
 
     # -- feet -----------------------------------------------------------------------------
     def _foothold(self, leg: int, t: float) -> np.ndarray:
+        """The safe point nearest the nominal foothold, within FOOTHOLD_SEARCH of it: a point is
+        safe when the ground within FOOTHOLD_CLEARANCE of it is level to FOOTHOLD_STEP (not on
+        an edge, not in a gap); if none is, the nominal foothold."""
         xy = self._nominal_world(t)[leg]
+        offsets = _FOOTHOLD_OFFSETS
+        candidates = xy[None, :] + offsets
+        centre = self.heightmap.height(candidates[:, 0], candidates[:, 1])
+        ring = candidates[:, None, :] + _RING[None, :, :]
+        around = self.heightmap.height(ring[..., 0], ring[..., 1])
+        safe = np.max(np.abs(around - centre[:, None]), axis=1) <= FOOTHOLD_STEP
+        if safe.any():
+            k = int(np.flatnonzero(safe)[0])  # offsets are sorted by distance
+            xy = candidates[k]
         return np.array([xy[0], xy[1], float(self.heightmap.height(xy[0], xy[1])) + self.params.foot_radius])
 
     def _swing(self, leg: int, t: float):
