@@ -1,0 +1,25 @@
+"""Notebooks run top to bottom on their short test settings (QZ_NOTEBOOK_TEST=1)."""
+
+import os
+from pathlib import Path
+
+import nbformat
+import pytest
+from nbclient import NotebookClient
+
+NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_notebook_runs(path, tmp_path, monkeypatch):
+    monkeypatch.setenv("QZ_NOTEBOOK_TEST", "1")
+    monkeypatch.setenv("QZ_NOTEBOOK_OUT", str(tmp_path))
+    nb = nbformat.read(path, as_version=4)
+    assert all(not cell.get("outputs") for cell in nb.cells if cell.cell_type == "code"), \
+        "commit notebooks with outputs cleared"
+    NotebookClient(nb, timeout=600, kernel_name="python3",
+                   resources={"metadata": {"path": str(path.parent)}}).execute()
+    texts = [o.get("text", "") + str(o.get("data", {}).get("text/plain", ""))
+             for cell in nb.cells if cell.cell_type == "code" for o in cell.get("outputs", [])]
+    assert any("'success': True" in t for t in texts), texts
+    assert (tmp_path / "recording.html").is_file()
