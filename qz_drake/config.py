@@ -59,6 +59,19 @@ class SimulationConfig:
 
 
 @dataclasses.dataclass
+class StationConfig:
+    # "torque": the station takes joint torques (the controllers compute Eq. 7);
+    # "position": it takes joint position commands, held by the drives' own PD (the plant's
+    # implicit PD actuators), as the paper drives the real robot; joint_torque is then a
+    # feedforward added to it.
+    control_mode: str = "torque"
+    # Drive stiffness in position mode. [N*m/rad]
+    position_kp: float = 3000.0
+    # Drive damping in position mode. [N*m*s/rad]
+    position_kd: float = 40.0
+
+
+@dataclasses.dataclass
 class Waypoint:
     # Position on the map. [m]
     x: float = 0.0
@@ -111,12 +124,14 @@ class Scenario:
     terrain: TerrainConfig = dataclasses.field(default_factory=TerrainConfig)
     robot: RobotConfig = dataclasses.field(default_factory=RobotConfig)
     simulation: SimulationConfig = dataclasses.field(default_factory=SimulationConfig)
+    station: StationConfig = dataclasses.field(default_factory=StationConfig)
     controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
     success: SuccessCriteria = dataclasses.field(default_factory=SuccessCriteria)
 
 
 DISCRETE_APPROXIMATIONS = ("lagged", "similar", "sap", "tamsi")
 CONTROLLER_KINDS = ("stand", "walk")
+CONTROL_MODES = ("torque", "position")
 PLANNERS = ("tripod",)
 
 
@@ -186,6 +201,14 @@ def validate_scenario(scenario: Scenario) -> Scenario:
         raise bad_value("scenario.simulation.discrete_contact_approximation",
                         s.discrete_contact_approximation,
                         f"expected one of {', '.join(DISCRETE_APPROXIMATIONS)}")
+    st = scenario.station
+    if st.control_mode not in CONTROL_MODES:
+        raise bad_value("scenario.station.control_mode", st.control_mode, f"expected one of {', '.join(CONTROL_MODES)}")
+    if st.control_mode == "position" and s.discrete_contact_approximation == "tamsi":
+        raise bad_value("scenario.simulation.discrete_contact_approximation", "tamsi",
+                        "position mode needs the plant's PD actuators, which TAMSI ignores")
+    _positive("scenario.station.position_kp", st.position_kp)
+    _positive("scenario.station.position_kd", st.position_kd)
     c = scenario.controller
     if c.kind not in CONTROLLER_KINDS:
         raise bad_value("scenario.controller.kind", c.kind, f"expected one of {', '.join(CONTROLLER_KINDS)}")

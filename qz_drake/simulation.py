@@ -205,7 +205,14 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     sequencer = builder.AddSystem(MissionSequencer(targets=targets, planner=planner, first_plan=first,
                                                    params=info.params))
     tracker = builder.AddSystem(InverseKinematicsTracker(topology=info.topology, params=info.params))
-    controller = builder.AddSystem(JointPdController(kp=control.kp, kd=control.kd, params=info.params))
+    position_mode = scenario.station.control_mode == "position"
+    # In position mode the drives' PD tracks q_des; the controller adds only the compensation
+    # and force feedforward of Eq. 7 (its PD gains are zero).
+    controller = builder.AddSystem(JointPdController(kp=0.0 if position_mode else control.kp,
+                                                     kd=0.0 if position_mode else control.kd,
+                                                     params=info.params))
+    if position_mode:
+        builder.Connect(tracker.GetOutputPort("position_command"), station.GetInputPort("joint_position_command"))
     builder.Connect(station.GetOutputPort("state"), sequencer.GetInputPort("state"))
     builder.Connect(sequencer.GetOutputPort("plan"), tracker.GetInputPort("trajectory"))
     builder.Connect(station.GetOutputPort("state"), controller.GetInputPort("state"))

@@ -2,7 +2,9 @@
 
 ``make_station(scenario, meshcat)`` returns a Diagram with
 
-* input ``joint_torque`` (18, leg-major URDF joint order, [N*m]);
+* input ``joint_torque`` (18, leg-major URDF joint order, [N*m]); in position mode
+  (``scenario.station.control_mode``) also ``joint_position_command`` (18, [rad]), held by the
+  drives' PD (the plant's implicit PD actuators), with ``joint_torque`` as feedforward;
 * outputs ``state`` (49, see qz_drake.systems.state_layout), ``joint_torque_measured`` (18),
   ``imu`` (10: orientation quaternion, gyro, accelerometer), ``foot_contact`` (6, 1.0 = in
   contact);
@@ -23,6 +25,8 @@ from pydrake.geometry import (CollisionFilterDeclaration, GeometrySet, Meshcat,
                               MeshcatVisualizer, MeshcatVisualizerParams, Role, RoleAssign)
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.multibody.tree import PdControllerGains
+from pydrake.systems.primitives import MatrixGain
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
@@ -156,6 +160,14 @@ def make_station(scenario: Scenario, meshcat: Meshcat | None = None, *,
     material = get_material(scenario.terrain.material)
     _set_robot_contact(plant, scene_graph, instance, hydroelastic=representation == "mesh",
                        material=material)
+    position_mode = scenario.station.control_mode == "position"
+    if position_mode:
+        # (Per-instance actuator lists exist only after Finalize: filter all actuators.)
+        for index in plant.GetJointActuatorIndices():
+            actuator = plant.get_mutable_joint_actuator(index)
+            if actuator.model_instance() == instance:
+                actuator.set_controller_gains(
+                    PdControllerGains(p=scenario.station.position_kp, d=scenario.station.position_kd))
     plant.Finalize()
 
     order = JointOrder(plant, instance)
@@ -183,6 +195,11 @@ def make_station(scenario: Scenario, meshcat: Meshcat | None = None, *,
     builder.Connect(plant.get_contact_results_output_port(), contact.GetInputPort("contact_results"))
 
     builder.ExportInput(plant.get_actuation_input_port(instance), "joint_torque")
+    if position_mode:
+        # Desired state [q_cmd, 0]: the drives hold positions; rates are left to their damping.
+        to_state = builder.AddSystem(MatrixGain(np.vstack([np.eye(18), np.zeros((18, 18))])))
+        builder.Connect(to_state.get_output_port(), plant.get_desired_state_input_port(instance))
+        builder.ExportInput(to_state.get_input_port(), "joint_position_command")
     builder.ExportOutput(plant.get_state_output_port(instance), "state")
     builder.ExportOutput(plant.get_net_actuation_output_port(instance), "joint_torque_measured")
     builder.ExportOutput(imu.GetOutputPort("imu"), "imu")
