@@ -1,0 +1,190 @@
+"""``qz costmap`` and ``qz astar``: the cost maps and A* body path of paper 003 (section 2).
+
+``qz costmap SCENARIO.yaml --out DIR`` writes the slope, roughness, step-height and body-cost
+maps (Eq. 7-10) of the scenario's terrain as PNGs plus ``cost_map.npz`` and prints a JSON
+summary. ``qz astar SCENARIO.yaml --out DIR --json`` plans the body-centre path (Eq. 16-20)
+from the robot's initial position to the route's last waypoint (or ``--start`` / ``--goal``),
+draws it on the cost map and prints found, length_m, cost, expansions and time_s; an
+unreachable goal is a reported outcome with exit status 1.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from qz_drake.errors import ConfigError, bad_value
+
+ROBOTS = ("qingzhui", "quadruped")
+
+
+def parse_xy(text: str | None, field: str) -> tuple[float, float] | None:
+    """``"X,Y"`` in metres -> (x, y); None passes through. Errors name ``field``."""
+    if text is None:
+        return None
+    parts = str(text).split(",")
+    try:
+        x, y = (float(p) for p in parts)
+    except ValueError:
+        raise bad_value(field, text, "expected X,Y in metres, e.g. 1.5,-0.2") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise bad_value(field, text, "must be finite")
+    return x, y
+
+
+def _footprint(robot: str):
+    from qz_drake.terrain.features import Footprint
+
+    if robot == "qingzhui":
+        return Footprint.qingzhui()
+    return Footprint.quadruped()
+
+
+def _load(args):
+    """Scenario and its heightmap, cropped to scenario.terrain.region when that is set."""
+    from qz_drake.config import load_scenario
+    from qz_drake.station import make_heightmap
+
+    scenario = load_scenario(args.scenario)
+    heightmap = make_heightmap(scenario.terrain, scenario.random_seed)
+    region = list(scenario.terrain.region)
+    if region:
+        heightmap = heightmap.crop(*region)
+    return scenario, heightmap
+
+
+def _summary(cost_map) -> dict:
+    finite = np.isfinite(cost_map.body_cost)
+    body = cost_map.body_cost[finite]
+    return {
+        "shape": list(cost_map.shape),
+        "resolution": cost_map.resolution,
+        "origin": list(cost_map.origin),
+        "traversable_fraction": float(finite.mean()),
+        "max_slope_deg": float(np.degrees(cost_map.body.slope.max())),
+        "max_roughness_m": float(cost_map.body.roughness.max()),
+        "max_step_height_m": float(cost_map.body.step_height.max()),
+        "mean_body_cost": float(body.mean()) if body.size else math.nan,
+    }
+
+
+def save_cost_map_npz(cost_map, path: str | Path) -> Path:
+    """The feature and cost arrays of a CostMap (inf = blocked) with resolution and origin."""
+    path = Path(path)
+    np.savez_compressed(path, slope=cost_map.body.slope, roughness=cost_map.body.roughness,
+                        step_height=cost_map.body.step_height, body_cost=cost_map.body_cost,
+                        feet_cost=cost_map.feet_cost, heading_cost=cost_map.heading_cost(),
+                        resolution=cost_map.resolution, origin=np.asarray(cost_map.origin))
+    return path
+
+
+def run_costmap(args) -> int:
+    from qz_drake.terrain.features import build_cost_map
+    from qz_drake.viz.costmap_plots import plot_cost_maps
+
+    scenario, heightmap = _load(args)
+    cost_map = build_cost_map(heightmap, footprint=_footprint(args.robot))
+    out = Path(args.out)
+    pngs = plot_cost_maps(cost_map, out, title=scenario.name)
+    npz = save_cost_map_npz(cost_map, out / "cost_map.npz")
+    summary = {"scenario": scenario.name, "robot": args.robot, **_summary(cost_map),
+               "png": {k: str(v) for k, v in pngs.items()}, "npz": str(npz)}
+    print(json.dumps(summary, indent=None if args.json else 2))
+    return 0
+
+
+def _endpoints(args, scenario) -> tuple[tuple[float, float], tuple[float, float]]:
+    start = parse_xy(args.start, "--start")
+    if start is None:
+        start = parse_xy(",".join(str(v) for v in scenario.robot.initial_xy), "scenario.robot.initial_xy")
+    goal = parse_xy(args.goal, "--goal")
+    if goal is None:
+        if not scenario.controller.route:
+            raise bad_value("--goal", None, "not given and scenario.controller.route has no waypoint")
+        last = scenario.controller.route[-1]
+        goal = (float(last.x), float(last.y))
+    return start, goal
+
+
+def _check_on_map(heightmap, point, field: str) -> None:
+    xmin, xmax, ymin, ymax = heightmap.bounds
+    if not (xmin <= point[0] <= xmax and ymin <= point[1] <= ymax):
+        raise bad_value(field, f"{point[0]:g},{point[1]:g}",
+                        f"off the map (x in [{xmin:g}, {xmax:g}], y in [{ymin:g}, {ymax:g}])")
+
+
+def run_astar(args) -> int:
+    from qz_drake.planning.astar import AStarConfig, astar
+    from qz_drake.terrain.features import build_cost_map
+    from qz_drake.viz.costmap_plots import plot_cost_map_path
+
+    if not (math.isfinite(args.safety_weight) and 0.0 <= args.safety_weight <= 1.0):
+        raise bad_value("--safety-weight", args.safety_weight, "must be in [0, 1]")
+    if args.margin is not None and not (math.isfinite(args.margin) and args.margin >= 0.0):
+        raise bad_value("--margin", args.margin, "must be >= 0 metres")
+    scenario, heightmap = _load(args)
+    start, goal = _endpoints(args, scenario)
+    _check_on_map(heightmap, start, "--start")
+    _check_on_map(heightmap, goal, "--goal")
+    if args.margin is not None:
+        # Plan on the box around start and goal only: a big map costs seconds per feature.
+        m = args.margin
+        heightmap = heightmap.crop(min(start[0], goal[0]) - m, max(start[0], goal[0]) + m,
+                                   min(start[1], goal[1]) - m, max(start[1], goal[1]) + m)
+    cost_map = build_cost_map(heightmap, footprint=_footprint(args.robot))
+    config = AStarConfig(distance_weight=1.0 - args.safety_weight, safety_weight=args.safety_weight)
+    result = astar(cost_map, start, goal, config=config)
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    png = plot_cost_map_path(cost_map, out / "astar_path.png",
+                             paths_xy={f"safety weight {args.safety_weight:g}": result.xy},
+                             start_xy=start, goal_xy=goal,
+                             title=f"{scenario.name}: A* ({result.reason})")
+    np.savez_compressed(out / "astar_path.npz", xy=result.xy, cells=result.cells, headings=result.headings)
+    summary = {
+        "scenario": scenario.name,
+        "robot": args.robot,
+        "found": bool(result.found),
+        "reason": result.reason,
+        "start": list(start),
+        "goal": list(goal),
+        "length_m": result.length if result.found else None,
+        "cost": result.cost if result.found else None,
+        "mean_cell_cost": result.mean_cell_cost if result.found else None,
+        "expansions": int(result.expansions),
+        "time_s": float(result.time_s),
+        "safety_weight": args.safety_weight,
+        "map_shape": list(cost_map.shape),
+        "png": str(png),
+    }
+    print(json.dumps(summary, indent=None if args.json else 2))
+    return 0 if result.found else 1
+
+
+def register(subparsers) -> None:
+    """Adds ``costmap`` and ``astar`` to the ``qz`` command."""
+    p = subparsers.add_parser("costmap", help="terrain feature and cost maps (paper 003 Eq. 2-16)")
+    p.add_argument("scenario", help="scenario YAML file (see scenarios/)")
+    p.add_argument("--out", default="out/costmap", help="output folder")
+    p.add_argument("--robot", choices=ROBOTS, default="qingzhui", help="footprint of the feet cost")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_costmap)
+
+    p = subparsers.add_parser("astar", help="A* body path over the cost map (paper 003 Eq. 16-20)")
+    p.add_argument("scenario", help="scenario YAML file (see scenarios/)")
+    p.add_argument("--out", default="out/astar", help="output folder")
+    p.add_argument("--robot", choices=ROBOTS, default="qingzhui", help="footprint of the feet cost")
+    p.add_argument("--start", default=None, metavar="X,Y",
+                   help="start [m]; default scenario.robot.initial_xy")
+    p.add_argument("--goal", default=None, metavar="X,Y",
+                   help="goal [m]; default the last waypoint of scenario.controller.route")
+    p.add_argument("--safety-weight", type=float, default=0.5,
+                   help="w_2 of Eq. 17 in [0, 1]; distance gets 1 - w_2")
+    p.add_argument("--margin", type=float, default=2.0,
+                   help="plan on the box around start and goal grown by this much [m]")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_astar)
