@@ -86,6 +86,11 @@ def leg_jacobian_motor(m: np.ndarray, params: QingzhuiParams = DEFAULT_PARAMS) -
     return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
 
 
+def leg_jacobian_urdf(q_leg: np.ndarray, params: QingzhuiParams = DEFAULT_PARAMS) -> np.ndarray:
+    """d p_L / d q (URDF angles) in the leg frame L, shape (..., 3, 3)."""
+    return leg_jacobian_motor(urdf_to_motor(q_leg), params) @ _T
+
+
 def foot_position(leg: int | str, q_leg: np.ndarray,
                   params: QingzhuiParams = DEFAULT_PARAMS) -> np.ndarray:
     """Foot-sphere centre in the base frame from one leg's URDF angles (..., 3) ordered j0, j1, j2."""
