@@ -52,18 +52,29 @@ def _standing_controller(builder, station, info, scenario: Scenario):
     return controller
 
 
-def add_tracking_controller(builder, station, info, plan, *, kp: float, kd: float):
-    """Wires plan -> InverseKinematicsTracker -> JointPdController (Eq. 7) -> station; returns
-    (tracker, controller). ``plan`` is a BodyFeetTrajectory held in a constant source."""
+def add_tracking_controller(builder, station, info, plan=None, *, kp: float, kd: float,
+                            plan_port=None, position_mode: bool = False):
+    """Wires a plan -> InverseKinematicsTracker -> JointPdController (Eq. 7) -> station; returns
+    (tracker, controller).
+
+    The plan is either a fixed BodyFeetTrajectory (``plan``, held in a constant source) or an
+    output port that provides one (``plan_port``, e.g. the MissionSequencer's). In position
+    mode the tracker's q_des goes to the station's ``joint_position_command`` (the drives' PD
+    tracks it) and the controller adds only the compensation and force feedforward.
+    """
     from pydrake.common.value import AbstractValue
     from pydrake.systems.primitives import ConstantValueSource
 
     from qz_drake.systems.ik_tracker import InverseKinematicsTracker
 
-    source = builder.AddSystem(ConstantValueSource(AbstractValue.Make(plan)))
+    if plan_port is None:
+        plan_port = builder.AddSystem(ConstantValueSource(AbstractValue.Make(plan))).get_output_port()
     tracker = builder.AddSystem(InverseKinematicsTracker(topology=info.topology, params=info.params))
-    controller = builder.AddSystem(JointPdController(kp=kp, kd=kd, params=info.params))
-    builder.Connect(source.get_output_port(), tracker.GetInputPort("trajectory"))
+    controller = builder.AddSystem(JointPdController(kp=0.0 if position_mode else kp,
+                                                     kd=0.0 if position_mode else kd, params=info.params))
+    builder.Connect(plan_port, tracker.GetInputPort("trajectory"))
+    if position_mode:
+        builder.Connect(tracker.GetOutputPort("position_command"), station.GetInputPort("joint_position_command"))
     builder.Connect(station.GetOutputPort("state"), controller.GetInputPort("state"))
     builder.Connect(tracker.GetOutputPort("desired_state"), controller.GetInputPort("desired_state"))
     builder.Connect(tracker.GetOutputPort("foot_force_feedforward"),
@@ -183,7 +194,6 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
          max_duration: float | None = None) -> SimulationResult:
     """Walks a scenario's route: missions planned from the measured state, IK + joint PD."""
     from qz_drake.robot.kinematics import all_foot_positions
-    from qz_drake.systems.ik_tracker import InverseKinematicsTracker
     from qz_drake.systems.mission_sequencer import MissionSequencer, MissionStart, split_route
 
     out = Path(out_dir) if out_dir is not None else None
@@ -204,21 +214,10 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
                        targets[0][:3], targets[0][3], 0.5)
     sequencer = builder.AddSystem(MissionSequencer(targets=targets, planner=planner, first_plan=first,
                                                    params=info.params))
-    tracker = builder.AddSystem(InverseKinematicsTracker(topology=info.topology, params=info.params))
-    position_mode = scenario.station.control_mode == "position"
-    # In position mode the drives' PD tracks q_des; the controller adds only the compensation
-    # and force feedforward of Eq. 7 (its PD gains are zero).
-    controller = builder.AddSystem(JointPdController(kp=0.0 if position_mode else control.kp,
-                                                     kd=0.0 if position_mode else control.kd,
-                                                     params=info.params))
-    if position_mode:
-        builder.Connect(tracker.GetOutputPort("position_command"), station.GetInputPort("joint_position_command"))
     builder.Connect(station.GetOutputPort("state"), sequencer.GetInputPort("state"))
-    builder.Connect(sequencer.GetOutputPort("plan"), tracker.GetInputPort("trajectory"))
-    builder.Connect(station.GetOutputPort("state"), controller.GetInputPort("state"))
-    builder.Connect(tracker.GetOutputPort("desired_state"), controller.GetInputPort("desired_state"))
-    builder.Connect(tracker.GetOutputPort("foot_force_feedforward"), controller.GetInputPort("foot_force_feedforward"))
-    builder.Connect(controller.GetOutputPort("joint_torque"), station.GetInputPort("joint_torque"))
+    tracker, _ = add_tracking_controller(builder, station, info, kp=control.kp, kd=control.kd,
+                                         plan_port=sequencer.GetOutputPort("plan"),
+                                         position_mode=scenario.station.control_mode == "position")
     period = 1.0 / LOG_RATE
     state_log = LogVectorOutput(station.GetOutputPort("state"), builder, period)
     contact_log = LogVectorOutput(station.GetOutputPort("foot_contact"), builder, period)
