@@ -87,7 +87,8 @@ class ControllerConfig:
     # "stand": joint PD (paper 000 Eq. 7) holding the topology's standing pose;
     # "walk": missions along `route`, planned by `planner`, tracked by IK + joint PD.
     kind: str = "stand"
-    # Mission planner for "walk": "tripod" (kinematic alternating tripod plan).
+    # Mission planner for "walk": "tripod" (kinematic alternating tripod plan) or "blc" (the
+    # trajectory optimisation of paper 000, solved per mission from the measured state).
     planner: str = "tripod"
     # Waypoints of the route for "walk", from the start.
     route: list[Waypoint] = dataclasses.field(default_factory=list)
@@ -132,7 +133,7 @@ class Scenario:
 DISCRETE_APPROXIMATIONS = ("lagged", "similar", "sap", "tamsi")
 CONTROLLER_KINDS = ("stand", "walk")
 CONTROL_MODES = ("torque", "position")
-PLANNERS = ("tripod",)
+PLANNERS = ("tripod", "blc")
 
 
 def _check_fields(schema, data, path: str) -> None:

@@ -207,11 +207,23 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     x0 = info.initial_state
     targets = split_route(tuple(x0[4:6]), [(w.x, w.y, w.yaw, w.topology) for w in control.route],
                           control.mission_length)
-    planner = _tripod_planner(info.heightmap, info.params, control)
+    if control.planner == "blc":
+        from qz_drake.systems.blc_plan import blc_mission_planner
+
+        planner = blc_mission_planner(info.heightmap, info.params, control)
+    else:
+        planner = _tripod_planner(info.heightmap, info.params, control)
     feet0 = all_foot_positions(x0[7:25], info.params) + x0[4:7]
     # The first mission starts after 0.5 s of standing (the robot settles on the ground).
-    first, _ = planner(MissionStart(0.5, (x0[4], x0[5], scenario.robot.initial_yaw), feet0),
-                       targets[0][:3], targets[0][3], 0.5)
+    first, reason = planner(MissionStart(0.5, (x0[4], x0[5], scenario.robot.initial_yaw), feet0, float(x0[6])),
+                            targets[0][:3], targets[0][3], 0.5)
+    if first is None:
+        metrics = {"scenario": scenario.name, "success": False, "reason": f"mission 0 could not be planned: {reason}",
+                   "missions": 0, "planner": control.planner, **_planner_counts(planner)}
+        if out is not None:
+            (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        return SimulationResult(metrics=metrics, times=np.zeros(0), states=np.zeros((0, 49)),
+                                foot_contact=np.zeros((0, 6)), trunk_contact=np.zeros(0), files={})
     sequencer = builder.AddSystem(MissionSequencer(targets=targets, planner=planner, first_plan=first,
                                                    params=info.params))
     builder.Connect(station.GetOutputPort("state"), sequencer.GetInputPort("state"))
@@ -254,7 +266,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
                               fell=fell, timed_out=not sequencer.done or context.get_time() >= limit)
     sim_time = float(context.get_time())
     metrics.update(sim_time_s=sim_time, wall_time_s=wall, realtime_factor=sim_time / wall if wall > 0 else 0.0,
-                   terrain_contact=info.contact_representation, planner=control.planner)
+                   terrain_contact=info.contact_representation, planner=control.planner, **_planner_counts(planner))
     files = {}
     if out is not None:
         from qz_drake.viz.plots import plot_walk
@@ -266,6 +278,13 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
         files["metrics"] = str(out / "metrics.json")
     return SimulationResult(metrics=metrics, times=times, states=states, foot_contact=contacts,
                             trunk_contact=trunk, files=files)
+
+
+def _planner_counts(planner) -> dict:
+    """BLC solve statistics (zero for the kinematic tripod planner)."""
+    stats = getattr(planner, "stats", {"solves": 0, "failures": 0, "solve_time_s": 0.0})
+    return {"blc_solves": stats["solves"], "blc_failures": stats["failures"],
+            "blc_solve_time_s": stats["solve_time_s"]}
 
 
 def _planned_base(plans, times):
@@ -333,7 +352,4 @@ def walking_metrics(scenario, info, log, targets, times, states, contacts, trunk
         "joint_tracking_rms_rad": joint_rms,
         "missions": len(log.plans),
         "planner_failures": len(log.failures),
-        # The tripod planner is kinematic: no BLC solves until the BLC is the planner.
-        "blc_solves": 0,
-        "blc_failures": 0,
     }

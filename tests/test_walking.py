@@ -77,3 +77,14 @@ def test_walks_in_position_mode():
     m = simulate(scenario).metrics
     assert m["success"], m
     assert m["tracking_rms_m"] < 0.05
+
+
+def test_walks_missions_planned_by_the_blc():
+    """Each mission is a BLC solve (Ipopt) from the measured state; the robot tracks it."""
+    scenario = Scenario(name="walk_blc", controller=ControllerConfig(kind="walk", planner="blc",
+                                                                     route=[Waypoint(x=1.5)]))
+    scenario.simulation.duration = 10.0
+    m = simulate(scenario).metrics
+    assert m["success"], m
+    assert m["blc_solves"] == 2 and m["blc_failures"] == 0
+    assert m["tracking_rms_m"] < 0.05 and m["final_xy_error_m"] < 0.15

@@ -28,6 +28,7 @@ class MissionStart:
     time: float
     xy_yaw: tuple[float, float, float]
     feet_W: np.ndarray  # (6, 3) measured foot-sphere centres
+    base_z: float | None = None  # measured base height [m]; None: unknown
 
 
 @dataclasses.dataclass
@@ -110,7 +111,7 @@ class MissionSequencer(LeafSystem):
         X_WB = base_pose(x)
         feet_B = all_foot_positions(x[7:25], self._params)
         feet_W = feet_B @ X_WB.rotation().matrix().T + X_WB.translation()
-        start = MissionStart(time=t, xy_yaw=(x[4], x[5], base_rpy(x)[2]), feet_W=feet_W)
+        start = MissionStart(time=t, xy_yaw=(x[4], x[5], base_rpy(x)[2]), feet_W=feet_W, base_z=float(x[6]))
         target = self._targets[index + 1]
         new_plan, reason = self._planner(start, target[:3], target[3], t)
         self.log.targets.append(target)

@@ -1,0 +1,367 @@
+"""Parameters, robot, terrain and task -> a Drake MathematicalProgram (TOWR's
+``NlpFormulation``), plus the bridge that lets Ipopt call our vectorised constraints.
+
+The bridge. Drake's Ipopt interface evaluates a generic constraint twice per iterate: with
+doubles for values, and with AutoDiffXd for the Jacobian, seeding the binding's n variables with
+an n x n identity and reading back the entries of the declared sparsity pattern. The AutoDiff
+round trip through Python costs O(n^2) per binding, so our constraints are bound in small chunks
+of samples (``samples_per_binding``), each on only the variables its rows touch. The Python
+function receives the AutoDiff vector, takes its values and derivative matrix once, evaluates the
+analytic sparse Jacobian, and returns AutoDiff outputs built by the chain rule (J @ dz), so it
+stays correct for any seeding. Linear pieces are Drake linear constraints (no Python at all).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.sparse as sp
+from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
+from pydrake.solvers import MathematicalProgram
+
+from qz_drake.trajopt import costs as cost_terms
+from qz_drake.trajopt.constraints import (AngularDynamicsConstraint, ForceConstraint,
+                                          KinematicsConstraint, SampledConstraint,
+                                          TerrainConstraint, acceleration_continuity_matrix,
+                                          linear_dynamics_matrix)
+from qz_drake.trajopt.splines import LinearSamples
+from qz_drake.trajopt.variables import BlcVariables
+
+
+class LinearConstraintTerm:
+    """lower <= A x <= upper, sparse."""
+
+    def __init__(self, name: str, A: sp.csr_matrix, lower, upper):
+        self.name = name
+        self.A = sp.csr_matrix(A)
+        m = self.A.shape[0]
+        self.lower = np.broadcast_to(np.asarray(lower, dtype=float), (m,)).copy()
+        self.upper = np.broadcast_to(np.asarray(upper, dtype=float), (m,)).copy()
+
+    @property
+    def num_constraints(self) -> int:
+        return self.A.shape[0]
+
+    def evaluate(self, x) -> np.ndarray:
+        return self.A @ x
+
+    def violation(self, x) -> np.ndarray:
+        g = self.evaluate(x)
+        return np.maximum(0.0, np.maximum(self.lower - g, g - self.upper))
+
+
+class BlcFormulation:
+    """The BLC's nonlinear program for one task (paper 000 Eq. 1-6).
+
+    Args:
+        robot: a RobotModel.
+        terrain: a TerrainModel (see terrain.as_terrain).
+        params: BlcParameters.
+        schedule: the ContactSchedule (its duration is the task's).
+        start_position: CoM at t = 0, (3,). [m]
+        start_rpy: body roll, pitch, yaw at t = 0, (3,). [rad]
+        start_feet: foot positions at t = 0, (L, 3), world. [m]
+        target: (x, y, yaw) of the CoM at t = T. [m, m, rad]
+        start_velocity: CoM velocity at t = 0, (3,). [m/s]
+    """
+
+    def __init__(self, robot, terrain, params, schedule, *, start_position, start_rpy, start_feet,
+                 target, start_velocity=(0.0, 0.0, 0.0)):
+        self.robot, self.terrain, self.params, self.schedule = robot, terrain, params, schedule
+        self.start_position = np.asarray(start_position, dtype=float).reshape(3)
+        self.start_rpy = np.asarray(start_rpy, dtype=float).reshape(3)
+        self.start_feet = np.asarray(start_feet, dtype=float).reshape(robot.num_legs, 3)
+        self.start_velocity = np.asarray(start_velocity, dtype=float).reshape(3)
+        target = np.asarray(target, dtype=float).reshape(3)
+        self.target = np.array([target[0], target[1], 0.0])
+        # The equivalent of the target yaw nearest the start yaw: turn the short way round.
+        self.target_yaw = self.start_rpy[2] + math.remainder(target[2] - self.start_rpy[2], 2 * math.pi)
+        self.variables = v = BlcVariables(schedule, params)
+        T = v.duration
+        self.dynamics_times = np.arange(0.5 * params.dynamics_dt, T, params.dynamics_dt)
+        kin = np.arange(0.0, T - 1e-9, params.kinematics_dt)
+        self.kinematics_times = np.append(kin, T)
+        self.nonlinear: list[SampledConstraint] = []
+        self.linear: list[LinearConstraintTerm] = []
+        self._build_bounds()
+        self._build_constraints()
+
+    # -- bounds (Eq. 6 and the body's attitude range) ----------------------------------------
+    def _build_bounds(self) -> None:
+        v, p = self.variables, self.params
+        lo = np.full(v.num_vars, -np.inf)
+        hi = np.full(v.num_vars, np.inf)
+        rp = v.base_ang[:, 0, :2]
+        lo[rp], hi[rp] = -p.max_roll_pitch, p.max_roll_pitch
+        self.lower, self.upper = lo, hi
+        self.fix_start(lo)
+        self.fix_start(hi)
+        end = -1
+        for values, idx in ((self.target[:2], v.base_lin[end, 0, :2]), (0.0, v.base_lin[end, 1]),
+                            (self.target_yaw, v.base_ang[end, 0, 2]), (0.0, v.base_ang[end, 1])):
+            lo[idx] = values
+            hi[idx] = values
+
+    def fix_start(self, x: np.ndarray) -> None:
+        """Writes the start state (body pose and rates, start footholds) into x."""
+        v = self.variables
+        x[v.base_lin[0, 0]] = self.start_position
+        x[v.base_lin[0, 1]] = self.start_velocity
+        x[v.base_ang[0, 0]] = self.start_rpy
+        x[v.base_ang[0, 1]] = 0.0
+        for leg in range(v.num_legs):
+            x[v.footholds[leg][0]] = self.start_feet[leg]
+
+    # -- constraints --------------------------------------------------------------------------
+    def _build_constraints(self) -> None:
+        v, p, robot, terrain = self.variables, self.params, self.robot, self.terrain
+        weight = robot.weight
+        if p.enabled("dynamics"):
+            A, b = linear_dynamics_matrix(v, self.dynamics_times, robot.gravity)
+            self.linear.append(LinearConstraintTerm("dynamics/linear", A, b, b))
+            self.nonlinear.append(AngularDynamicsConstraint(v, self.dynamics_times,
+                                                            robot.inertia_matrix / weight))
+        if p.enabled("base_acceleration"):
+            A = acceleration_continuity_matrix(v)
+            if A is not None:
+                self.linear.append(LinearConstraintTerm("base_acceleration", A, 0.0, 0.0))
+        if p.enabled("kinematics"):
+            self.nonlinear.append(KinematicsConstraint(v, self.kinematics_times,
+                                                       robot.nominal_footholds, robot.box_half_sizes))
+        if p.enabled("terrain"):
+            stance = [self._foothold_samples(leg, s) for leg in range(v.num_legs)
+                      for s in range(1, len(v.footholds[leg]))]
+            if stance:
+                self.nonlinear.append(TerrainConstraint(
+                    LinearSamples.concatenate(stance), terrain, robot.foot_radius, 0.0, 0.0,
+                    name="terrain/stance"))
+            clearance = self._swing_samples(p.swing_clearance_fractions)
+            if clearance is not None:
+                self.nonlinear.append(TerrainConstraint(
+                    clearance, terrain, robot.foot_radius, 0.0, np.inf, name="terrain/swing"))
+        if p.enabled("swing"):
+            apex = self._swing_samples((0.5,))
+            if apex is not None:
+                self.nonlinear.append(TerrainConstraint(
+                    apex, terrain, robot.foot_radius, p.swing_apex_height, np.inf,
+                    name="swing/apex"))
+        if p.enabled("force"):
+            f_max = robot.max_normal_forces if p.max_normal_force is None else \
+                np.full(v.num_legs, p.max_normal_force)
+            forces, footholds, limits, segments = [], [], [], []
+            for leg in range(v.num_legs):
+                f, h = self._force_samples(leg)
+                if f is None:
+                    continue
+                start = sum(len(x.weights) for x in forces)
+                forces.append(f)
+                footholds.append(h)
+                limits.append(np.full(f.num_samples, f_max[leg] / weight))
+                segments.append((start, start + f.num_samples))
+            if forces:
+                self.nonlinear.append(ForceConstraint(
+                    LinearSamples.concatenate(forces), LinearSamples.concatenate(footholds),
+                    terrain, p.friction_coefficient, p.min_normal_force / weight,
+                    np.concatenate(limits), segments=segments))
+
+    def _foothold_samples(self, leg: int, stance: int) -> LinearSamples:
+        idx = self.variables.footholds[leg][stance]
+        return LinearSamples(np.ones((1, 1, 3)), idx.reshape(1, 1, 3))
+
+    def _swing_samples(self, fractions) -> LinearSamples | None:
+        v = self.variables
+        parts = []
+        for leg in range(v.num_legs):
+            for t0, t1 in v.schedule.swing_intervals(leg):
+                times = t0 + np.asarray(fractions, dtype=float) * (t1 - t0)
+                parts.append(v.foot_position[leg].sample(times, 0))
+        return LinearSamples.concatenate(parts) if parts else None
+
+    def _force_samples(self, leg: int):
+        """Force and foothold samples of one foot: per stance, at its force nodes and (with
+        force_samples_per_polynomial = 2) midway between them; the last one of a stance is
+        read from the left (the force just before liftoff)."""
+        v, p = self.variables, self.params
+        per_stance = int(p.force_polynomials_per_stance) * int(p.force_samples_per_polynomial)
+        spline = v.foot_force[leg]
+        forces, stance_ids = [], []
+        for s, (t0, t1) in enumerate(v.schedule.stance_intervals(leg)):
+            k = np.arange(per_stance + 1)
+            if p.zero_force_at_touchdown:
+                last = len(v.footholds[leg]) - 1
+                k = k[~(((k == 0) & (s > 0)) | ((k == per_stance) & (s < last)))]
+            times = np.linspace(t0, t1, per_stance + 1)[k]  # exact end points
+            inner = k < per_stance
+            if inner.any():
+                forces.append(spline.sample(times[inner], 0, side="right"))
+            if (~inner).any():
+                forces.append(spline.sample(times[~inner], 0, side="left"))
+            stance_ids.append(np.full(len(times), s))
+        if not forces:
+            return None, None
+        forces = LinearSamples.concatenate(forces)
+        stance_ids = np.concatenate(stance_ids)
+        idx = v.footholds[leg][stance_ids]
+        footholds = LinearSamples(np.ones((len(stance_ids), 1, 3)), idx[:, None, :])
+        return forces, footholds
+
+    # -- costs ------------------------------------------------------------------------------
+    def cost_terms(self):
+        """[(name, Q, columns)] of the enabled costs."""
+        out = []
+        for name, weight in self.params.costs:
+            if weight <= 0:
+                continue
+            A = cost_terms.cost_matrix(name, self.variables, self.dynamics_times)
+            Q, columns = cost_terms.quadratic_cost_terms(A, weight)
+            out.append((name, Q, columns))
+        return out
+
+    # -- the program --------------------------------------------------------------------------
+    @property
+    def num_constraints(self) -> int:
+        """Rows of all constraints (bounds on variables not counted)."""
+        return (sum(c.num_constraints for c in self.nonlinear)
+                + sum(c.num_constraints for c in self.linear))
+
+    def build_program(self):
+        """Returns (prog, x_vars, counter); counter['jacobians'] counts AutoDiff evaluations
+        of the first nonlinear binding (one per Ipopt iterate)."""
+        v = self.variables
+        prog = MathematicalProgram()
+        x_vars = prog.NewContinuousVariables(v.num_vars, "x")
+        finite = np.isfinite(self.lower) | np.isfinite(self.upper)
+        idx = np.flatnonzero(finite)
+        if len(idx):
+            prog.AddBoundingBoxConstraint(self.lower[idx], self.upper[idx], x_vars[idx])
+        counter = {"jacobians": 0}
+        cache = EvaluationCache(v.num_vars)
+        # Drake calls visualization callbacks with the whole x whenever Ipopt evaluates the
+        # objective at a new point; the constraint bindings then reuse one vectorised
+        # evaluation per constraint instead of one per binding.
+        prog.AddVisualizationCallback(cache.set_x, x_vars)
+        first = True
+        for c in self.nonlinear:
+            group = ConstraintGroupCache(c, cache)
+            for start, stop in c.binding_ranges(self.params.samples_per_binding):
+                add_constraint_rows(prog, group, start, stop, x_vars, counter if first else None)
+                first = False
+        for c in self.linear:
+            A = sp.csc_matrix(c.A)
+            columns = np.flatnonzero(np.diff(A.indptr))
+            sub = A[:, columns]
+            if np.array_equal(c.lower, c.upper):
+                binding = prog.AddLinearEqualityConstraint(sub, c.lower, x_vars[columns])
+            else:
+                binding = prog.AddLinearConstraint(sub, c.lower, c.upper, x_vars[columns])
+            binding.evaluator().set_description(c.name)
+        for name, Q, columns in self.cost_terms():
+            prog.AddQuadraticCost(Q, np.zeros(len(columns)), x_vars[columns], is_convex=True)
+        return prog, x_vars, counter
+
+    # -- verdict ------------------------------------------------------------------------------
+    def violations(self, x: np.ndarray) -> list[tuple[str, float, str]]:
+        """(constraint name, max violation, where) of every constraint and of the bounds."""
+        out = []
+        for c in self.nonlinear:
+            viol = c.violation(x)
+            k = int(np.argmax(viol)) if len(viol) else 0
+            where = _describe_row(c, k)
+            out.append((c.name, float(viol.max()) if len(viol) else 0.0, where))
+        for c in self.linear:
+            viol = c.violation(x)
+            k = int(np.argmax(viol)) if len(viol) else 0
+            out.append((c.name, float(viol.max()) if len(viol) else 0.0, f"row {k}"))
+        viol = np.maximum(0.0, np.maximum(self.lower - x, x - self.upper))
+        k = int(np.argmax(viol))
+        out.append(("bounds", float(viol.max()), f"variable {k} ({self.block_of(k)})"))
+        return out
+
+    def block_of(self, index: int) -> str:
+        for name, s in self.variables.blocks.items():
+            if s.start <= index < s.stop:
+                return name
+        return "?"
+
+
+def _describe_row(c: SampledConstraint, row: int) -> str:
+    times = getattr(c, "times", None)
+    if times is None or not len(times):
+        return f"row {row}"
+    per_sample = c.num_constraints // len(times)
+    return f"t = {times[min(row // max(per_sample, 1), len(times) - 1)]:.2f} s"
+
+
+class EvaluationCache:
+    """The latest complete decision vector Ipopt evaluated (from a visualization callback)."""
+
+    def __init__(self, num_vars: int):
+        self.x = np.full(num_vars, np.nan)
+        self.version = 0
+
+    def set_x(self, x) -> None:
+        x = np.asarray(x, dtype=float)
+        if not np.array_equal(x, self.x):
+            self.x[:] = x
+            self.version += 1
+
+
+class ConstraintGroupCache:
+    """One vectorised constraint evaluated at most once per cached x, shared by its bindings."""
+
+    def __init__(self, constraint: SampledConstraint, cache: EvaluationCache):
+        self.constraint = constraint
+        self.cache = cache
+        self._values = (-1, None)
+        self._jacobian = (-1, None, None)
+
+    def values(self, columns: np.ndarray, z: np.ndarray) -> np.ndarray:
+        cache = self.cache
+        if np.array_equal(z, cache.x[columns]):
+            if self._values[0] != cache.version:
+                self._values = (cache.version, self.constraint.evaluate(cache.x))
+            return self._values[1]
+        x = np.nan_to_num(cache.x)  # other rows may be stale: only this binding's rows are used
+        x[columns] = z
+        return self.constraint.evaluate(x)
+
+    def jacobian(self, columns: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cache = self.cache
+        if np.array_equal(z, cache.x[columns]):
+            if self._jacobian[0] != cache.version:
+                self._jacobian = (cache.version, *self.constraint.evaluate_with_jacobian(cache.x))
+            return self._jacobian[1], self._jacobian[2]
+        x = np.nan_to_num(cache.x)
+        x[columns] = z
+        return self.constraint.evaluate_with_jacobian(x)
+
+
+def add_constraint_rows(prog: MathematicalProgram, group: ConstraintGroupCache, start: int,
+                        stop: int, x_vars, counter: dict | None = None):
+    """Binds rows [start, stop) of a constraint to prog on only the variables they touch, with
+    their sparsity pattern declared and their analytic Jacobian returned for AutoDiff inputs."""
+    c = group.constraint
+    entries = np.flatnonzero((c.rows >= start) & (c.rows < stop))
+    columns = np.unique(c.cols[entries])
+    n, m = len(columns), stop - start
+    flat = (c.rows[entries] - start) * n + np.searchsorted(columns, c.cols[entries])
+    pattern = np.unique(flat)
+
+    def evaluate(z):
+        if z.dtype == object:
+            if counter is not None:
+                counter["jacobians"] += 1
+            g, values = group.jacobian(columns, ExtractValue(z).reshape(-1))
+            J = np.bincount(flat, weights=values[entries], minlength=m * n).reshape(m, n)
+            dz = ExtractGradient(z)
+            if dz.shape[1] == 0:
+                return InitializeAutoDiff(g[start:stop], np.zeros((m, 0))).reshape(-1)
+            return InitializeAutoDiff(g[start:stop], J @ dz).reshape(-1)
+        return group.values(columns, z)[start:stop]
+
+    binding = prog.AddConstraint(evaluate, c.lower[start:stop], c.upper[start:stop],
+                                 x_vars[columns], f"{c.name}[{start}:{stop}]")
+    binding.evaluator().SetGradientSparsityPattern(
+        list(zip((pattern // n).tolist(), (pattern % n).tolist())))
+    return binding

@@ -1,0 +1,170 @@
+"""Initial guesses for the BLC: a straight line over the terrain, or a previous solution
+shifted in time (a warm start when the BLC replans).
+
+Straight line (TOWR's initialisation, made terrain-aware): the body moves from the start to the
+target along a smooth cubic (zero velocity at both ends); at every node its height and its roll
+and pitch follow a plane fitted to the terrain under the nominal footholds; each stance foothold
+is the nominal foothold of the body pose at the middle of that stance, dropped onto the terrain;
+swing apexes are ``swing_apex_height`` above the higher of the two footholds; and the weight is
+shared equally by the feet in stance, pushing straight up.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from qz_drake.trajopt.splines import swing_profile
+
+
+def _yaw_matrix(yaw: np.ndarray) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.zeros((len(yaw), 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
+    return R
+
+
+def terrain_fitted_pose(robot, terrain, xy: np.ndarray, yaw: np.ndarray):
+    """Height, roll and pitch (each (n,)) of a body at xy (n, 2) and yaw (n,) standing on the
+    plane through the terrain under its nominal footholds; feet over a hole or a block (more
+    than ``OUTLIER`` off the first fit) are left out of a second fit."""
+    feet_B = robot.nominal_footholds
+    R = _yaw_matrix(yaw)
+    feet_W = xy[:, None, :] + np.einsum("nij,lj->nli", R[:, :2, :2], feet_B[:, :2])
+    heights = terrain.height(feet_W[..., 0], feet_W[..., 1])  # (n, L)
+    # Fit h = a + b u + c v in the yawed frame (u forward, v left).
+    design = np.column_stack([np.ones(len(feet_B)), feet_B[:, :2]])
+    coef, *_ = np.linalg.lstsq(design, heights.T, rcond=None)  # (3, n)
+    residual = np.abs(heights - (design @ coef).T)
+    for k in np.flatnonzero(residual.max(axis=1) > OUTLIER):
+        keep = residual[k] <= np.sort(residual[k])[len(feet_B) // 2]  # the better half
+        if keep.sum() >= 3:
+            coef[:, k] = np.linalg.lstsq(design[keep], heights[k, keep], rcond=None)[0]
+    a, b, c = coef
+    pitch = -np.arctan(b)
+    roll = np.arctan(c * np.cos(pitch))
+    # The CoM sits nominal_height above the plane (vertically: the box takes up the rest).
+    z = a + robot.nominal_height
+    return z, roll, pitch
+
+
+# A foot more than this above or below the fitted plane is over a hole or a block. [m]
+OUTLIER = 0.08
+
+
+def choose_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_yaw: float,
+                    plane_z: float) -> np.ndarray:
+    """A foothold for the guess: among points of the kinematic box's footprint around the
+    nominal foothold, the one whose height is nearest the body's terrain plane, on level
+    ground, nearest the nominal (a crude foothold planner: keeps the guess out of gaps and off
+    edges)."""
+    box = robot.box_half_sizes[leg]
+    du = np.linspace(-0.7 * box[0], 0.7 * box[0], 9)
+    dv = np.linspace(-0.5 * box[1], 0.5 * box[1], 3)
+    U, V = np.meshgrid(du, dv)
+    c, s = np.cos(body_yaw), np.sin(body_yaw)
+    nominal = robot.nominal_footholds[leg, :2]
+    pu, pv = nominal[0] + U.ravel(), nominal[1] + V.ravel()
+    x = body_xy[0] + c * pu - s * pv
+    y = body_xy[1] + s * pu + c * pv
+    h, hx, hy, *_ = terrain.height_derivatives(x, y)
+    score = (np.abs(h - plane_z) + 0.05 * np.hypot(hx, hy)
+             + 0.1 * np.hypot(U.ravel() / box[0], V.ravel() / box[1]))
+    k = int(np.argmin(score))
+    return np.array([x[k], y[k], h[k] + robot.foot_radius])
+
+
+def straight_line_guess(formulation) -> np.ndarray:
+    """The straight-line initial guess x0 for a formulation."""
+    f = formulation
+    v, robot, terrain, params = f.variables, f.robot, f.terrain, f.params
+    T = v.duration
+    x0 = np.zeros(v.num_vars)
+    start, target = f.start_position, f.target
+    breaks = v.base_breaks
+    u = breaks / T
+    s, ds, _ = swing_profile(u)
+    xy = start[:2] + s[:, None] * (target[:2] - start[:2])
+    yaw = f.start_rpy[2] + s * (f.target_yaw - f.start_rpy[2])
+    z, roll, pitch = terrain_fitted_pose(robot, terrain, xy, yaw)
+    pos = np.column_stack([xy, z])
+    rpy = np.column_stack([roll, pitch, yaw])
+    # Node rates: exact for the cubic in x, y, yaw; differences for the fitted z, roll, pitch.
+    pos_rate = np.column_stack([np.outer(ds / T, target[:2] - start[:2]),
+                                np.gradient(z, breaks)])
+    rpy_rate = np.column_stack([np.gradient(roll, breaks), np.gradient(pitch, breaks),
+                                ds / T * (f.target_yaw - f.start_rpy[2])])
+    x0[v.base_lin[:, 0]] = pos
+    x0[v.base_lin[:, 1]] = pos_rate
+    x0[v.base_ang[:, 0]] = rpy
+    x0[v.base_ang[:, 1]] = rpy_rate
+
+    def body_at(t):
+        t = np.atleast_1d(t)
+        return (np.column_stack([np.interp(t, breaks, pos[:, i]) for i in range(3)]),
+                np.interp(t, breaks, yaw))
+
+    schedule = v.schedule
+    feet_z = robot.nominal_footholds[:, 2] - robot.foot_radius  # sole below the CoM
+    for leg in range(v.num_legs):
+        stances = schedule.stance_intervals(leg)
+        mids = np.array([0.5 * (a + b) for a, b in stances])
+        body, body_yaw = body_at(mids)
+        footholds = np.array([
+            choose_foothold(robot, terrain, leg, body[k, :2], body_yaw[k], body[k, 2] + feet_z[leg])
+            for k in range(len(mids))])
+        x0[v.footholds[leg]] = footholds
+        if len(stances) > 1:
+            mid = 0.5 * (footholds[:-1] + footholds[1:])
+            ground = np.maximum.reduce([footholds[:-1, 2], footholds[1:, 2],
+                                        terrain.height(mid[:, 0], mid[:, 1]) + robot.foot_radius])
+            x0[v.apex_heights[leg]] = ground + 1.5 * params.swing_apex_height
+    f.fix_start(x0)
+    _share_weight(f, x0)
+    return x0
+
+
+def _share_weight(f, x0: np.ndarray) -> None:
+    """Vertical forces at every free force node: the weight shared by the feet in stance."""
+    v = f.variables
+    schedule = v.schedule
+    for leg in range(v.num_legs):
+        nodes = v.force_nodes[leg]
+        free = nodes[:, 0, 0] >= 0
+        t = v.force_node_times[leg][free]
+        count = np.maximum(schedule.in_contact(t).sum(axis=1), 1)
+        x0[nodes[free, 0, 2]] = 1.0 / count
+        x0[nodes[free, 0, :2]] = 0.0
+        x0[nodes[free, 1]] = 0.0
+
+
+def shifted_solution_guess(formulation, solution, time_shift: float = 0.0) -> np.ndarray:
+    """An initial guess from a previous BlcSolution sampled at t + time_shift (clamped to its
+    duration): body nodes, footholds at mid-stance, apexes and forces. Quantities the previous
+    solution cannot provide (a foot's swing where it stood) fall back to the straight line."""
+    f = formulation
+    v = f.variables
+    x0 = straight_line_guess(f)
+    end = solution.duration
+
+    def at(t):
+        return np.clip(np.asarray(t, dtype=float) + time_shift, 0.0, end)
+
+    for pp, idx in ((solution.body_position, v.base_lin), (solution.body_rpy, v.base_ang)):
+        t = at(v.base_breaks)
+        x0[idx[:, 0]] = np.array([pp.value(ti).ravel() for ti in t])
+        x0[idx[:, 1]] = np.array([pp.EvalDerivative(ti, 1).ravel() for ti in t])
+    weight = f.robot.weight
+    if solution.robot.num_legs == v.num_legs:
+        for leg in range(v.num_legs):
+            stances = v.schedule.stance_intervals(leg)
+            mids = at([0.5 * (a + b) for a, b in stances])
+            feet = np.array([solution.foot_positions[leg].value(t).ravel() for t in mids])
+            x0[v.footholds[leg]] = feet
+            nodes = v.force_nodes[leg]
+            free = nodes[:, 0, 0] >= 0
+            times = at(v.force_node_times[leg][free])
+            pp = solution.foot_forces[leg]
+            x0[nodes[free, 0]] = np.array([pp.value(t).ravel() for t in times]) / weight
+            x0[nodes[free, 1]] = np.array([pp.EvalDerivative(t, 1).ravel() for t in times]) / weight
+    f.fix_start(x0)
+    return x0

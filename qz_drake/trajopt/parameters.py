@@ -1,0 +1,132 @@
+"""Parameters of the BLC's nonlinear program (paper 000 section II-A), in TOWR's manner
+(``towr/src/parameters.cc``): the discretisation, the limits, which constraints are enabled
+and which ``(cost, weight)`` pairs are added, each default with a one-line reason, and the
+solver settings. One dataclass, YAML-loadable with ``pydrake.common.yaml.yaml_load_typed``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from qz_drake.errors import ConfigError, bad_value
+
+# Every constraint the formulation knows, with the reason it is (or may be) enabled.
+CONSTRAINT_REASONS: dict[str, str] = {
+    "dynamics": "single-rigid-body dynamics (Eq. 2) at the dynamics samples",
+    "base_acceleration": "body accelerations continuous at the spline nodes, so the sampled "
+                         "dynamics hold between samples too (TOWR's BaseAcc)",
+    "kinematics": "each foot inside its box around the nominal foothold (Eq. 1)",
+    "terrain": "stance feet on the ground, swing feet above it (Eq. 4)",
+    "force": "normal force in [f_min, f_max] and inside the friction pyramid of the "
+             "terrain's tangent frame (Eq. 5)",
+    "swing": "swing apex at least swing_apex_height above the terrain",
+}
+DEFAULT_CONSTRAINTS = ("dynamics", "base_acceleration", "kinematics", "terrain", "force", "swing")
+
+# Every cost the formulation knows; none is on by default: Eq. 1-6 is a feasibility problem.
+COST_REASONS: dict[str, str] = {
+    "base_linear_acceleration": "sum of squared body accelerations at the dynamics samples: "
+                                "smoother body motion",
+    "base_angular_velocity": "sum of squared Euler-angle rates at the nodes: less wobble",
+    "force_rate": "sum of squared force-node derivatives: smoother forces",
+}
+
+
+@dataclasses.dataclass
+class BlcParameters:
+    """Discretisation, limits, enabled constraints / costs and solver settings of the BLC."""
+
+    # Duration of each body spline polynomial: a node every 0.1 s (TOWR). [s]
+    base_node_spacing: float = 0.1
+    # Time between samples of the dynamics constraint (at interval midpoints). [s]
+    dynamics_dt: float = 0.1
+    # Time between samples of the kinematic box constraint (TOWR). [s]
+    kinematics_dt: float = 0.08
+    # Cubic force polynomials per stance phase (TOWR: 3).
+    force_polynomials_per_stance: int = 3
+    # Pin each stance's first and last force node to zero, as TOWR does (False: forces may
+    # jump at touchdown and liftoff, which a duty factor of 0.5 needs for continuous support).
+    zero_force_at_touchdown: bool = False
+    # Force-constraint samples per force polynomial (1: at nodes; 2: nodes and midpoints).
+    force_samples_per_polynomial: int = 2
+    # Least force along the terrain normal inside a stance (paper 000 f_min). [N]
+    min_normal_force: float = 5.0
+    # Largest normal force; None: each leg's own limit from the robot model. [N]
+    max_normal_force: float | None = None
+    # Friction coefficient of the pyramid (Eq. 5).
+    friction_coefficient: float = 0.5
+    # Least height of the swing apex above the terrain under it (foot sphere surface). [m]
+    swing_apex_height: float = 0.06
+    # Swing fractions (0..1) at which the foot must be above the terrain (Eq. 4).
+    swing_clearance_fractions: tuple[float, ...] = (0.25, 0.75)
+    # Bound on |roll| and |pitch| of the body at the nodes. [rad]
+    max_roll_pitch: float = 0.7
+    # Enabled constraints (names in CONSTRAINT_REASONS).
+    constraints: tuple[str, ...] = DEFAULT_CONSTRAINTS
+    # (cost name, weight) pairs (names in COST_REASONS); empty: a feasibility problem.
+    costs: tuple[tuple[str, float], ...] = ()
+    # Total time on all feet at the start and at the end of the gait. [s]
+    stand_duration: float = 0.2
+    # Nominal swing duration; None: the gait's default. [s]
+    swing_duration: float | None = None
+    # Body speed used to choose a duration when a task has none. [m/s]
+    nominal_speed: float = 0.4
+    # Wall-time limit of one solve, the paper's 5 s: beyond it the task counts as failed. [s]
+    time_limit: float = 5.0
+    # Ipopt's convergence tolerance (scaled NLP error).
+    tolerance: float = 1e-4
+    # Ipopt's absolute constraint violation tolerance.
+    constraint_tolerance: float = 1e-4
+    # Verdict: a solve succeeds only when every constraint, evaluated at the returned point,
+    # is violated by less than this (m, rad, or body weights).
+    violation_tolerance: float = 1e-3
+    # Ipopt iteration limit.
+    max_iterations: int = 3000
+    # Ipopt linear solver (the pip wheel of Drake ships SPRAL only).
+    linear_solver: str = "spral"
+    # Samples of one nonlinear constraint per Drake binding: small bindings keep Drake's
+    # dense AutoDiff round trip cheap (its cost grows with the square of a binding's size).
+    samples_per_binding: int = 1
+    # Ipopt console print level (0 = silent).
+    print_level: int = 0
+
+    def __post_init__(self):
+        for name in ("base_node_spacing", "dynamics_dt", "kinematics_dt", "time_limit",
+                     "tolerance", "constraint_tolerance", "violation_tolerance", "stand_duration",
+                     "nominal_speed"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and value > 0):
+                raise bad_value(f"blc.{name}", value, "must be positive", ConfigError)
+        if not self.friction_coefficient > 0:
+            raise bad_value("blc.friction_coefficient", self.friction_coefficient, "must be positive")
+        if self.min_normal_force < 0:
+            raise bad_value("blc.min_normal_force", self.min_normal_force, "must be non-negative")
+        if self.max_normal_force is not None and not self.max_normal_force > self.min_normal_force:
+            raise bad_value("blc.max_normal_force", self.max_normal_force,
+                            "must exceed min_normal_force")
+        if int(self.force_polynomials_per_stance) < 1:
+            raise bad_value("blc.force_polynomials_per_stance", self.force_polynomials_per_stance,
+                            "must be at least 1")
+        if int(self.force_samples_per_polynomial) < 1:
+            raise bad_value("blc.force_samples_per_polynomial", self.force_samples_per_polynomial,
+                            "must be at least 1")
+        if int(self.samples_per_binding) < 1:
+            raise bad_value("blc.samples_per_binding", self.samples_per_binding, "must be at least 1")
+        for f in self.swing_clearance_fractions:
+            if not 0 < f < 1:
+                raise bad_value("blc.swing_clearance_fractions", self.swing_clearance_fractions,
+                                "fractions must lie strictly between 0 and 1")
+        self.constraints = tuple(self.constraints)
+        for c in self.constraints:
+            if c not in CONSTRAINT_REASONS:
+                raise bad_value("blc.constraints", c,
+                                f"unknown constraint (known: {', '.join(CONSTRAINT_REASONS)})")
+        self.costs = tuple((str(n), float(w)) for n, w in self.costs)
+        for n, w in self.costs:
+            if n not in COST_REASONS:
+                raise bad_value("blc.costs", n, f"unknown cost (known: {', '.join(COST_REASONS)})")
+            if w < 0:
+                raise bad_value(f"blc.costs[{n}]", w, "weights must be non-negative")
+
+    def enabled(self, constraint: str) -> bool:
+        return constraint in self.constraints

@@ -1,0 +1,211 @@
+"""``solve_blc``: one BLC solve, from a task to a BlcSolution with an honest verdict
+(paper 000 section II-A; the 5 s limit of its section III-A).
+
+Ipopt settings: the limited-memory Hessian (the pip wheel of Drake has no exact Hessian for
+Python constraints), SPRAL (the only linear solver in that wheel), a wall-time limit, and
+tolerances from BlcParameters. After Ipopt returns, every constraint is evaluated at the returned
+point; the solve succeeds only if Ipopt converged and the worst violation is below
+``violation_tolerance``. Nothing a task can do raises here: bad inputs (a wrong number of feet,
+an unknown gait) raise QzError before solving; a task that cannot be solved is a result.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+from pydrake.solvers import IpoptSolver, SolverOptions
+
+from qz_drake.errors import ConfigError, bad_value
+from qz_drake.trajopt.formulation import BlcFormulation
+from qz_drake.trajopt.gait import make_gait
+from qz_drake.trajopt.initial_guess import (shifted_solution_guess, straight_line_guess,
+                                            terrain_fitted_pose)
+from qz_drake.trajopt.parameters import BlcParameters
+from qz_drake.trajopt.robot_model import RobotModel, qingzhui
+from qz_drake.trajopt.solution import BlcSolution
+from qz_drake.trajopt.terrain import as_terrain
+
+CONVERGED = ("Success", "Stop at acceptable point", "Feasible point found")
+
+
+@dataclasses.dataclass
+class BlcTask:
+    """What the BLC is asked to do (DESIGN.md): from a start pose and footholds to a local
+    target within a duration, in a topology and a gait.
+
+    Positions are of the CoM (the single rigid body's origin), in the world frame.
+    """
+
+    # Local target of the CoM and the body's heading: (x [m], y [m], yaw [rad]).
+    target: tuple[float, float, float]
+    # CoM at the start; None: standing nominally over (0, 0) on the terrain. [m]
+    start_position: tuple[float, float, float] | None = None
+    # Body roll, pitch, yaw at the start; roll and pitch ignored when start_position is None. [rad]
+    start_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # Foot-sphere centres at the start, (L, 3); None: nominal footholds on the terrain. [m]
+    start_feet: np.ndarray | None = None
+    # Qingzhui topology (used when solve_blc builds the robot).
+    topology: str = "nominal"
+    # Duration T; None: chosen from the distance and BlcParameters.nominal_speed. [s]
+    duration: float | None = None
+    # Gait name; None: the robot's default.
+    gait: str | None = None
+    # CoM velocity at the start. [m/s]
+    start_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+def standing_start(robot: RobotModel, terrain, x: float = 0.0, y: float = 0.0, yaw: float = 0.0):
+    """(CoM position, rpy, feet (L, 3)) of the robot standing nominally over (x, y) on the
+    terrain, its body following the terrain's plane under its feet."""
+    terrain = as_terrain(terrain)
+    z, roll, pitch = terrain_fitted_pose(robot, terrain, np.array([[x, y]]), np.array([yaw]))
+    rpy = np.array([roll[0], pitch[0], yaw])
+    c, s = math.cos(yaw), math.sin(yaw)
+    feet_B = robot.nominal_footholds
+    feet = np.column_stack([x + c * feet_B[:, 0] - s * feet_B[:, 1],
+                            y + s * feet_B[:, 0] + c * feet_B[:, 1]])
+    h = terrain.height(feet[:, 0], feet[:, 1])
+    feet = np.column_stack([feet, h + robot.foot_radius])
+    return np.array([x, y, z[0]]), rpy, feet
+
+
+def _resolve(task: BlcTask, robot: RobotModel, terrain, params: BlcParameters):
+    if task.start_position is None:
+        start, rpy, feet = standing_start(robot, terrain, 0.0, 0.0, task.start_rpy[2])
+    else:
+        start = np.asarray(task.start_position, dtype=float).reshape(3)
+        rpy = np.asarray(task.start_rpy, dtype=float).reshape(3)
+        feet = None
+    if task.start_feet is not None:
+        feet = np.asarray(task.start_feet, dtype=float)
+        if feet.shape != (robot.num_legs, 3):
+            raise bad_value("task.start_feet", f"array of shape {feet.shape}",
+                            f"expected ({robot.num_legs}, 3) for {robot.name}")
+    elif feet is None:
+        _, _, feet = standing_start(robot, terrain, start[0], start[1], rpy[2])
+    target = np.asarray(task.target, dtype=float).reshape(-1)
+    if target.shape != (3,) or not np.all(np.isfinite(target)):
+        raise bad_value("task.target", task.target, "expected finite (x, y, yaw)")
+    for name, value in (("task.start_position", start), ("task.start_rpy", rpy),
+                        ("task.start_feet", feet)):
+        if not np.all(np.isfinite(value)):
+            raise bad_value(name, value.tolist(), "must be finite")
+    duration = task.duration
+    if duration is None:
+        distance = float(np.hypot(*(target[:2] - start[:2])))
+        duration = 2 * params.stand_duration + max(distance / params.nominal_speed, 0.6)
+        duration = math.ceil(duration * 10 - 1e-9) / 10
+    if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0):
+        raise bad_value("task.duration", duration, "must be a positive number of seconds")
+    gait = task.gait or robot.gaits[0]
+    schedule = make_gait(gait, robot.num_legs, float(duration),
+                         swing_duration=params.swing_duration, stand_duration=params.stand_duration)
+    return start, rpy, feet, target, schedule
+
+
+def ipopt_options(params: BlcParameters, wall_time: float) -> SolverOptions:
+    solver_id = IpoptSolver.id()
+    options = SolverOptions()
+    for key, value in (
+            ("hessian_approximation", "limited-memory"),
+            ("linear_solver", params.linear_solver),
+            ("tol", params.tolerance),
+            ("constr_viol_tol", params.constraint_tolerance),
+            ("acceptable_tol", 10 * params.tolerance),
+            ("acceptable_constr_viol_tol", 0.1 * params.violation_tolerance),
+            ("max_iter", int(params.max_iterations)),
+            ("max_wall_time", max(wall_time, 0.05)),
+            ("max_cpu_time", max(wall_time, 0.05) * 4),
+            ("print_level", int(params.print_level)),
+    ):
+        options.SetOption(solver_id, key, value)
+    if params.linear_solver == "spral":
+        # Measured on the BLC's KKT systems (about 2000 rows): SPRAL's default matching-based
+        # scaling and supernode amalgamation (nemin 32) made factorisation 3-5x slower.
+        options.SetOption(solver_id, "spral_scaling", "none")
+        options.SetOption(solver_id, "spral_nemin", 4)
+    return options
+
+
+def solve_blc(task: BlcTask, robot: RobotModel | None = None, terrain=None,
+              params: BlcParameters | None = None, initial_guess=None, *,
+              time_shift: float = 0.0) -> BlcSolution:
+    """Solves the BLC's nonlinear program for a task (paper 000 Eq. 1-6).
+
+    Args:
+        task: the BlcTask.
+        robot: a RobotModel; None: Qingzhui in ``task.topology``.
+        terrain: a TerrainModel, a gridded heightmap (heights, resolution, origin) or None (flat).
+        params: BlcParameters; None: the defaults.
+        initial_guess: None (straight line), a previous BlcSolution (warm start, sampled from
+            ``time_shift`` on) or a decision vector of the right size.
+        time_shift: where to start reading a previous solution. [s]
+
+    Returns:
+        A BlcSolution; success is False (with a reason) when the task could not be solved.
+    """
+    clock = time.perf_counter()
+    params = params or BlcParameters()
+    robot = robot or qingzhui(task.topology)
+    terrain = as_terrain(terrain)
+    start, rpy, feet, target, schedule = _resolve(task, robot, terrain, params)
+    formulation = BlcFormulation(robot, terrain, params, schedule, start_position=start,
+                                 start_rpy=rpy, start_feet=feet, target=target,
+                                 start_velocity=task.start_velocity)
+    if initial_guess is None:
+        x0 = straight_line_guess(formulation)
+    elif isinstance(initial_guess, BlcSolution):
+        x0 = shifted_solution_guess(formulation, initial_guess, time_shift)
+    else:
+        x0 = np.asarray(initial_guess, dtype=float).reshape(-1)
+        if x0.shape != (formulation.variables.num_vars,):
+            raise bad_value("initial_guess", f"vector of {x0.size} values",
+                            f"expected {formulation.variables.num_vars}", ConfigError)
+    prog, x_vars, counter = formulation.build_program()
+    remaining = params.time_limit - (time.perf_counter() - clock)
+    ipopt_clock = time.perf_counter()
+    result = IpoptSolver().Solve(prog, x0, ipopt_options(params, remaining))
+    ipopt_time = time.perf_counter() - ipopt_clock
+    x = result.GetSolution(x_vars)
+    status = result.get_solver_details().ConvertStatusToString()
+    return _verdict(formulation, x, status, max(counter["jacobians"] - 1, 0), clock, ipopt_time)
+
+
+def _verdict(formulation: BlcFormulation, x: np.ndarray, status: str, iterations: int,
+             clock: float, ipopt_time: float) -> BlcSolution:
+    params, robot = formulation.params, formulation.robot
+    v = formulation.variables
+    finite = bool(np.all(np.isfinite(x)))
+    if finite:
+        violations = formulation.violations(x)
+        name, worst, where = max(violations, key=lambda item: item[1])
+    else:
+        violations, name, worst, where = [], "decision vector", math.inf, "non-finite values"
+    converged = status in CONVERGED
+    feasible = worst <= params.violation_tolerance
+    reasons = []
+    if not converged:
+        reasons.append(f"Ipopt: {status}")
+    if not feasible:
+        reasons.append(f"max violation {worst:.3g} > {params.violation_tolerance:g} "
+                       f"in {name} ({where})")
+    elapsed = time.perf_counter() - clock
+    if elapsed > params.time_limit and (not converged or not feasible):
+        reasons.append(f"time limit {params.time_limit:g} s")
+    xs = x if finite else np.nan_to_num(x)
+    force_pps = [spline.to_piecewise_polynomial(xs, robot.weight) for spline in v.foot_force]
+    return BlcSolution(
+        success=converged and feasible, status=status, reason="; ".join(reasons),
+        solve_time=elapsed, iterations=iterations, max_violation=float(worst),
+        num_variables=v.num_vars, num_constraints=formulation.num_constraints,
+        duration=v.duration,
+        body_position=v.base_position.to_piecewise_polynomial(xs),
+        body_rpy=v.base_rpy.to_piecewise_polynomial(xs),
+        foot_positions=[s.to_piecewise_polynomial(xs) for s in v.foot_position],
+        foot_forces=force_pps, contact_schedule=formulation.schedule, robot=robot,
+        terrain=formulation.terrain, mu=params.friction_coefficient,
+        violations={n: (val, w) for n, val, w in violations}, ipopt_time=ipopt_time, x=x,
+        params=params)

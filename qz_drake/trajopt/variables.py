@@ -1,0 +1,152 @@
+"""Decision variables of the BLC and the splines they define (TOWR's phase-based
+parameterisation, Winkler et al. 2018; paper 000 Eq. 3 holds by construction).
+
+* Body: CoM position and roll-pitch-yaw angles (Drake's RollPitchYaw, R_WB = Rz Ry Rx), each a
+  cubic Hermite spline with a node every ``base_node_spacing``; a node holds value and rate.
+* Feet: one foothold (3 variables) per stance phase, so a stance foot cannot move; each swing is
+  two cubic polynomials through a mid node. The mid node's x, y are the mean of the two footholds
+  and its x, y rate 1.5 x (step / swing time), which makes the horizontal motion the smooth cubic
+  with zero end velocities (TOWR's swing constraint, here eliminated rather than imposed); its
+  height is a variable and its vertical rate is zero (the apex).
+* Forces, in body-weight units (f / (m g)): per stance phase ``force_polynomials_per_stance``
+  cubic polynomials whose nodes (value and rate) are variables, and zero during a swing. The
+  force may jump at touchdown and liftoff, as a contact force can. TOWR instead pins the nodes
+  next to a swing to zero (``zero_force_at_touchdown``): with a tripod's duty factor of 0.5 that
+  leaves the body without support at every switch, which the 0.1 s dynamics samples do not see
+  but a denser check does.
+
+All variables live in one flat vector; blocks are named slices of it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from qz_drake.trajopt.gait import ContactSchedule
+from qz_drake.trajopt.parameters import BlcParameters
+from qz_drake.trajopt.splines import NodeSpline
+
+
+class BlcVariables:
+    """Layout of the decision vector and the splines it parameterises."""
+
+    def __init__(self, schedule: ContactSchedule, params: BlcParameters):
+        self.schedule = schedule
+        self.duration = T = schedule.duration
+        self.num_legs = L = schedule.num_legs
+        self.blocks: dict[str, slice] = {}
+        self.num_vars = 0
+
+        num_segments = max(1, int(math.ceil(T / params.base_node_spacing - 1e-9)))
+        self.base_breaks = np.linspace(0.0, T, num_segments + 1)
+        num_nodes = num_segments + 1
+        # (nodes, value/rate, xyz) indices.
+        self.base_lin = self._allocate("base_lin", (num_nodes, 2, 3))
+        self.base_ang = self._allocate("base_ang", (num_nodes, 2, 3))
+        self.base_position = NodeSpline.from_variables(
+            self.base_breaks, self.base_lin[:, 0], self.base_lin[:, 1])
+        self.base_rpy = NodeSpline.from_variables(
+            self.base_breaks, self.base_ang[:, 0], self.base_ang[:, 1])
+
+        self.footholds: list[np.ndarray] = []  # per leg (S, 3) indices
+        self.apex_heights: list[np.ndarray] = []  # per leg (S - 1,) indices
+        self.force_nodes: list[np.ndarray] = []  # per leg (N, 2, 3) indices, -1 = zero
+        self.force_node_times: list[np.ndarray] = []  # per leg (N,), nudged into the stance
+        self.foot_position: list[NodeSpline] = []
+        self.foot_force: list[NodeSpline] = []
+        P = int(params.force_polynomials_per_stance)
+        for leg in range(L):
+            b = schedule.phase_boundaries(leg)
+            num_stances = (len(b)) // 2
+            stance = self._allocate(f"foothold_{leg}", (num_stances, 3))
+            apex = self._allocate(f"apex_z_{leg}", (num_stances - 1,))
+            self.footholds.append(stance)
+            self.apex_heights.append(apex)
+            self.foot_position.append(self._foot_spline(b, stance, apex))
+            self.foot_force.append(self._force_spline(leg, b, P, params.zero_force_at_touchdown))
+
+    # -- layout -----------------------------------------------------------------------------
+    def _allocate(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        size = int(np.prod(shape))
+        self.blocks[name] = slice(self.num_vars, self.num_vars + size)
+        idx = np.arange(self.num_vars, self.num_vars + size).reshape(shape)
+        self.num_vars += size
+        return idx
+
+    def _foot_spline(self, b: np.ndarray, stance: np.ndarray, apex: np.ndarray) -> NodeSpline:
+        # Nodes: stance start, stance end, swing mid, next stance start, ... (Q = 2 terms).
+        times, vi, vc, di, dc = [], [], [], [], []
+        num_stances = len(stance)
+        one = np.ones(3)
+        for s in range(num_stances):
+            for t in (b[2 * s], b[2 * s + 1]):
+                times.append(t)
+                vi.append(np.stack([stance[s], stance[s]]))
+                vc.append(np.stack([one, 0 * one]))
+                di.append(np.zeros((2, 3), dtype=np.int64))
+                dc.append(np.zeros((2, 3)))
+            if s + 1 < num_stances:
+                t0, t1 = b[2 * s + 1], b[2 * s + 2]
+                times.append(0.5 * (t0 + t1))
+                idx = np.stack([stance[s], stance[s + 1]])
+                idx[:, 2] = apex[s]
+                coef = np.array([[0.5, 0.5, 1.0], [0.5, 0.5, 0.0]])
+                vi.append(idx)
+                vc.append(coef)
+                didx = np.stack([stance[s], stance[s + 1]])
+                rate = 1.5 / (t1 - t0)
+                di.append(didx)
+                dc.append(np.array([[-rate, -rate, 0.0], [rate, rate, 0.0]]))
+        return NodeSpline(np.array(times), np.array(vi), np.array(vc), np.array(di), np.array(dc))
+
+    def _force_spline(self, leg: int, b: np.ndarray, P: int, zero_at_boundaries: bool) -> NodeSpline:
+        # Nodes: each stance's P + 1 nodes, then a zero node at liftoff and one at touchdown
+        # (repeated times: the force may jump there, as a contact force can).
+        num_stances = len(b) // 2
+        times, value_idx, deriv_idx, eval_times = [], [], [], []
+        zero = -np.ones(3, dtype=np.int64)
+        for s in range(num_stances):
+            t0, t1 = b[2 * s], b[2 * s + 1]
+            if s > 0:
+                times.append(t0)
+                value_idx.append(zero)
+                deriv_idx.append(zero)
+                eval_times.append(t0)
+            for n, t in enumerate(np.linspace(t0, t1, P + 1)):
+                fixed = zero_at_boundaries and ((n == 0 and s > 0) or (n == P and s < num_stances - 1))
+                if fixed:
+                    value_idx.append(zero)
+                    deriv_idx.append(zero)
+                else:
+                    node = self._allocate(f"force_{leg}_{s}_{n}", (2, 3))
+                    value_idx.append(node[0])
+                    deriv_idx.append(node[1])
+                times.append(t)
+                # Where the node's force acts: just inside its stance.
+                eval_times.append(min(max(t, t0 + 1e-9), t1 - 1e-9))
+            if s + 1 < num_stances:
+                times.append(t1)
+                value_idx.append(zero)
+                deriv_idx.append(zero)
+                eval_times.append(t1)
+        nodes = np.stack([np.array(value_idx), np.array(deriv_idx)], axis=1)
+        self.force_nodes.append(nodes)
+        self.force_node_times.append(np.array(eval_times))
+        return NodeSpline.from_variables(np.array(times), nodes[:, 0], nodes[:, 1])
+
+    # -- queries ----------------------------------------------------------------------------
+    def block_indices(self, prefix: str) -> np.ndarray:
+        """Indices of every block whose name starts with prefix."""
+        parts = [np.arange(s.start, s.stop) for n, s in self.blocks.items() if n.startswith(prefix)]
+        return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+
+    def force_variable_indices(self) -> np.ndarray:
+        return self.block_indices("force_")
+
+    def stance_of(self, leg: int, t: np.ndarray) -> np.ndarray:
+        """Stance index of foot ``leg`` at times t (in a swing: the stance before it)."""
+        b = self.schedule.phase_boundaries(leg)
+        phase = np.clip(np.searchsorted(b, t, side="right") - 1, 0, len(b) - 2)
+        return phase // 2
