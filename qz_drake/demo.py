@@ -1,10 +1,10 @@
 """``qz demo``: the main job on the embedded default world.
 
 Qingzhui walks a route across the packaged grid_map test field (real heightmap, hydroelastic
-mesh) in 1 m missions, each planned from the measured state and tracked by IK + joint PD;
-then it stands in front of the BLC paper's stairs scene. Each run writes a meshcat recording,
-plots and metrics; the demo writes a picture of the world with the walked path and a summary.
-The planner is the kinematic tripod plan until the BLC takes its place.
+mesh) in 1 m missions, each planned by the BLC's trajectory optimisation from the measured
+state and tracked by IK + joint PD; then it stands in front of the BLC paper's stairs scene.
+Each run writes a meshcat recording, plots and metrics; the demo writes a picture of the world
+with the walked path and a summary.
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ def demo_scenarios() -> tuple[Scenario, ...]:
         name="walk_grid_map", description="Walk 4 m across the grid_map test field.",
         terrain=TerrainConfig(kind="grid_map", contact="mesh"),
         simulation=SimulationConfig(duration=30.0),
-        controller=ControllerConfig(kind="walk", route=[Waypoint(x=3.0), Waypoint(x=4.0, y=-0.3, yaw=-0.3)]))
+        controller=ControllerConfig(kind="walk", planner="blc",
+                                    route=[Waypoint(x=3.0), Waypoint(x=4.0, y=-0.3, yaw=-0.3)]))
     stand = Scenario(
         name="stand_stairs", description="Standing before two 0.1 m stairs, front knees in.",
         terrain=TerrainConfig(kind="stairs", params={"rise": 0.1, "run": 0.4, "count": 2, "start_x": 0.5}))
