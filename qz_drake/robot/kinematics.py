@@ -111,15 +111,27 @@ def shank_rotation(leg: int | str, q_leg: np.ndarray, params: QingzhuiParams = D
     """Orientation of the shank (and the foot welded to it) in the base frame, (..., 3, 3):
     R_BL Rx(m0) Rz(m2), since the parallelogram keeps the shank at the absolute angle m2."""
     i = leg_index(leg)
-    m = urdf_to_motor(q_leg)
+    return params.R_BL(i) @ _rx_rz(urdf_to_motor(q_leg))
+
+
+def all_shank_rotations(q: np.ndarray, params: QingzhuiParams = DEFAULT_PARAMS) -> np.ndarray:
+    """The six shanks' orientations in the base frame from 18 URDF angles, (..., 6, 3, 3)."""
+    q = np.asarray(q, dtype=float)
+    m = urdf_to_motor(q.reshape(q.shape[:-1] + (NUM_LEGS, 3)))
+    R_BL = np.stack([params.R_BL(i) for i in range(NUM_LEGS)])
+    return R_BL @ _rx_rz(m)
+
+
+def _rx_rz(m: np.ndarray) -> np.ndarray:
+    """Rx(m0) Rz(m2) for motor angles (..., 3)."""
     c0, s0 = np.cos(m[..., 0]), np.sin(m[..., 0])
     c2, s2 = np.cos(m[..., 2]), np.sin(m[..., 2])
-    zero, one = np.zeros_like(c0), np.ones_like(c0)
-    Rx = np.stack([np.stack([one, zero, zero], -1), np.stack([zero, c0, -s0], -1),
-                   np.stack([zero, s0, c0], -1)], -2)
-    Rz = np.stack([np.stack([c2, -s2, zero], -1), np.stack([s2, c2, zero], -1),
-                   np.stack([zero, zero, one], -1)], -2)
-    return params.R_BL(i) @ Rx @ Rz
+    out = np.zeros(m.shape[:-1] + (3, 3))
+    # Rx(a) Rz(b) = [[cb, -sb, 0], [ca sb, ca cb, -sa], [sa sb, sa cb, ca]]
+    out[..., 0, 0], out[..., 0, 1] = c2, -s2
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = c0 * s2, c0 * c2, -s0
+    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = s0 * s2, s0 * c2, c0
+    return out
 
 
 def all_foot_positions(q: np.ndarray, params: QingzhuiParams = DEFAULT_PARAMS) -> np.ndarray:

@@ -18,7 +18,6 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RollPitchYaw
 from pydrake.systems.framework import BasicVector, LeafSystem
-from scipy.spatial.transform import Rotation
 
 from qz_drake.robot import kinematics
 from qz_drake.robot.params import DEFAULT_PARAMS, NUM_JOINTS, NUM_LEGS, QingzhuiParams
@@ -46,6 +45,15 @@ class BodyFeetTrajectory(Protocol):
     # def stance_start(self, leg: int, t: float) -> float | None: ...
 
 
+def _rotation_vectors(R: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3) of rotation matrices (..., 3, 3) (angles below pi)."""
+    cos = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.arccos(cos)
+    vee = 0.5 * np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    scale = np.where(angle > 1e-8, angle / np.maximum(np.sin(angle), 1e-12), 1.0)
+    return vee * scale[..., None]
+
+
 def _leg_ik(trajectory, t, topology, params):
     R_WB = RollPitchYaw(trajectory.base_rpy(t)).ToRotationMatrix().matrix()
     p_BF = (trajectory.foot_positions(t) - trajectory.base_position(t)) @ R_WB
@@ -69,30 +77,33 @@ def joint_reference(trajectory: BodyFeetTrajectory, t: float, topology: Topology
     t = float(np.clip(t, trajectory.start_time, trajectory.end_time))
     q, ok, R_WB, p_BF = _leg_ik(trajectory, t, topology, params)
     if roll_compensation and hasattr(trajectory, "stance_start"):
-        touchdowns = {}
+        legs, q_td, R_WB_td = [], [], []
         for i in range(NUM_LEGS):
             td = trajectory.stance_start(i, t)
-            if td is not None and td < t and ok[i]:
-                touchdowns.setdefault(td, []).append(i)
-        targets = p_BF.copy()
-        for td, legs in touchdowns.items():
+            if td is None or td >= t or not ok[i]:
+                continue
             key = (id(trajectory), td)
             if cache is not None and key in cache:
-                q_td, ok_td, R_WB_td = cache[key]
+                q_at, ok_at, R_at = cache[key]
             else:
-                q_td, ok_td, R_WB_td, _ = _leg_ik(trajectory, td, topology, params)
+                q_at, ok_at, R_at, _ = _leg_ik(trajectory, td, topology, params)
                 if cache is not None:
-                    cache[key] = (q_td, ok_td, R_WB_td)
-            for i in legs:
-                if not ok_td[i]:
-                    continue
-                R_WS_td = R_WB_td @ kinematics.shank_rotation(i, q_td[i], params)
-                R_WS = R_WB @ kinematics.shank_rotation(i, q[i], params)
-                dphi = Rotation.from_matrix(R_WS @ R_WS_td.T).as_rotvec()
-                shift_W = np.cross(dphi, [0.0, 0.0, params.foot_radius])
-                targets[i] = p_BF[i] + R_WB.T @ shift_W
-        q_shifted, ok_shifted = kinematics.all_legs_inverse_kinematics(targets, topology.bends, params)
-        q = np.where(ok_shifted[:, None], q_shifted, q)
+                    cache[key] = (q_at, ok_at, R_at)
+            if ok_at[i]:
+                legs.append(i)
+                q_td.append(q_at[i])
+                R_WB_td.append(R_at)
+        if legs:
+            legs = np.array(legs)
+            R_BS_now = kinematics.all_shank_rotations(q.reshape(-1), params)[legs]
+            R_BS_td = np.stack([kinematics.shank_rotation(i, qi, params) for i, qi in zip(legs, q_td)])
+            R_rel = (R_WB @ R_BS_now) @ np.swapaxes(np.stack(R_WB_td) @ R_BS_td, -1, -2)
+            dphi = _rotation_vectors(R_rel)
+            shift_W = np.cross(dphi, [0.0, 0.0, params.foot_radius])
+            targets = p_BF.copy()
+            targets[legs] += shift_W @ R_WB  # R_WB^T shift, row-wise
+            q_shifted, ok_shifted = kinematics.all_legs_inverse_kinematics(targets, topology.bends, params)
+            q = np.where(ok_shifted[:, None], q_shifted, q)
     return q.reshape(-1), ok
 
 

@@ -152,3 +152,10 @@ def test_all_legs_inverse_kinematics_matches_per_leg(bends):
         np.testing.assert_array_equal(ok[:, i], ok_i)
         np.testing.assert_allclose(q[ok[:, i], i], q_i[ok_i], atol=1e-12)
     assert not ok[0, 2]
+
+
+def test_all_shank_rotations_match_per_leg():
+    q = np.random.default_rng(7).uniform(-1, 1, 18)
+    R = kin.all_shank_rotations(q)
+    for i in range(6):
+        np.testing.assert_allclose(R[i], kin.shank_rotation(i, q[3 * i:3 * i + 3]), atol=1e-14)

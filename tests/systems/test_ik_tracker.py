@@ -80,3 +80,13 @@ def test_walks_one_metre_on_flat_ground():
     assert final_error < 0.05
     assert max(tilt_deg(s) for s in x) < 5.0
     assert not trunk.FindLog(context).data().any()
+
+
+def test_rotation_vectors_match_scipy():
+    from scipy.spatial.transform import Rotation
+
+    from qz_drake.systems.ik_tracker import _rotation_vectors
+
+    vectors = np.random.default_rng(3).normal(size=(10, 3)) * 0.7
+    np.testing.assert_allclose(_rotation_vectors(Rotation.from_rotvec(vectors).as_matrix()), vectors, atol=1e-9)
+    np.testing.assert_allclose(_rotation_vectors(np.eye(3)), np.zeros(3))
