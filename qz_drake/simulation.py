@@ -38,6 +38,13 @@ class SimulationResult:
     files: dict
 
 
+def _log_station(builder, station):
+    """Loggers of the station's state, foot contacts and trunk contact at LOG_RATE."""
+    period = 1.0 / LOG_RATE
+    return tuple(LogVectorOutput(station.GetOutputPort(name), builder, period)
+                 for name in ("state", "foot_contact", "trunk_contact"))
+
+
 def _standing_controller(builder, station, info, scenario: Scenario):
     controller = builder.AddSystem(JointPdController(kp=scenario.controller.kp, kd=scenario.controller.kd,
                                                      params=info.params))
@@ -97,10 +104,7 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
     station_diagram, info = make_station(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh")
     station = builder.AddSystem(station_diagram)
     _standing_controller(builder, station, info, scenario)
-    period = 1.0 / LOG_RATE
-    state_log = LogVectorOutput(station.GetOutputPort("state"), builder, period)
-    contact_log = LogVectorOutput(station.GetOutputPort("foot_contact"), builder, period)
-    trunk_log = LogVectorOutput(station.GetOutputPort("trunk_contact"), builder, period)
+    state_log, contact_log, trunk_log = _log_station(builder, station)
     diagram = builder.Build()
 
     simulator = Simulator(diagram)
@@ -232,11 +236,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     tracker, _ = add_tracking_controller(builder, station, info, kp=control.kp, kd=control.kd,
                                          plan_port=sequencer.GetOutputPort("plan"),
                                          position_mode=scenario.station.control_mode == "position")
-    period = 1.0 / LOG_RATE
-    state_log = LogVectorOutput(station.GetOutputPort("state"), builder, period)
-    contact_log = LogVectorOutput(station.GetOutputPort("foot_contact"), builder, period)
-    trunk_log = LogVectorOutput(station.GetOutputPort("trunk_contact"), builder, period)
-    desired_log = LogVectorOutput(tracker.GetOutputPort("desired_state"), builder, period)
+    state_log, contact_log, trunk_log = _log_station(builder, station)
+    desired_log = LogVectorOutput(tracker.GetOutputPort("desired_state"), builder, 1.0 / LOG_RATE)
     diagram = builder.Build()
     simulator = Simulator(diagram)
     simulator.Initialize()
