@@ -80,6 +80,8 @@ class BlcFormulation:
         self.variables = v = BlcVariables(schedule, params)
         T = v.duration
         self.dynamics_times = np.arange(0.5 * params.dynamics_dt, T, params.dynamics_dt)
+        self.linear_dynamics_times = np.arange(0.5 * params.linear_dynamics_dt, T,
+                                               params.linear_dynamics_dt)
         kin = np.arange(0.0, T - 1e-9, params.kinematics_dt)
         self.kinematics_times = np.append(kin, T)
         self.nonlinear: list[SampledConstraint] = []
@@ -118,7 +120,7 @@ class BlcFormulation:
         v, p, robot, terrain = self.variables, self.params, self.robot, self.terrain
         weight = robot.weight
         if p.enabled("dynamics"):
-            A, b = linear_dynamics_matrix(v, self.dynamics_times, robot.gravity)
+            A, b = linear_dynamics_matrix(v, self.linear_dynamics_times, robot.gravity)
             self.linear.append(LinearConstraintTerm("dynamics/linear", A, b, b))
             self.nonlinear.append(AngularDynamicsConstraint(v, self.dynamics_times,
                                                             robot.inertia_matrix / weight))

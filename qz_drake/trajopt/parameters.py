@@ -40,6 +40,11 @@ class BlcParameters:
     base_node_spacing: float = 0.1
     # Time between samples of the dynamics constraint (at interval midpoints). [s]
     dynamics_dt: float = 0.1
+    # Time between samples of the linear-momentum half of Eq. 2 (interval midpoints). TOWR's
+    # 0.1 s leaves the plan free between samples (measured: planned acceleration and forces up
+    # to 0.8 body weights apart at the nodes); 0.025 s closes that to a few percent but took
+    # 2-4x the iterations and time on the bench suite (benchmarks/BENCHMARKS.md). [s]
+    linear_dynamics_dt: float = 0.1
     # Time between samples of the kinematic box constraint (TOWR). [s]
     kinematics_dt: float = 0.08
     # Cubic force polynomials per stance phase (TOWR: 3).
@@ -91,9 +96,9 @@ class BlcParameters:
     print_level: int = 0
 
     def __post_init__(self):
-        for name in ("base_node_spacing", "dynamics_dt", "kinematics_dt", "time_limit",
-                     "tolerance", "constraint_tolerance", "violation_tolerance", "stand_duration",
-                     "nominal_speed"):
+        for name in ("base_node_spacing", "dynamics_dt", "linear_dynamics_dt", "kinematics_dt",
+                     "time_limit", "tolerance", "constraint_tolerance", "violation_tolerance",
+                     "stand_duration", "nominal_speed"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and value > 0):
                 raise bad_value(f"blc.{name}", value, "must be positive", ConfigError)

@@ -28,6 +28,9 @@ from qz_drake.trajopt.robot_model import RobotModel, qingzhui
 from qz_drake.trajopt.solution import BlcSolution
 from qz_drake.trajopt.terrain import as_terrain
 
+# Seconds of the time limit kept back from Ipopt for its last iteration and the verdict.
+VERDICT_MARGIN = 0.25
+
 CONVERGED = ("Success", "Stop at acceptable point", "Feasible point found")
 
 
@@ -165,7 +168,9 @@ def solve_blc(task: BlcTask, robot: RobotModel | None = None, terrain=None,
             raise bad_value("initial_guess", f"vector of {x0.size} values",
                             f"expected {formulation.variables.num_vars}", ConfigError)
     prog, x_vars, counter = formulation.build_program()
-    remaining = params.time_limit - (time.perf_counter() - clock)
+    # Ipopt checks its wall-time limit once per iteration; the margin covers the iteration in
+    # flight and the verdict, so that the whole call ends within params.time_limit.
+    remaining = params.time_limit - (time.perf_counter() - clock) - VERDICT_MARGIN
     ipopt_clock = time.perf_counter()
     result = IpoptSolver().Solve(prog, x0, ipopt_options(params, remaining))
     ipopt_time = time.perf_counter() - ipopt_clock

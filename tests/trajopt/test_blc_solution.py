@@ -1,0 +1,167 @@
+"""A solved BLC trajectory keeps its promises, checked from the saved .npz alone (paper 000
+Eq. 1-6): goal, single-rigid-body dynamics, stance feet immobile and on the ground, swing feet
+above it and unloaded, forces inside the friction pyramid of the terrain's own normal. Plus the
+verdicts: an impossible task is a failed result within the time limit; bad input is a QzError."""
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from qz_drake.errors import QzError
+from qz_drake.robot.params import DEFAULT_PARAMS
+from qz_drake.terrain import make_terrain
+from qz_drake.trajopt.parameters import BlcParameters
+from qz_drake.trajopt.robot_model import qingzhui
+from qz_drake.trajopt.solver import BlcTask, solve_blc
+
+SLOPE_DEG = 10.0
+
+
+@pytest.fixture(scope="module")
+def uphill(tmp_path_factory):
+    """1 m up a uniform 10 deg incline (the whole map rises along +x) in 2.5 s, saved."""
+    heightmap = make_terrain("slope", angle_deg=SLOPE_DEG, start_x=-2.0)
+    solution = solve_blc(BlcTask(target=(1.0, 0.0, 0.0), duration=2.5), qingzhui(), heightmap)
+    path = solution.save_npz(tmp_path_factory.mktemp("blc") / "uphill.npz")
+    return solution, dict(np.load(path))
+
+
+def _bilinear_height_and_gradient(data, x, y):
+    """Height and its gradient from the saved map (bilinear; exact on a uniform incline)."""
+    H = data["heightmap"]
+    res = float(data["resolution"])
+    u = (x - data["origin"][0]) / res
+    v = (y - data["origin"][1]) / res
+    i = np.clip(np.floor(u).astype(int), 0, H.shape[1] - 2)
+    j = np.clip(np.floor(v).astype(int), 0, H.shape[0] - 2)
+    s, t = u - i, v - j
+    h00, h10, h01, h11 = H[j, i], H[j, i + 1], H[j + 1, i], H[j + 1, i + 1]
+    h = (1 - s) * (1 - t) * h00 + s * (1 - t) * h10 + (1 - s) * t * h01 + s * t * h11
+    hx = ((1 - t) * (h10 - h00) + t * (h11 - h01)) / res
+    hy = ((1 - s) * (h01 - h00) + s * (h11 - h10)) / res
+    return h, hx, hy
+
+
+def _rotation(rpy):
+    r, p, y = rpy
+    Rx = np.array([[1, 0, 0], [0, math.cos(r), -math.sin(r)], [0, math.sin(r), math.cos(r)]])
+    Ry = np.array([[math.cos(p), 0, math.sin(p)], [0, 1, 0], [-math.sin(p), 0, math.cos(p)]])
+    Rz = np.array([[math.cos(y), -math.sin(y), 0], [math.sin(y), math.cos(y), 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def _body_rate(rpy, rpy_dot):
+    """Body-frame angular velocity of roll-pitch-yaw rates."""
+    r, p, _ = rpy
+    E = np.array([[1, 0, -math.sin(p)], [0, math.cos(r), math.sin(r) * math.cos(p)],
+                  [0, -math.sin(r), math.cos(r) * math.cos(p)]])
+    return E @ rpy_dot
+
+
+def test_solved_uphill_walk_reaches_the_goal(uphill):
+    solution, data = uphill
+    assert solution.success, solution.reason
+    assert solution.max_violation < 1e-3
+    np.testing.assert_allclose(data["base_pos"][-1, :2], [1.0, 0.0], atol=1e-3)
+    assert data["t"][-1] == pytest.approx(2.5)
+    assert np.allclose(np.diff(data["t"]), 0.01)
+    # The body rose with the ground: about tan(10 deg) per metre.
+    rise = data["base_pos"][-1, 2] - data["base_pos"][0, 2]
+    assert rise == pytest.approx(math.tan(math.radians(SLOPE_DEG)), abs=0.05)
+
+
+def test_saved_samples_satisfy_single_rigid_body_dynamics(uphill):
+    """m (a - g) = sum f and I w' + w x I w = R^T sum (p - r) x f at the dynamics samples
+    (every 0.1 s, at interval midpoints), derivatives by central differences at 100 Hz."""
+    _, data = uphill
+    t, r, rpy = data["t"], data["base_pos"], data["base_rpy"]
+    m, inertia, gravity = float(data["mass"]), data["inertia"], data["gravity"]
+    weight = m * 9.81
+    dt = t[1] - t[0]
+    worst_linear = worst_angular = 0.0
+    for ts in np.arange(0.05, t[-1], 0.1):
+        k = int(round(ts / dt))
+        acc = (r[k + 1] - 2 * r[k] + r[k - 1]) / dt ** 2
+        f, p = data["foot_force"][k], data["foot_pos"][k]
+        worst_linear = max(worst_linear, np.abs(m * (acc - gravity) - f.sum(axis=0)).max() / weight)
+        w = [_body_rate(rpy[j], (rpy[j + 1] - rpy[j - 1]) / (2 * dt)) for j in (k - 1, k, k + 1)]
+        w_dot = (w[2] - w[0]) / (2 * dt)
+        torque_W = np.cross(p - r[k], f).sum(axis=0)
+        residual = inertia @ w_dot + np.cross(w[1], inertia @ w[1]) - _rotation(rpy[k]).T @ torque_W
+        worst_angular = max(worst_angular, np.abs(residual).max() / weight)
+    assert worst_linear < 2e-3  # body weights
+    assert worst_angular < 2e-3  # metres (torque / m g)
+
+
+def test_stance_feet_are_immobile_on_the_ground_and_swing_feet_above_it(uphill):
+    _, data = uphill
+    feet, contact, force = data["foot_pos"], data["contact"], data["foot_force"]
+    radius = DEFAULT_PARAMS.foot_radius
+    h, _, _ = _bilinear_height_and_gradient(data, feet[..., 0], feet[..., 1])
+    clearance = feet[..., 2] - h - radius
+    assert np.abs(clearance[contact]).max() < 2e-3
+    assert clearance[~contact].min() > -5e-3
+    assert clearance[~contact].max() > 0.05  # the swing apex
+    still = contact[1:] & contact[:-1]
+    moved = np.linalg.norm(np.diff(feet, axis=0), axis=-1)
+    assert moved[still].max() < 1e-9
+    assert np.abs(force[~contact]).max() < 1e-9
+    # Every foot took steps (a tripod: the slope is climbed, not slid up).
+    assert all((~contact[:, leg]).any() for leg in range(contact.shape[1]))
+
+
+def test_stance_forces_lie_in_the_friction_pyramid_of_the_terrain_normal(uphill):
+    _, data = uphill
+    feet, contact, force = data["foot_pos"], data["contact"], data["foot_force"]
+    mu = float(data["mu"])
+    weight = float(data["mass"]) * 9.81
+    _, hx, hy = _bilinear_height_and_gradient(data, feet[..., 0], feet[..., 1])
+    n = np.stack([-hx, -hy, np.ones_like(hx)], -1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    t1 = np.stack([np.ones_like(hx), np.zeros_like(hx), hx], -1)
+    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
+    t2 = np.stack([np.zeros_like(hx), np.ones_like(hx), hy], -1)
+    t2 /= np.linalg.norm(t2, axis=-1, keepdims=True)
+    fn = (force * n).sum(-1)[contact]
+    f1 = (force * t1).sum(-1)[contact]
+    f2 = (force * t2).sum(-1)[contact]
+    tol = 2e-3 * weight
+    assert fn.min() > BlcParameters().min_normal_force - tol
+    assert np.all(np.abs(f1) <= mu * fn + tol)
+    assert np.all(np.abs(f2) <= mu * fn + tol)
+    # In world axes the pyramid would be the wrong test: holding still on 10 deg needs a
+    # tangential push along the slope of about sin(10 deg) of the weight.
+    assert np.abs(f1).max() > 0.1 * mu * fn.max()
+
+
+def test_feet_stay_in_their_kinematic_boxes(uphill):
+    _, data = uphill
+    robot = qingzhui()
+    for k in range(0, len(data["t"]), 8):  # the 0.08 s samples
+        R = _rotation(data["base_rpy"][k])
+        local = (data["foot_pos"][k] - data["base_pos"][k]) @ R - robot.nominal_footholds
+        assert np.all(np.abs(local) <= robot.box_half_sizes + 1e-3), data["t"][k]
+
+
+def test_impossible_tasks_fail_with_a_reason_within_the_time_limit():
+    params = BlcParameters(time_limit=2.0)
+    clock = time.perf_counter()
+    far = solve_blc(BlcTask(target=(5.0, 0.0, 0.0), duration=1.0), params=params)
+    assert time.perf_counter() - clock < 2.0 + 0.5  # the call, not a timing claim: no hang
+    assert not far.success and far.reason
+    wall = make_terrain("step", height=1.0, start_x=1.0)
+    blocked = solve_blc(BlcTask(target=(1.5, 0.0, 0.0), duration=3.0), terrain=wall, params=params)
+    assert not blocked.success and "violation" in blocked.reason
+
+
+def test_bad_tasks_raise_errors_naming_the_field():
+    with pytest.raises(QzError, match="task.target"):
+        solve_blc(BlcTask(target=(float("nan"), 0.0, 0.0), duration=2.0))
+    with pytest.raises(QzError, match="task.start_feet"):
+        solve_blc(BlcTask(target=(1.0, 0.0, 0.0), duration=2.0, start_feet=np.zeros((4, 3))))
+    with pytest.raises(QzError, match="duration"):
+        solve_blc(BlcTask(target=(1.0, 0.0, 0.0), duration=0.3))
+    with pytest.raises(QzError, match="gait"):
+        solve_blc(BlcTask(target=(1.0, 0.0, 0.0), duration=2.0, gait="trot"))
