@@ -58,12 +58,19 @@ class BlcPlan:
         return None
 
 
-def blc_mission_planner(heightmap, params, control):
-    """A MissionSequencer planner that solves the BLC from the measured base pose and feet."""
+def blc_mission_planner(heightmap, params, control, blc_params=None):
+    """A MissionSequencer planner that solves the BLC from the measured base pose and feet.
+
+    ``control`` gives the mission timing (``speed`` [m/s], ``phase_duration`` [s]); blc_params
+    the solver's BlcParameters (None: defaults). The returned callable keeps its statistics in
+    ``plan.stats`` and its latest BlcSolution (failed or not) in ``plan.last_solution``."""
     from qz_drake.robot.topology import get_topology
     from qz_drake.trajopt.robot_model import qingzhui
     from qz_drake.trajopt.solver import BlcTask, solve_blc
 
+    from qz_drake.trajopt.parameters import BlcParameters
+
+    stand_duration = (blc_params or BlcParameters()).stand_duration
     robots = {}
     stats = {"solves": 0, "failures": 0, "solve_time_s": 0.0}
 
@@ -82,10 +89,13 @@ def blc_mission_planner(heightmap, params, control):
         # Round to whole tripod cycles of two phases.
         cycle = 2 * control.phase_duration
         duration = cycle * max(1, round(duration / cycle))
+        # Both tripods must step at least once between the BLC's stands at start and end.
+        duration = max(duration, 2 * stand_duration + cycle)
         task = BlcTask(target=com_target, start_position=tuple(com), start_rpy=(0.0, 0.0, yaw0),
                        start_feet=np.asarray(start.feet_W, dtype=float)[:NUM_LEGS], topology=topology,
                        duration=duration)
-        solution = solve_blc(task, robot, heightmap)
+        solution = solve_blc(task, robot, heightmap, blc_params)
+        plan.last_solution = solution
         stats["solves"] += 1
         stats["solve_time_s"] += solution.solve_time
         if not solution.success:
@@ -94,4 +104,5 @@ def blc_mission_planner(heightmap, params, control):
         return BlcPlan(solution, start_time, get_topology(topology, params)), ""
 
     plan.stats = stats
+    plan.last_solution = None
     return plan

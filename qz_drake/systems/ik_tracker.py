@@ -121,8 +121,8 @@ class InverseKinematicsTracker(LeafSystem):
         - position_command
         - contact_plan
 
-    ``trajectory`` is an abstract input holding a BodyFeetTrajectory (or None: hold the first
-    reference seen). ``desired_state`` is q_des (18) then v_des (18) for JointPdController;
+    ``trajectory`` is an abstract input holding a BodyFeetTrajectory (or None: keep the
+    references held so far; a planner must provide a plan at initialization). ``desired_state`` is q_des (18) then v_des (18) for JointPdController;
     ``foot_force_feedforward`` the planned stance forces (18, world); ``position_command``
     q_des alone; ``contact_plan`` the planned contact flags (6).
 
@@ -162,6 +162,8 @@ class InverseKinematicsTracker(LeafSystem):
 
     def _update(self, context, discrete_state):
         plan: BodyFeetTrajectory = self._trajectory.Eval(context)
+        if plan is None:  # no plan yet (a planner still failing): keep the held references
+            return
         t = context.get_time()
         # A plan may carry its own topology (missions can change it); else the tracker's.
         topology = getattr(plan, "topology", None) or self._topology

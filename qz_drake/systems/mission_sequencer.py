@@ -31,6 +31,16 @@ class MissionStart:
     base_z: float | None = None  # measured base height [m]; None: unknown
 
 
+def measured_start(x: np.ndarray, t: float, params) -> MissionStart:
+    """The mission start seen in a station state: base xy, yaw and height, and the six feet in
+    the world from leg kinematics."""
+    X_WB = base_pose(x)
+    feet_B = all_foot_positions(x[7:25], params)
+    feet_W = feet_B @ X_WB.rotation().matrix().T + X_WB.translation()
+    return MissionStart(time=t, xy_yaw=(float(x[4]), float(x[5]), float(base_rpy(x)[2])),
+                        feet_W=feet_W, base_z=float(x[6]))
+
+
 @dataclasses.dataclass
 class MissionLog:
     """What happened to each mission."""
@@ -107,11 +117,7 @@ class MissionSequencer(LeafSystem):
         t = context.get_time()
         if t < plan.end_time or index + 1 >= len(self._targets) or self.log.failures:
             return
-        x = self._state.Eval(context)
-        X_WB = base_pose(x)
-        feet_B = all_foot_positions(x[7:25], self._params)
-        feet_W = feet_B @ X_WB.rotation().matrix().T + X_WB.translation()
-        start = MissionStart(time=t, xy_yaw=(x[4], x[5], base_rpy(x)[2]), feet_W=feet_W, base_z=float(x[6]))
+        start = measured_start(self._state.Eval(context), t, self._params)
         target = self._targets[index + 1]
         new_plan, reason = self._planner(start, target[:3], target[3], t)
         self.log.targets.append(target)

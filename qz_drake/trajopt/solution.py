@@ -60,6 +60,9 @@ class BlcSolution:
     x: np.ndarray | None = None
     params: object = None
 
+    def __deepcopy__(self, memo):
+        return self  # never modified after the solve; Drake copies abstract values often
+
     def contact(self, t) -> np.ndarray:
         """(n, L) contact flags at times t."""
         return self.contact_schedule.in_contact(t)

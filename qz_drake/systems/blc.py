@@ -1,0 +1,155 @@
+"""``TrajectoryOptimizationBLC``: the bottom-level controller of paper 000 as a Drake system.
+
+It holds the current BLC solution and solves a new one whenever a new mission starts, i.e.
+whenever its local target (x, y, yaw) or topology input changes, from the *measured* state on
+its ``state`` input (base pose and the feet from leg kinematics), over the heightmap on its
+``heightmap`` input. A failed solve is recorded (``log.failures``) and the previous plan stays
+on the output, so the tracker holds the robot where that plan ended; nothing raises.
+
+Solving takes wall time but no simulated time: like paper 000's robot, which stands while the
+BLC solves, the plan starts at the simulated time of the update that asked for it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from qz_drake.errors import ConfigError, bad_value
+from qz_drake.robot.params import DEFAULT_PARAMS, NUM_LEGS
+from qz_drake.robot.topology import TOPOLOGY_NAMES
+from qz_drake.systems.mission_sequencer import measured_start
+from qz_drake.systems.state_layout import STATE_SIZE
+
+
+@dataclasses.dataclass
+class MissionTiming:
+    """How long a mission takes: distance / speed, at least ``min_duration``, rounded to whole
+    tripod cycles (two phases). Same fields as the walking scenario's controller section."""
+
+    speed: float = 0.25  # [m/s]
+    phase_duration: float = 0.4  # [s]
+
+
+@dataclasses.dataclass
+class BlcLog:
+    """Every solve the system made: (time, target, topology, success, solve time, reason)."""
+
+    solves: list = dataclasses.field(default_factory=list)
+
+    @property
+    def failures(self) -> list:
+        return [s for s in self.solves if not s[3]]
+
+    @property
+    def solve_time_s(self) -> float:
+        return float(sum(s[4] for s in self.solves))
+
+
+class TrajectoryOptimizationBLC(LeafSystem):
+    """Solves the BLC per mission from the measured state (paper 000, section II-A).
+
+    .. pydrake_system::
+
+        name: TrajectoryOptimizationBLC
+        input_ports:
+        - state
+        - target
+        - topology
+        - heightmap
+        output_ports:
+        - plan
+        - solution
+        - contact_schedule
+        - desired_contact
+
+    ``target`` is (x, y, yaw) of the base link; ``topology`` a topology name (abstract str);
+    ``heightmap`` a HeightMap (abstract). ``plan`` is the BlcPlan the InverseKinematicsTracker
+    follows (None before the first successful solve), ``solution`` the latest BlcSolution
+    (failed ones too), ``contact_schedule`` its ContactSchedule and ``desired_contact`` (6) the
+    planned contact of each foot now (1 in contact).
+
+    Args:
+        params: QingzhuiParams of the robot.
+        timing: MissionTiming (duration of a mission from its length).
+        blc_params: BlcParameters of the solver; None: defaults.
+        check_period: how often the inputs are compared with the last mission. [s]
+    """
+
+    def __init__(self, *, params=DEFAULT_PARAMS, timing: MissionTiming | None = None, blc_params=None,
+                 check_period: float = 0.05):
+        super().__init__()
+        if not check_period > 0:
+            raise bad_value("check_period", check_period, "must be positive", ConfigError)
+        self._params = params
+        self._timing = timing or MissionTiming()
+        self._blc_params = blc_params
+        self.log = BlcLog()
+        self._state = self.DeclareVectorInputPort("state", STATE_SIZE)
+        self._target = self.DeclareVectorInputPort("target", 3)
+        self._topology = self.DeclareAbstractInputPort("topology", AbstractValue.Make("nominal"))
+        self._heightmap = self.DeclareAbstractInputPort("heightmap", AbstractValue.Make(object()))
+        # (target, topology) of the last mission asked for; the current plan; the latest solution.
+        self._mission = self.DeclareAbstractState(AbstractValue.Make(None))
+        self._plan = self.DeclareAbstractState(AbstractValue.Make(None))
+        self._solution = self.DeclareAbstractState(AbstractValue.Make(None))
+        self.DeclareAbstractOutputPort("plan", lambda: AbstractValue.Make(None), self._calc_plan)
+        self.DeclareAbstractOutputPort("solution", lambda: AbstractValue.Make(None), self._calc_solution)
+        self.DeclareAbstractOutputPort("contact_schedule", lambda: AbstractValue.Make(None),
+                                       self._calc_schedule)
+        self.DeclareVectorOutputPort("desired_contact", BasicVector(NUM_LEGS), self._calc_contact)
+        self.DeclareInitializationUnrestrictedUpdateEvent(self._update)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(check_period, 0.0, self._update)
+        self._planners = {}
+
+    # -- solving ------------------------------------------------------------------------------
+    def _planner(self, heightmap):
+        from qz_drake.systems.blc_plan import blc_mission_planner
+
+        key = id(heightmap)
+        if key not in self._planners:
+            self._planners = {key: blc_mission_planner(heightmap, self._params, self._timing,
+                                                       blc_params=self._blc_params)}
+        return self._planners[key]
+
+    def _update(self, context, state):
+        target = tuple(float(v) for v in self._target.Eval(context))
+        topology = self._topology.Eval(context)
+        mission = (target, topology)
+        if mission == context.get_abstract_state(self._mission).get_value():
+            return
+        state.get_mutable_abstract_state(self._mission).set_value(mission)
+        if topology not in TOPOLOGY_NAMES:
+            raise bad_value("topology", topology, f"expected one of {', '.join(TOPOLOGY_NAMES)}",
+                            ConfigError)
+        if not all(math.isfinite(v) for v in target):
+            raise bad_value("target", list(target), "must be finite", ConfigError)
+        t = context.get_time()
+        start = measured_start(self._state.Eval(context), t, self._params)
+        planner = self._planner(self._heightmap.Eval(context))
+        plan, reason = planner(start, target, topology, t)
+        solution = planner.last_solution
+        self.log.solves.append((t, target, topology, plan is not None, solution.solve_time, reason))
+        state.get_mutable_abstract_state(self._solution).set_value(solution)
+        if plan is not None:
+            state.get_mutable_abstract_state(self._plan).set_value(plan)
+
+    # -- outputs -----------------------------------------------------------------------------
+    def _calc_plan(self, context, output):
+        output.set_value(context.get_abstract_state(self._plan).get_value())
+
+    def _calc_solution(self, context, output):
+        output.set_value(context.get_abstract_state(self._solution).get_value())
+
+    def _calc_schedule(self, context, output):
+        solution = context.get_abstract_state(self._solution).get_value()
+        output.set_value(None if solution is None else solution.contact_schedule)
+
+    def _calc_contact(self, context, output):
+        plan = context.get_abstract_state(self._plan).get_value()
+        contact = np.ones(NUM_LEGS) if plan is None else plan.contact(context.get_time())
+        output.SetFromVector(np.asarray(contact, dtype=float))

@@ -1,0 +1,111 @@
+"""TrajectoryOptimizationBLC: solves per mission from the measured state, keeps failures as
+results, and closes the loop with the IK tracker and joint PD on the simulated robot."""
+
+import math
+
+import numpy as np
+import pytest
+from pydrake.common.value import AbstractValue
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
+
+from qz_drake.config import Scenario, TerrainConfig
+from qz_drake.errors import QzError
+from qz_drake.robot.topology import get_topology
+from qz_drake.simulation import add_tracking_controller
+from qz_drake.station import make_station, standing_state
+from qz_drake.systems.blc import MissionTiming, TrajectoryOptimizationBLC
+from qz_drake.systems.state_layout import tilt_deg
+from qz_drake.terrain import make_terrain
+
+
+def _fixed(system, heightmap, state, target, topology="nominal"):
+    context = system.CreateDefaultContext()
+    system.GetInputPort("state").FixValue(context, state)
+    system.GetInputPort("target").FixValue(context, np.asarray(target, dtype=float))
+    system.GetInputPort("topology").FixValue(context, AbstractValue.Make(topology))
+    system.GetInputPort("heightmap").FixValue(context, AbstractValue.Make(heightmap))
+    return context
+
+
+def test_solves_at_start_and_again_only_when_the_mission_changes():
+    heightmap = make_terrain("flat")
+    state = standing_state(heightmap, get_topology("nominal"), xy=(0.2, -0.1), yaw=0.3)
+    blc = TrajectoryOptimizationBLC(timing=MissionTiming(speed=0.3))
+    context = _fixed(blc, heightmap, state, (1.0, 0.2, 0.3))
+    simulator = Simulator(blc, context)
+    simulator.Initialize()
+    assert len(blc.log.solves) == 1 and not blc.log.failures
+    plan = blc.GetOutputPort("plan").Eval(context)
+    solution = blc.GetOutputPort("solution").Eval(context)
+    assert solution.success and plan.solution is solution
+    # From the measured base pose to the target.
+    np.testing.assert_allclose(plan.base_position(0.0)[:2], [0.2, -0.1], atol=1e-6)
+    np.testing.assert_allclose(plan.base_position(plan.end_time)[:2], [1.0, 0.2], atol=1e-3)
+    assert plan.base_rpy(plan.end_time)[2] == pytest.approx(0.3, abs=1e-6)
+    assert blc.GetOutputPort("contact_schedule").Eval(context) is solution.contact_schedule
+    assert blc.GetOutputPort("desired_contact").Eval(context).tolist() == [1.0] * 6
+    # Same mission: no new solve. New target: a new solve, starting at the current time.
+    simulator.AdvanceTo(0.2)
+    assert len(blc.log.solves) == 1
+    blc.GetInputPort("target").FixValue(context, np.array([0.2, 0.6, 0.3]))
+    simulator.AdvanceTo(0.3)
+    assert len(blc.log.solves) == 2
+    second = blc.GetOutputPort("plan").Eval(context)
+    assert 0.2 <= second.start_time <= 0.3
+    np.testing.assert_allclose(second.base_position(second.end_time)[:2], [0.2, 0.6], atol=1e-3)
+
+
+def test_a_failed_solve_is_logged_and_the_previous_plan_kept():
+    heightmap = make_terrain("step", height=1.0, start_x=1.5)  # a 1 m wall
+    state = standing_state(heightmap, get_topology("nominal"))
+    blc = TrajectoryOptimizationBLC()
+    context = _fixed(blc, heightmap, state, (0.3, 0.0, 0.0))
+    simulator = Simulator(blc, context)
+    simulator.Initialize()
+    first = blc.GetOutputPort("plan").Eval(context)
+    assert first is not None
+    blc.GetInputPort("target").FixValue(context, np.array([2.0, 0.0, 0.0]))
+    simulator.AdvanceTo(0.1)
+    assert len(blc.log.failures) == 1 and blc.log.failures[0][5]
+    assert blc.GetOutputPort("plan").Eval(context) is first
+    assert not blc.GetOutputPort("solution").Eval(context).success
+
+
+def test_bad_mission_inputs_name_the_field():
+    heightmap = make_terrain("flat")
+    state = standing_state(heightmap, get_topology("nominal"))
+    blc = TrajectoryOptimizationBLC()
+    with pytest.raises(QzError, match="topology"):
+        Simulator(blc, _fixed(blc, heightmap, state, (1.0, 0.0, 0.0), "crab")).Initialize()
+    with pytest.raises(QzError, match="target"):
+        Simulator(blc, _fixed(blc, heightmap, state, (math.nan, 0.0, 0.0))).Initialize()
+
+
+def test_closed_loop_walk_with_the_blc_system_reaches_its_target():
+    """Station -> BLC (solved at start from the measured state) -> IK tracker -> joint PD."""
+    scenario = Scenario(name="blc_loop", terrain=TerrainConfig(kind="flat", params={"size_x": 5.0}))
+    builder = DiagramBuilder()
+    station_diagram, info = make_station(scenario)
+    station = builder.AddSystem(station_diagram)
+    blc = builder.AddSystem(TrajectoryOptimizationBLC(params=info.params))
+    target = builder.AddSystem(ConstantVectorSource(np.array([0.8, 0.0, 0.0])))
+    topology = builder.AddSystem(ConstantValueSource(AbstractValue.Make("nominal")))
+    heightmap = builder.AddSystem(ConstantValueSource(AbstractValue.Make(info.heightmap)))
+    builder.Connect(station.GetOutputPort("state"), blc.GetInputPort("state"))
+    builder.Connect(target.get_output_port(), blc.GetInputPort("target"))
+    builder.Connect(topology.get_output_port(), blc.GetInputPort("topology"))
+    builder.Connect(heightmap.get_output_port(), blc.GetInputPort("heightmap"))
+    add_tracking_controller(builder, station, info, kp=1500.0, kd=30.0,
+                            plan_port=blc.GetOutputPort("plan"))
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    simulator.Initialize()
+    plan = blc.GetOutputPort("plan").Eval(blc.GetMyContextFromRoot(simulator.get_context()))
+    assert plan is not None
+    simulator.AdvanceTo(plan.end_time + 0.5)
+    x = station.GetOutputPort("state").Eval(station.GetMyContextFromRoot(simulator.get_context()))
+    assert len(blc.log.solves) == 1 and not blc.log.failures
+    assert np.hypot(x[4] - 0.8, x[5]) < 0.1
+    assert tilt_deg(x) < 10.0
