@@ -160,6 +160,10 @@ def shifted_solution_guess(formulation, solution, time_shift: float = 0.0) -> np
             mids = at([0.5 * (a + b) for a, b in stances])
             feet = np.array([solution.foot_positions[leg].value(t).ravel() for t in mids])
             x0[v.footholds[leg]] = feet
+            swings = v.schedule.swing_intervals(leg)
+            if len(swings):
+                mids = at([0.5 * (a + b) for a, b in swings])
+                x0[v.apex_heights[leg]] = [solution.foot_positions[leg].value(t)[2, 0] for t in mids]
             nodes = v.force_nodes[leg]
             free = nodes[:, 0, 0] >= 0
             times = at(v.force_node_times[leg][free])
