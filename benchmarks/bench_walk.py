@@ -13,7 +13,8 @@ from qz_drake.config import load_scenario
 from qz_drake.simulation import simulate
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
-CASES = {"flat_3m": "walk_flat.yaml", "stairs_0.1m": "walk_stairs.yaml", "flat_2m_blc": "walk_flat_blc.yaml"}
+CASES = {"flat_3m": "walk_flat.yaml", "stairs_0.1m": "walk_stairs.yaml", "flat_2m_blc": "walk_flat_blc.yaml",
+         "stairs_0.1m_blc": "walk_stairs_blc.yaml"}
 
 
 def run(repeats: int = 3, quick: bool = False) -> dict:

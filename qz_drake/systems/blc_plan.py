@@ -78,10 +78,13 @@ def blc_mission_planner(heightmap, params, control, blc_params=None):
         robot = robots.setdefault(topology, qingzhui(topology))
         x0, y0, yaw0 = start.xy_yaw
         com_B = np.asarray(robot.com_B, dtype=float)
-        c0, s0 = math.cos(yaw0), math.sin(yaw0)
         base_z = start.base_z if start.base_z is not None else (
             float(np.mean(start.feet_W[:, 2])) - params.foot_radius + params.standing_height)
-        com = np.array([x0 + c0 * com_B[0] - s0 * com_B[1], y0 + s0 * com_B[0] + c0 * com_B[1], base_z + com_B[2]])
+        # The measured attitude: on stairs the robot stands pitched, and its measured feet are
+        # inside their boxes only for that attitude.
+        rpy0 = (start.roll_pitch[0], start.roll_pitch[1], yaw0)
+        R0 = RollPitchYaw(rpy0).ToRotationMatrix().matrix()
+        com = np.array([x0, y0, base_z]) + R0 @ com_B
         c1, s1 = math.cos(target[2]), math.sin(target[2])
         com_target = (target[0] + c1 * com_B[0] - s1 * com_B[1], target[1] + s1 * com_B[0] + c1 * com_B[1], target[2])
         dist = math.hypot(target[0] - x0, target[1] - y0)
@@ -91,7 +94,7 @@ def blc_mission_planner(heightmap, params, control, blc_params=None):
         duration = cycle * max(1, round(duration / cycle))
         # Both tripods must step at least once between the BLC's stands at start and end.
         duration = max(duration, 2 * stand_duration + cycle)
-        task = BlcTask(target=com_target, start_position=tuple(com), start_rpy=(0.0, 0.0, yaw0),
+        task = BlcTask(target=com_target, start_position=tuple(com), start_rpy=rpy0,
                        start_feet=np.asarray(start.feet_W, dtype=float)[:NUM_LEGS], topology=topology,
                        duration=duration)
         solution = solve_blc(task, robot, heightmap, blc_params)

@@ -29,6 +29,7 @@ class MissionStart:
     xy_yaw: tuple[float, float, float]
     feet_W: np.ndarray  # (6, 3) measured foot-sphere centres
     base_z: float | None = None  # measured base height [m]; None: unknown
+    roll_pitch: tuple[float, float] = (0.0, 0.0)  # measured base roll and pitch [rad]
 
 
 def measured_start(x: np.ndarray, t: float, params) -> MissionStart:
@@ -37,8 +38,9 @@ def measured_start(x: np.ndarray, t: float, params) -> MissionStart:
     X_WB = base_pose(x)
     feet_B = all_foot_positions(x[7:25], params)
     feet_W = feet_B @ X_WB.rotation().matrix().T + X_WB.translation()
-    return MissionStart(time=t, xy_yaw=(float(x[4]), float(x[5]), float(base_rpy(x)[2])),
-                        feet_W=feet_W, base_z=float(x[6]))
+    rpy = base_rpy(x)
+    return MissionStart(time=t, xy_yaw=(float(x[4]), float(x[5]), float(rpy[2])),
+                        feet_W=feet_W, base_z=float(x[6]), roll_pitch=(float(rpy[0]), float(rpy[1])))
 
 
 @dataclasses.dataclass

@@ -239,10 +239,16 @@ class BlcFormulation:
             prog.AddBoundingBoxConstraint(self.lower[idx], self.upper[idx], x_vars[idx])
         counter = {"jacobians": 0}
         cache = EvaluationCache(v.num_vars)
-        # Drake calls visualization callbacks with the whole x whenever Ipopt evaluates the
-        # objective at a new point; the constraint bindings then reuse one vectorised
-        # evaluation per constraint instead of one per binding.
+        # The constraint bindings reuse one vectorised evaluation per constraint instead of one
+        # per binding, which needs the whole x. Drake calls visualization callbacks with it when
+        # Ipopt evaluates the objective; at trial points Ipopt often asks for the constraints
+        # first, so a free one-row constraint on all variables, bound before the others (Drake
+        # evaluates constraints in order), hands x over then too. Its Jacobian is structurally
+        # empty but for one zero entry.
         prog.AddVisualizationCallback(cache.set_x, x_vars)
+        capture = prog.AddConstraint(_capture_function(cache), [-np.inf], [np.inf], x_vars,
+                                     "capture x")
+        capture.evaluator().SetGradientSparsityPattern([(0, 0)])
         first = True
         for c in self.nonlinear:
             group = ConstraintGroupCache(c, cache)
@@ -307,6 +313,15 @@ class EvaluationCache:
         if not np.array_equal(x, self.x):
             self.x[:] = x
             self.version += 1
+
+
+def _capture_function(cache: EvaluationCache):
+    def capture(z):
+        if z.dtype == object:  # Jacobian pass: nothing to capture (values come first)
+            return InitializeAutoDiff(np.zeros(1), np.zeros((1, z[0].derivatives().size)))
+        cache.set_x(z)
+        return np.zeros(1)
+    return capture
 
 
 class ConstraintGroupCache:
