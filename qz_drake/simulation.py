@@ -176,6 +176,8 @@ _TURN_RATE = 0.4
 _MIN_MISSION_DURATION = 1.2
 # A tilt beyond this ends the run as a fall. [deg]
 _FALL_TILT_DEG = 60.0
+# Standing time before the first mission starts: the robot settles onto the ground. [s]
+_SETTLE_TIME = 0.5
 
 
 def _tripod_planner(heightmap, params, control):
@@ -197,8 +199,7 @@ def _tripod_planner(heightmap, params, control):
 def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | Path | None = None,
          max_duration: float | None = None) -> SimulationResult:
     """Walks a scenario's route: missions planned from the measured state, IK + joint PD."""
-    from qz_drake.robot.kinematics import all_foot_positions
-    from qz_drake.systems.mission_sequencer import MissionSequencer, MissionStart, split_route
+    from qz_drake.systems.mission_sequencer import split_route
 
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
@@ -211,36 +212,24 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     x0 = info.initial_state
     targets = split_route(tuple(x0[4:6]), [(w.x, w.y, w.yaw, w.topology) for w in control.route],
                           control.mission_length)
-    if control.planner == "blc":
-        from qz_drake.systems.blc_plan import blc_mission_planner
-
-        planner = blc_mission_planner(info.heightmap, info.params, control)
-    else:
-        planner = _tripod_planner(info.heightmap, info.params, control)
-    feet0 = all_foot_positions(x0[7:25], info.params) + x0[4:7]
     # Wall time counts from the first mission's planning, so the real-time factor includes it.
     wall_start = time.perf_counter()
-    # The first mission starts after 0.5 s of standing (the robot settles on the ground).
-    first, reason = planner(MissionStart(0.5, (x0[4], x0[5], scenario.robot.initial_yaw), feet0, float(x0[6])),
-                            targets[0][:3], targets[0][3], 0.5)
-    if first is None:
-        metrics = {"scenario": scenario.name, "success": False, "reason": f"mission 0 could not be planned: {reason}",
-                   "missions": 0, "planner": control.planner, **_planner_counts(planner)}
-        if out is not None:
-            (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        return SimulationResult(metrics=metrics, times=np.zeros(0), states=np.zeros((0, 49)),
-                                foot_contact=np.zeros((0, 6)), trunk_contact=np.zeros(0), files={})
-    sequencer = builder.AddSystem(MissionSequencer(targets=targets, planner=planner, first_plan=first,
-                                                   params=info.params))
-    builder.Connect(station.GetOutputPort("state"), sequencer.GetInputPort("state"))
+    if control.planner == "blc":
+        missions = _BlcMissions(builder, station, info, targets, control)
+    else:
+        missions = _PlannerMissions(builder, station, info, targets, control, scenario.robot.initial_yaw)
+        if missions.first_failure:
+            return _unplanned(scenario, out, missions)
     tracker, _ = add_tracking_controller(builder, station, info, kp=control.kp, kd=control.kd,
-                                         plan_port=sequencer.GetOutputPort("plan"),
+                                         plan_port=missions.plan_port,
                                          position_mode=scenario.station.control_mode == "position")
     state_log, contact_log, trunk_log = _log_station(builder, station)
     desired_log = LogVectorOutput(tracker.GetOutputPort("desired_state"), builder, 1.0 / LOG_RATE)
     diagram = builder.Build()
     simulator = Simulator(diagram)
     simulator.Initialize()
+    if missions.first_failure:
+        return _unplanned(scenario, out, missions)
     limit = scenario.simulation.duration if max_duration is None else max_duration
     if meshcat is not None:
         meshcat.StartRecording()
@@ -253,8 +242,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
         if tilt_deg(x) > _FALL_TILT_DEG:
             fell = True
             break
-        last = sequencer.log.plans[-1]
-        if sequencer.done and context.get_time() >= last.end_time + 0.5:
+        last = missions.log.plans[-1]
+        if missions.done and context.get_time() >= last.end_time + 0.5:
             break
     wall = time.perf_counter() - wall_start
     if meshcat is not None:
@@ -264,10 +253,10 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     contacts = contact_log.FindLog(context).data().T
     trunk = trunk_log.FindLog(context).data()[0]
     desired = desired_log.FindLog(context).data().T
-    metrics = walking_metrics(scenario, info, sequencer.log, targets, times, states, contacts, trunk, desired,
-                              fell=fell, timed_out=not sequencer.done or context.get_time() >= limit)
+    metrics = walking_metrics(scenario, info, missions.log, targets, times, states, contacts, trunk, desired,
+                              fell=fell, timed_out=not missions.done or context.get_time() >= limit)
     sim_time = float(context.get_time())
-    counts = _planner_counts(planner)
+    counts = missions.counts()
     metrics.update(sim_time_s=sim_time, wall_time_s=wall, realtime_factor=sim_time / wall if wall > 0 else 0.0,
                    realtime_factor_excluding_planning=sim_time / max(wall - counts["blc_solve_time_s"], 1e-9),
                    terrain_contact=info.contact_representation, planner=control.planner, **counts)
@@ -277,18 +266,101 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
         from qz_drake.viz.recording import save_recording
 
         files["recording"] = str(save_recording(meshcat, out / "recording.html"))
-        files.update(plot_walk(times, states, contacts, desired, sequencer.log, info, out))
+        files.update(plot_walk(times, states, contacts, desired, missions.log, info, out))
         (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
         files["metrics"] = str(out / "metrics.json")
     return SimulationResult(metrics=metrics, times=times, states=states, foot_contact=contacts,
                             trunk_contact=trunk, files=files)
 
 
-def _planner_counts(planner) -> dict:
-    """BLC solve statistics (zero for the kinematic tripod planner)."""
-    stats = getattr(planner, "stats", {"solves": 0, "failures": 0, "solve_time_s": 0.0})
-    return {"blc_solves": stats["solves"], "blc_failures": stats["failures"],
-            "blc_solve_time_s": stats["solve_time_s"]}
+class _PlannerMissions:
+    """Missions planned by a callable (the kinematic tripod plan) inside a MissionSequencer."""
+
+    def __init__(self, builder, station, info, targets, control, initial_yaw: float):
+        from qz_drake.robot.kinematics import all_foot_positions
+        from qz_drake.systems.mission_sequencer import MissionSequencer, MissionStart
+
+        self.planner = _tripod_planner(info.heightmap, info.params, control)
+        x0 = info.initial_state
+        feet0 = all_foot_positions(x0[7:25], info.params) + x0[4:7]
+        # The first mission starts after 0.5 s of standing (the robot settles on the ground).
+        first, reason = self.planner(MissionStart(_SETTLE_TIME, (x0[4], x0[5], initial_yaw), feet0, float(x0[6])),
+                                     targets[0][:3], targets[0][3], _SETTLE_TIME)
+        self.first_failure = "" if first is not None else reason
+        if first is None:
+            return
+        self.sequencer = builder.AddSystem(MissionSequencer(targets=targets, planner=self.planner,
+                                                            first_plan=first, params=info.params))
+        builder.Connect(station.GetOutputPort("state"), self.sequencer.GetInputPort("state"))
+        self.plan_port = self.sequencer.GetOutputPort("plan")
+
+    @property
+    def log(self):
+        return self.sequencer.log
+
+    @property
+    def done(self) -> bool:
+        return self.sequencer.done
+
+    def counts(self) -> dict:
+        return {"blc_solves": 0, "blc_failures": 0, "blc_solve_time_s": 0.0}
+
+
+class _BlcMissions:
+    """Missions solved by the TrajectoryOptimizationBLC system in the diagram: a
+    MissionTargetSequencer hands it each local target once the previous plan has ended."""
+
+    def __init__(self, builder, station, info, targets, control):
+        from pydrake.common.value import AbstractValue
+        from pydrake.systems.primitives import ConstantValueSource
+
+        from qz_drake.systems.blc import MissionTiming, TrajectoryOptimizationBLC
+        from qz_drake.systems.mission_sequencer import MissionTargetSequencer
+
+        self.blc = builder.AddSystem(TrajectoryOptimizationBLC(
+            params=info.params, timing=MissionTiming(control.speed, control.phase_duration),
+            settle_time=_SETTLE_TIME))
+        self.blc.set_name("blc")
+        self.targets = builder.AddSystem(MissionTargetSequencer(targets=targets))
+        heightmap = builder.AddSystem(ConstantValueSource(AbstractValue.Make(info.heightmap)))
+        builder.Connect(station.GetOutputPort("state"), self.blc.GetInputPort("state"))
+        builder.Connect(self.targets.GetOutputPort("target"), self.blc.GetInputPort("target"))
+        builder.Connect(self.targets.GetOutputPort("topology"), self.blc.GetInputPort("topology"))
+        builder.Connect(heightmap.get_output_port(), self.blc.GetInputPort("heightmap"))
+        builder.Connect(self.blc.GetOutputPort("plan"), self.targets.GetInputPort("plan"))
+        self.plan_port = self.blc.GetOutputPort("plan")
+
+    @property
+    def first_failure(self) -> str:
+        solves = self.blc.log.solves
+        return solves[0][5] if solves and not solves[0][3] else ""
+
+    @property
+    def log(self):
+        log = self.targets.log
+        # Failures as (mission index, reason): the index of the target the BLC was given.
+        log.failures = [(len(log.plans), s[5]) for s in self.blc.log.failures]
+        return log
+
+    @property
+    def done(self) -> bool:
+        log = self.log
+        return bool(log.failures) or len(log.plans) >= self.targets.num_targets
+
+    def counts(self) -> dict:
+        log = self.blc.log
+        return {"blc_solves": len(log.solves), "blc_failures": len(log.failures),
+                "blc_solve_time_s": log.solve_time_s}
+
+
+def _unplanned(scenario, out, missions) -> SimulationResult:
+    metrics = {"scenario": scenario.name, "success": False,
+               "reason": f"mission 0 could not be planned: {missions.first_failure}",
+               "missions": 0, "planner": scenario.controller.planner, **missions.counts()}
+    if out is not None:
+        (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    return SimulationResult(metrics=metrics, times=np.zeros(0), states=np.zeros((0, 49)),
+                            foot_contact=np.zeros((0, 6)), trunk_contact=np.zeros(0), files={})
 
 
 def _planned_base(plans, times):

@@ -88,3 +88,18 @@ def test_walks_missions_planned_by_the_blc():
     assert m["success"], m
     assert m["blc_solves"] == 2 and m["blc_failures"] == 0
     assert m["tracking_rms_m"] < 0.05 and m["final_xy_error_m"] < 0.15
+
+
+def test_a_blc_mission_into_a_wall_is_a_reported_failure(tmp_path, capsys):
+    """The BLC (the TrajectoryOptimizationBLC system in the diagram) cannot plan up a 1 m wall:
+    the run ends with success = false, the failed solve's reason, and exit status 1."""
+    path = tmp_path / "wall.yaml"
+    path.write_text("name: wall\nterrain: {kind: step, params: {height: 1.0, start_x: 1.6}}\n"
+                    "simulation: {duration: 12.0}\n"
+                    "controller: {kind: walk, planner: blc, route: [{x: 2.4}]}\n")
+    code = main(["simulate", str(path), "--out", str(tmp_path / "o")])
+    metrics = json.loads(capsys.readouterr().out)
+    assert code == 1 and not metrics["success"]
+    assert "could not be planned" in metrics["reason"] and "BLC" in metrics["reason"]
+    assert metrics["blc_failures"] == 1 and metrics["blc_solves"] == 2
+    assert metrics["trunk_terrain_contacts"] == 0

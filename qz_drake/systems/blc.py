@@ -78,13 +78,18 @@ class TrajectoryOptimizationBLC(LeafSystem):
         timing: MissionTiming (duration of a mission from its length).
         blc_params: BlcParameters of the solver; None: defaults.
         check_period: how often the inputs are compared with the last mission. [s]
+        settle_time: the plan solved at initialization starts this much later (the robot
+            settles onto the ground first; later plans start when they are solved). [s]
     """
 
     def __init__(self, *, params=DEFAULT_PARAMS, timing: MissionTiming | None = None, blc_params=None,
-                 check_period: float = 0.05):
+                 check_period: float = 0.05, settle_time: float = 0.0):
         super().__init__()
         if not check_period > 0:
             raise bad_value("check_period", check_period, "must be positive", ConfigError)
+        if not settle_time >= 0:
+            raise bad_value("settle_time", settle_time, "must be non-negative", ConfigError)
+        self._settle_time = float(settle_time)
         self._params = params
         self._timing = timing or MissionTiming()
         self._blc_params = blc_params
@@ -97,12 +102,19 @@ class TrajectoryOptimizationBLC(LeafSystem):
         self._mission = self.DeclareAbstractState(AbstractValue.Make(None))
         self._plan = self.DeclareAbstractState(AbstractValue.Make(None))
         self._solution = self.DeclareAbstractState(AbstractValue.Make(None))
-        self.DeclareAbstractOutputPort("plan", lambda: AbstractValue.Make(None), self._calc_plan)
-        self.DeclareAbstractOutputPort("solution", lambda: AbstractValue.Make(None), self._calc_solution)
+        # Outputs depend on the state alone (no direct feedthrough: the loop through the
+        # station and the route sequencer is not algebraic).
+        state_only = {self.all_state_ticket()}
+        self.DeclareAbstractOutputPort("plan", lambda: AbstractValue.Make(None), self._calc_plan,
+                                       prerequisites_of_calc=state_only)
+        self.DeclareAbstractOutputPort("solution", lambda: AbstractValue.Make(None),
+                                       self._calc_solution, prerequisites_of_calc=state_only)
         self.DeclareAbstractOutputPort("contact_schedule", lambda: AbstractValue.Make(None),
-                                       self._calc_schedule)
-        self.DeclareVectorOutputPort("desired_contact", BasicVector(NUM_LEGS), self._calc_contact)
-        self.DeclareInitializationUnrestrictedUpdateEvent(self._update)
+                                       self._calc_schedule, prerequisites_of_calc=state_only)
+        self.DeclareVectorOutputPort("desired_contact", BasicVector(NUM_LEGS), self._calc_contact,
+                                     prerequisites_of_calc={self.all_state_ticket(),
+                                                            self.time_ticket()})
+        self.DeclareInitializationUnrestrictedUpdateEvent(self._initialize)
         self.DeclarePeriodicUnrestrictedUpdateEvent(check_period, 0.0, self._update)
         self._planners = {}
 
@@ -116,7 +128,10 @@ class TrajectoryOptimizationBLC(LeafSystem):
                                                        blc_params=self._blc_params)}
         return self._planners[key]
 
-    def _update(self, context, state):
+    def _initialize(self, context, state):
+        self._update(context, state, delay=self._settle_time)
+
+    def _update(self, context, state, delay: float = 0.0):
         target = tuple(float(v) for v in self._target.Eval(context))
         topology = self._topology.Eval(context)
         mission = (target, topology)
@@ -131,9 +146,9 @@ class TrajectoryOptimizationBLC(LeafSystem):
         t = context.get_time()
         start = measured_start(self._state.Eval(context), t, self._params)
         planner = self._planner(self._heightmap.Eval(context))
-        plan, reason = planner(start, target, topology, t)
+        plan, reason = planner(start, target, topology, t + delay)
         solution = planner.last_solution
-        self.log.solves.append((t, target, topology, plan is not None, solution.solve_time, reason))
+        self.log.solves.append((t + delay, target, topology, plan is not None, solution.solve_time, reason))
         state.get_mutable_abstract_state(self._solution).set_value(solution)
         if plan is not None:
             state.get_mutable_abstract_state(self._plan).set_value(plan)

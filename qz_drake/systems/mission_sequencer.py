@@ -1,10 +1,14 @@
 """Chains local missions along a route (paper 000, section III-B).
 
-A route is a list of waypoints, each with a topology. The sequencer splits it into missions no
-longer than ``mission_length`` and, when a mission's plan ends, plans the next one from the
-*measured* state (base pose and feet), so that tracking errors do not accumulate. The planner is
-any callable ``plan(start, target, topology, start_time) -> (plan or None, reason)``: the
-kinematic tripod plan now, the BLC's optimisation once it is wired in.
+A route is a list of waypoints, each with a topology, split into missions no longer than
+``mission_length``; when a mission's plan ends, the next one is planned from the *measured*
+state (base pose and feet), so that tracking errors do not accumulate. Two ways to chain them:
+
+* ``MissionSequencer`` calls a planner function ``plan(start, target, topology, start_time) ->
+  (plan or None, reason)`` itself (the kinematic tripod plan);
+* ``MissionTargetSequencer`` only hands out the local targets, to the TrajectoryOptimizationBLC
+  system (``qz_drake.systems.blc``), which solves each one from the measured state: the BLC
+  loop of paper 000 as systems in one diagram.
 """
 
 from __future__ import annotations
@@ -131,3 +135,71 @@ class MissionSequencer(LeafSystem):
         self.log.plans.append(new_plan)
         state.get_mutable_abstract_state(self._index).set_value(index + 1)
         state.get_mutable_abstract_state(self._plan).set_value(new_plan)
+
+
+class MissionTargetSequencer(LeafSystem):
+    """The route side of the BLC loop: gives TrajectoryOptimizationBLC its local target and
+    topology, one mission after another; the next target goes out once the plan for the
+    current one has ended (the BLC then solves it from the measured state).
+
+    .. pydrake_system::
+
+        name: MissionTargetSequencer
+        input_ports:
+        - plan
+        output_ports:
+        - target
+        - topology
+
+    ``log`` records the targets handed out, their start times and the plans received, in the
+    MissionLog shape the walking metrics use (failures are the BLC's to report).
+
+    Args:
+        targets: local targets (x, y, yaw, topology), e.g. from :func:`split_route`.
+        check_period: how often the plan is looked at. [s]
+    """
+
+    def __init__(self, *, targets, check_period: float = 0.05):
+        super().__init__()
+        self._targets = list(targets)
+        if not self._targets:
+            raise ValueError("MissionTargetSequencer needs at least one target")
+        self.log = MissionLog()
+        self._plan = self.DeclareAbstractInputPort("plan", AbstractValue.Make(None))
+        self._index = self.DeclareAbstractState(AbstractValue.Make(0))
+        state_only = {self.all_state_ticket()}
+        self.DeclareVectorOutputPort("target", 3, self._calc_target, prerequisites_of_calc=state_only)
+        self.DeclareAbstractOutputPort("topology", lambda: AbstractValue.Make("nominal"),
+                                       self._calc_topology, prerequisites_of_calc=state_only)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(check_period, 0.0, self._update)
+        self._record(0, 0.0)
+
+    @property
+    def num_targets(self) -> int:
+        return len(self._targets)
+
+    def _record(self, index: int, t: float) -> None:
+        self.log.targets.append(self._targets[index])
+        self.log.topologies.append(self._targets[index][3])
+        self.log.start_times.append(t)
+
+    def _calc_target(self, context, output):
+        index = context.get_abstract_state(self._index).get_value()
+        output.SetFromVector(np.asarray(self._targets[index][:3], dtype=float))
+
+    def _calc_topology(self, context, output):
+        output.set_value(self._targets[context.get_abstract_state(self._index).get_value()][3])
+
+    def _update(self, context, state):
+        plan = self._plan.Eval(context)
+        if plan is None:
+            return
+        if not self.log.plans or self.log.plans[-1] is not plan:
+            self.log.plans.append(plan)
+        index = context.get_abstract_state(self._index).get_value()
+        # The plan must be the current mission's (one plan per target) and have ended.
+        if len(self.log.plans) != index + 1 or context.get_time() < plan.end_time:
+            return
+        if index + 1 < len(self._targets):
+            state.get_mutable_abstract_state(self._index).set_value(index + 1)
+            self._record(index + 1, context.get_time())
