@@ -98,6 +98,10 @@ class ControllerConfig:
     speed: float = 0.25
     # One tripod swing (= stance) phase. [s]
     phase_duration: float = 0.4
+    # BLC planner only: ask for the next mission this long before the current plan ends, so
+    # that the BLC solves it from the plan's expected end state while the robot walks (paper
+    # 000); 0: at the end, from the measured state. [s]
+    plan_ahead: float = 0.0
     # Joint stiffness. [N*m/rad]
     kp: float = 1500.0
     # Joint damping. [N*m*s/rad]
@@ -226,6 +230,8 @@ def validate_scenario(scenario: Scenario) -> Scenario:
     _positive("scenario.controller.mission_length", c.mission_length)
     _positive("scenario.controller.speed", c.speed)
     _positive("scenario.controller.phase_duration", c.phase_duration)
+    if not (math.isfinite(c.plan_ahead) and c.plan_ahead >= 0):
+        raise bad_value("scenario.controller.plan_ahead", c.plan_ahead, "must be a non-negative number of seconds")
     _positive("scenario.controller.kp", c.kp)
     _positive("scenario.controller.kd", c.kd)
     return scenario

@@ -321,7 +321,8 @@ class _BlcMissions:
             params=info.params, timing=MissionTiming(control.speed, control.phase_duration),
             settle_time=_SETTLE_TIME))
         self.blc.set_name("blc")
-        self.targets = builder.AddSystem(MissionTargetSequencer(targets=targets))
+        self.targets = builder.AddSystem(MissionTargetSequencer(targets=targets,
+                                                               plan_ahead=control.plan_ahead))
         heightmap = builder.AddSystem(ConstantValueSource(AbstractValue.Make(info.heightmap)))
         builder.Connect(station.GetOutputPort("state"), self.blc.GetInputPort("state"))
         builder.Connect(self.targets.GetOutputPort("target"), self.blc.GetInputPort("target"))

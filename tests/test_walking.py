@@ -53,6 +53,8 @@ def test_an_unreachable_goal_in_too_little_time_is_a_reported_failure(tmp_path, 
     ("controller: {kind: walk, route: [{x: 1.0, topolgy: nominal}]}", r"scenario.controller.route\[0\].topolgy"),
     ("controller: {kind: walk, route: [{x: 1.0, topology: flat}]}", r"scenario.controller.route\[0\].topology"),
     ("controller: {kind: run}", "scenario.controller.kind"),
+    ("controller: {kind: walk, planner: blc, plan_ahead: -1, route: [{x: 1.0}]}",
+     "scenario.controller.plan_ahead"),
 ])
 def test_bad_walking_scenarios_name_the_field(text, field):
     with pytest.raises(ConfigError, match=field):

@@ -1,9 +1,12 @@
 """``TrajectoryOptimizationBLC``: the bottom-level controller of paper 000 as a Drake system.
 
 It holds the current BLC solution and solves a new one whenever a new mission starts, i.e.
-whenever its local target (x, y, yaw) or topology input changes, from the *measured* state on
-its ``state`` input (base pose and the feet from leg kinematics), over the heightmap on its
-``heightmap`` input. A failed solve is recorded (``log.failures``) and the previous plan stays
+whenever its local target (x, y, yaw) or topology input changes, over the heightmap on its
+``heightmap`` input. If the current plan has ended, the new one starts from the *measured*
+state on the ``state`` input (base pose and the feet from leg kinematics). If it is still
+running (the route side asked ahead, as paper 000 does so that the robot need not stand while
+the BLC solves), the new one starts where the current plan is expected to end, and takes over
+on the ``plan`` output at that time. A failed solve is recorded (``log.failures``) and the previous plan stays
 on the output, so the tracker holds the robot where that plan ended; nothing raises.
 
 Solving takes wall time but no simulated time: like paper 000's robot, which stands while the
@@ -22,7 +25,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 from qz_drake.errors import ConfigError, bad_value
 from qz_drake.robot.params import DEFAULT_PARAMS, NUM_LEGS
 from qz_drake.robot.topology import TOPOLOGY_NAMES
-from qz_drake.systems.mission_sequencer import measured_start
+from qz_drake.systems.mission_sequencer import MissionStart, measured_start
 from qz_drake.systems.state_layout import STATE_SIZE
 
 
@@ -48,6 +51,16 @@ class BlcLog:
     @property
     def solve_time_s(self) -> float:
         return float(sum(s[4] for s in self.solves))
+
+
+def expected_end(plan) -> MissionStart:
+    """The mission start a plan is expected to end in: its base pose and feet at end_time."""
+    t = plan.end_time
+    p = plan.base_position(t)
+    rpy = plan.base_rpy(t)
+    return MissionStart(time=t, xy_yaw=(float(p[0]), float(p[1]), float(rpy[2])),
+                        feet_W=np.asarray(plan.foot_positions(t), dtype=float), base_z=float(p[2]),
+                        roll_pitch=(float(rpy[0]), float(rpy[1])))
 
 
 class TrajectoryOptimizationBLC(LeafSystem):
@@ -101,12 +114,15 @@ class TrajectoryOptimizationBLC(LeafSystem):
         # (target, topology) of the last mission asked for; the current plan; the latest solution.
         self._mission = self.DeclareAbstractState(AbstractValue.Make(None))
         self._plan = self.DeclareAbstractState(AbstractValue.Make(None))
+        # A plan solved ahead, waiting for the current one to end (None: none).
+        self._next = self.DeclareAbstractState(AbstractValue.Make(None))
         self._solution = self.DeclareAbstractState(AbstractValue.Make(None))
         # Outputs depend on the state alone (no direct feedthrough: the loop through the
         # station and the route sequencer is not algebraic).
         state_only = {self.all_state_ticket()}
         self.DeclareAbstractOutputPort("plan", lambda: AbstractValue.Make(None), self._calc_plan,
-                                       prerequisites_of_calc=state_only)
+                                       prerequisites_of_calc={self.all_state_ticket(),
+                                                              self.time_ticket()})
         self.DeclareAbstractOutputPort("solution", lambda: AbstractValue.Make(None),
                                        self._calc_solution, prerequisites_of_calc=state_only)
         self.DeclareAbstractOutputPort("contact_schedule", lambda: AbstractValue.Make(None),
@@ -131,7 +147,18 @@ class TrajectoryOptimizationBLC(LeafSystem):
     def _initialize(self, context, state):
         self._update(context, state, delay=self._settle_time)
 
+    def _current_plan(self, context):
+        """The plan in force now: a plan solved ahead once its start time has come."""
+        ahead = context.get_abstract_state(self._next).get_value()
+        if ahead is not None and context.get_time() >= ahead.start_time:
+            return ahead
+        return context.get_abstract_state(self._plan).get_value()
+
     def _update(self, context, state, delay: float = 0.0):
+        current = self._current_plan(context)
+        if current is not context.get_abstract_state(self._plan).get_value():
+            state.get_mutable_abstract_state(self._plan).set_value(current)
+            state.get_mutable_abstract_state(self._next).set_value(None)
         target = tuple(float(v) for v in self._target.Eval(context))
         topology = self._topology.Eval(context)
         mission = (target, topology)
@@ -144,18 +171,24 @@ class TrajectoryOptimizationBLC(LeafSystem):
         if not all(math.isfinite(v) for v in target):
             raise bad_value("target", list(target), "must be finite", ConfigError)
         t = context.get_time()
-        start = measured_start(self._state.Eval(context), t, self._params)
+        ahead = current is not None and t < current.end_time
+        if ahead:
+            start = expected_end(current)
+        else:
+            start = measured_start(self._state.Eval(context), t, self._params)
+            start.time = t + delay
         planner = self._planner(self._heightmap.Eval(context))
-        plan, reason = planner(start, target, topology, t + delay)
+        plan, reason = planner(start, target, topology, start.time)
         solution = planner.last_solution
-        self.log.solves.append((t + delay, target, topology, plan is not None, solution.solve_time, reason))
+        self.log.solves.append((start.time, target, topology, plan is not None, solution.solve_time,
+                                reason))
         state.get_mutable_abstract_state(self._solution).set_value(solution)
         if plan is not None:
-            state.get_mutable_abstract_state(self._plan).set_value(plan)
+            state.get_mutable_abstract_state(self._next if ahead else self._plan).set_value(plan)
 
     # -- outputs -----------------------------------------------------------------------------
     def _calc_plan(self, context, output):
-        output.set_value(context.get_abstract_state(self._plan).get_value())
+        output.set_value(self._current_plan(context))
 
     def _calc_solution(self, context, output):
         output.set_value(context.get_abstract_state(self._solution).get_value())
@@ -165,6 +198,6 @@ class TrajectoryOptimizationBLC(LeafSystem):
         output.set_value(None if solution is None else solution.contact_schedule)
 
     def _calc_contact(self, context, output):
-        plan = context.get_abstract_state(self._plan).get_value()
+        plan = self._current_plan(context)
         contact = np.ones(NUM_LEGS) if plan is None else plan.contact(context.get_time())
         output.SetFromVector(np.asarray(contact, dtype=float))

@@ -27,7 +27,7 @@ from qz_drake.systems.state_layout import STATE_SIZE, base_pose, base_rpy
 
 @dataclasses.dataclass
 class MissionStart:
-    """The measured start of a mission."""
+    """Where a mission starts: measured, or expected at the end of the previous plan."""
 
     time: float
     xy_yaw: tuple[float, float, float]
@@ -157,10 +157,14 @@ class MissionTargetSequencer(LeafSystem):
     Args:
         targets: local targets (x, y, yaw, topology), e.g. from :func:`split_route`.
         check_period: how often the plan is looked at. [s]
+        plan_ahead: hand out the next target this long before the current plan ends (the BLC
+            then solves it from the plan's expected end state while the robot walks); 0: when
+            it has ended (solved from the measured state). [s]
     """
 
-    def __init__(self, *, targets, check_period: float = 0.05):
+    def __init__(self, *, targets, check_period: float = 0.05, plan_ahead: float = 0.0):
         super().__init__()
+        self._plan_ahead = float(plan_ahead)
         self._targets = list(targets)
         if not self._targets:
             raise ValueError("MissionTargetSequencer needs at least one target")
@@ -197,8 +201,8 @@ class MissionTargetSequencer(LeafSystem):
         if not self.log.plans or self.log.plans[-1] is not plan:
             self.log.plans.append(plan)
         index = context.get_abstract_state(self._index).get_value()
-        # The plan must be the current mission's (one plan per target) and have ended.
-        if len(self.log.plans) != index + 1 or context.get_time() < plan.end_time:
+        # The plan must be the current mission's (one plan per target) and (nearly) have ended.
+        if len(self.log.plans) != index + 1 or context.get_time() < plan.end_time - self._plan_ahead:
             return
         if index + 1 < len(self._targets):
             state.get_mutable_abstract_state(self._index).set_value(index + 1)

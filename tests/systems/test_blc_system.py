@@ -46,14 +46,15 @@ def test_solves_at_start_and_again_only_when_the_mission_changes():
     assert plan.base_rpy(plan.end_time)[2] == pytest.approx(0.3, abs=1e-6)
     assert blc.GetOutputPort("contact_schedule").Eval(context) is solution.contact_schedule
     assert blc.GetOutputPort("desired_contact").Eval(context).tolist() == [1.0] * 6
-    # Same mission: no new solve. New target: a new solve, starting at the current time.
-    simulator.AdvanceTo(0.2)
+    # Same mission: no new solve. A new target after the plan ended: a new solve from the
+    # measured state, starting at the current time.
+    simulator.AdvanceTo(plan.end_time + 0.1)
     assert len(blc.log.solves) == 1
     blc.GetInputPort("target").FixValue(context, np.array([0.2, 0.6, 0.3]))
-    simulator.AdvanceTo(0.3)
+    simulator.AdvanceTo(plan.end_time + 0.2)
     assert len(blc.log.solves) == 2
     second = blc.GetOutputPort("plan").Eval(context)
-    assert 0.2 <= second.start_time <= 0.3
+    assert plan.end_time + 0.1 <= second.start_time <= plan.end_time + 0.2
     np.testing.assert_allclose(second.base_position(second.end_time)[:2], [0.2, 0.6], atol=1e-3)
 
 
@@ -109,3 +110,27 @@ def test_closed_loop_walk_with_the_blc_system_reaches_its_target():
     assert len(blc.log.solves) == 1 and not blc.log.failures
     assert np.hypot(x[4] - 0.8, x[5]) < 0.1
     assert tilt_deg(x) < 10.0
+
+
+def test_a_mission_asked_ahead_starts_where_the_current_plan_ends():
+    heightmap = make_terrain("flat")
+    state = standing_state(heightmap, get_topology("nominal"))
+    blc = TrajectoryOptimizationBLC()
+    context = _fixed(blc, heightmap, state, (0.6, 0.0, 0.0))
+    simulator = Simulator(blc, context)
+    simulator.Initialize()
+    first = blc.GetOutputPort("plan").Eval(context)
+    simulator.AdvanceTo(0.5)
+    blc.GetInputPort("target").FixValue(context, np.array([1.2, 0.0, 0.0]))
+    simulator.AdvanceTo(0.6)
+    assert len(blc.log.solves) == 2 and not blc.log.failures
+    assert blc.log.solves[1][0] == pytest.approx(first.end_time)
+    # The current plan stays on the output until it ends; then the one solved ahead takes over.
+    assert blc.GetOutputPort("plan").Eval(context) is first
+    simulator.AdvanceTo(first.end_time + 0.01)
+    second = blc.GetOutputPort("plan").Eval(context)
+    assert second is not first and second.start_time == pytest.approx(first.end_time)
+    np.testing.assert_allclose(second.base_position(second.start_time),
+                               first.base_position(first.end_time), atol=1e-6)
+    np.testing.assert_allclose(second.foot_positions(second.start_time),
+                               first.foot_positions(first.end_time), atol=1e-6)
