@@ -185,6 +185,31 @@ class GaitSearchResult:
     # Candidate states checked in all.
     nodes_expanded: int
     config: StaticGaitConfig
+    # The standing pose the gait starts from: feet (4, 3) in LEGS order, body centre and
+    # roll-pitch-yaw, world frame. [m], [rad]
+    start_feet: np.ndarray | None = None
+    start_p_WB: np.ndarray | None = None
+    start_rpy: np.ndarray | None = None
+    # With ``record_tree``: every candidate state checked, in visiting order (Fig. 7).
+    tree: list[SearchNode] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class SearchNode:
+    """One candidate state the search checked, for drawing the search tree (Fig. 7)."""
+
+    # Visit index, and the index of the node it was expanded from (-1: the committed state the
+    # decision started from).
+    index: int
+    parent: int
+    # The step it would take, and the decision (committed step) during which it was checked.
+    step: int
+    decision: int
+    # Passed the checks (kinematics, collisions); else the first failed check.
+    ok: bool
+    why: str
+    # Was committed as the gait's state of ``step``.
+    committed: bool = False
 
 
 def _offsets(count: int, step: float) -> list[float]:
@@ -298,6 +323,19 @@ class _Search:
         self.nodes = 0
         self._candidates: dict[int, list[np.ndarray]] = {}
         self.failures: dict[str, int] = {}
+        # Search-tree record (record_tree only): nodes, the current branch's and the deepest
+        # branch's node indices.
+        self.tree: list[SearchNode] | None = None
+        self.decision = 0
+        self.branch_nodes: list[int] = []
+        self.best_nodes: list[int] = []
+
+    def _record(self, step: int, ok: bool, why: str) -> int:
+        if self.tree is None:
+            return -1
+        parent = self.branch_nodes[-1] if self.branch_nodes else -1
+        self.tree.append(SearchNode(len(self.tree), parent, step, self.decision, ok, why))
+        return len(self.tree) - 1
 
     # -- geometry -----------------------------------------------------------------------------
     def default_foothold(self, leg: str, cycle: int) -> np.ndarray:
@@ -306,16 +344,21 @@ class _Search:
         return self.start + (cycle * self.config.stride) * self.u + p_B[0] * self.u + p_B[1] * self.v
 
     def initial_feet(self) -> np.ndarray:
-        xy = np.array([self.default_foothold(leg, 0) for leg in LEGS])
-        return np.column_stack([xy, self.terrain.height(xy[:, 0], xy[:, 1])])
+        """The standing footholds: the best valid foothold around each default one (a foot
+        planted on an edge would start the walk off balance), the default where none is valid."""
+        feet = []
+        for leg in LEGS:
+            ordered = self._ordered_footholds(self.default_foothold(leg, 0))
+            if ordered:
+                feet.append(ordered[0])
+            else:
+                xy = self.default_foothold(leg, 0)
+                feet.append(np.array([xy[0], xy[1], float(self.terrain.height(xy[0], xy[1]))]))
+        return np.array(feet)
 
-    def candidates(self, step: int) -> list[np.ndarray]:
-        """Ordered valid footholds (x, y, z) of a step's swing (Eq. 23)."""
-        if step in self._candidates:
-            return self._candidates[step]
+    def _ordered_footholds(self, target: np.ndarray) -> list[np.ndarray]:
+        """Valid footholds (x, y, z) in the rectangle around ``target``, best first (Eq. 23)."""
         c = self.config
-        leg = LEG_ORDER[step % 4]
-        target = self.default_foothold(leg, step // 4 + 1)
         ha, hc = c.foothold_half_size
         along = np.arange(-ha, ha + 1e-9, c.foothold_spacing)
         across = np.arange(-hc, hc + 1e-9, c.foothold_spacing)
@@ -325,9 +368,14 @@ class _Search:
         # Section 4.2: nearer the default foothold first; a height spread is a near edge.
         cost = np.hypot(da, dc) + spread
         order = [i for i in np.argsort(cost, kind="stable") if valid[i]][: c.foothold_count]
-        out = [np.array([xy[i, 0], xy[i, 1], z[i]]) for i in order]
-        self._candidates[step] = out
-        return out
+        return [np.array([xy[i, 0], xy[i, 1], z[i]]) for i in order]
+
+    def candidates(self, step: int) -> list[np.ndarray]:
+        """Ordered valid footholds (x, y, z) of a step's swing (Eq. 23)."""
+        if step not in self._candidates:
+            leg = LEG_ORDER[step % 4]
+            self._candidates[step] = self._ordered_footholds(self.default_foothold(leg, step // 4 + 1))
+        return self._candidates[step]
 
     def _fail(self, why: str) -> None:
         self.failures[why] = self.failures.get(why, 0) + 1
@@ -417,11 +465,13 @@ class _Search:
         p_xy = body_projection(feet, leg, self.config.support_ratio)
         if support_margin(p_xy, feet[stand]) < self.config.stability_margin:
             self._fail("support_margin")
+            self._record(step, False, "support_margin")
             return False
         for fi, target in enumerate(self.candidates(step)):
             collides, _ = self._swing_collides(feet[i], target)
             if collides:
                 self._fail("swing_collision")
+                self._record(step, False, "swing_collision")
                 continue
             height_cap = math.inf
             for hi, h in enumerate(self.heights):
@@ -439,6 +489,7 @@ class _Search:
                         self.nodes += 1
                         self.decision_nodes += 1
                         ok, why, new_pose = self.transition(feet, pose, leg, target, h, pitch, roll)
+                        node = self._record(step, ok, why)
                         if not ok:
                             self._fail(why)
                             if why == "reach":  # rule (i)
@@ -453,11 +504,14 @@ class _Search:
                         new_feet = feet.copy()
                         new_feet[i] = target
                         branch.append(RobotState(step, leg, new_feet, new_pose[0], new_pose[1], (fi, hi, pi, ri)))
+                        self.branch_nodes.append(node)
                         if len(branch) > len(best):
                             best[:] = list(branch)
+                            self.best_nodes = list(self.branch_nodes)
                         if self.expand(step + 1, new_feet, new_pose, remaining - 1, branch, best):
                             return True
                         branch.pop()
+                        self.branch_nodes.pop()
                         if self.nodes >= self.config.max_nodes:
                             return False
         return False
@@ -481,7 +535,7 @@ def cuboid_terrain(seed: int, *, size: tuple[float, float] = (1.2, 0.6), block: 
 
 
 def search_gait(heightmap, start_xy, heading: float, steps: int, depth: int = 4,
-                config: StaticGaitConfig | None = None) -> GaitSearchResult:
+                config: StaticGaitConfig | None = None, *, record_tree: bool = False) -> GaitSearchResult:
     """Static gait of ``steps`` swings from a standing pose at ``start_xy`` walking along
     ``heading``, looking ``depth`` steps ahead at each decision (section 3.3.2).
 
@@ -491,6 +545,8 @@ def search_gait(heightmap, start_xy, heading: float, steps: int, depth: int = 4,
         heading: walking direction. [rad]
         steps: number of swings (a gait cycle is 4).
         depth: steps searched ahead before a state is committed; 1 is greedy.
+        record_tree: keep every checked candidate in ``result.tree`` (for figures; the search
+            itself stores only the current branch).
     """
     config = config or StaticGaitConfig()
     _check_config(config)
@@ -507,13 +563,18 @@ def search_gait(heightmap, start_xy, heading: float, steps: int, depth: int = 4,
 
     search = _Search(heightmap, start, heading, config)
     search.total_steps = int(steps)
+    if record_tree:
+        search.tree = []
     feet = search.initial_feet()
     p0 = np.array([start[0], start[1], float(feet[:, 2].mean()) + config.height])
     pose = (p0, np.array([0.0, 0.0, float(heading)]))
+    start_pose = dict(start_feet=feet.copy(), start_p_WB=p0.copy(), start_rpy=pose[1].copy())
     states: list[RobotState] = []
     for step in range(int(steps)):
         search.decision_nodes = 0
         search.failures = {}
+        search.decision = step
+        search.branch_nodes, search.best_nodes = [], []
         branch: list[RobotState] = []
         best: list[RobotState] = []
         saved = search.nodes
@@ -524,8 +585,12 @@ def search_gait(heightmap, start_xy, heading: float, steps: int, depth: int = 4,
         if chosen is None:
             why = ", ".join(f"{k} x{v}" for k, v in sorted(search.failures.items(), key=lambda kv: -kv[1]))
             return GaitSearchResult(False, states, f"dead end at step {step} ({LEG_ORDER[step % 4]}): "
-                                    f"{why or 'no valid foothold'}", search.nodes, config)
+                                    f"{why or 'no valid foothold'}", search.nodes, config,
+                                    tree=search.tree, **start_pose)
+        if search.tree is not None:
+            first = (search.branch_nodes or search.best_nodes)[0]
+            search.tree[first] = dataclasses.replace(search.tree[first], committed=True)
         states.append(chosen)
         feet = chosen.feet
         pose = (chosen.p_WB, chosen.rpy)
-    return GaitSearchResult(True, states, "found", search.nodes, config)
+    return GaitSearchResult(True, states, "found", search.nodes, config, tree=search.tree, **start_pose)
