@@ -40,11 +40,12 @@ class BlcParameters:
     base_node_spacing: float = 0.1
     # Time between samples of the dynamics constraint (at interval midpoints). [s]
     dynamics_dt: float = 0.1
-    # Time between samples of the linear-momentum half of Eq. 2 (interval midpoints). TOWR's
-    # 0.1 s leaves the plan free between samples (measured: planned acceleration and forces up
-    # to 0.8 body weights apart at the nodes); 0.025 s closes that to a few percent but took
-    # 2-4x the iterations and time on the bench suite (benchmarks/BENCHMARKS.md). [s]
-    linear_dynamics_dt: float = 0.1
+    # Time between samples of the linear-momentum half of Eq. 2 (interval midpoints). It is a
+    # sparse linear equality, cheap for Ipopt. Measured on the bench suite (the saved 100 Hz
+    # samples, away from contact switches): with TOWR's 0.1 s the planned acceleration and the
+    # forces disagree between samples by 0.5-3 body weights (90th percentile); 0.05 s brings
+    # that to 0.01-0.5 at about the same solve time; 0.025 s to below 0.01 at 2-4x the time. [s]
+    linear_dynamics_dt: float = 0.05
     # Time between samples of the kinematic box constraint (TOWR). [s]
     kinematics_dt: float = 0.08
     # Cubic force polynomials per stance phase (TOWR: 3).

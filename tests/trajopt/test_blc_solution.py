@@ -73,25 +73,43 @@ def test_solved_uphill_walk_reaches_the_goal(uphill):
 
 
 def test_saved_samples_satisfy_single_rigid_body_dynamics(uphill):
-    """m (a - g) = sum f and I w' + w x I w = R^T sum (p - r) x f at the dynamics samples
-    (every 0.1 s, at interval midpoints), derivatives by central differences at 100 Hz."""
+    """m (a - g) = sum f at the linear-dynamics samples and I w' + w x I w = R^T sum (p - r) x f
+    at the angular ones (interval midpoints of BlcParameters' spacings), derivatives by central
+    differences of the 100 Hz samples."""
     _, data = uphill
     t, r, rpy = data["t"], data["base_pos"], data["base_rpy"]
     m, inertia, gravity = float(data["mass"]), data["inertia"], data["gravity"]
     weight = m * 9.81
     dt = t[1] - t[0]
+    params = BlcParameters()
     worst_linear = worst_angular = 0.0
-    for ts in np.arange(0.05, t[-1], 0.1):
-        k = int(round(ts / dt))
+    def linear_residual(k):
         acc = (r[k + 1] - 2 * r[k] + r[k - 1]) / dt ** 2
+        return m * (acc - gravity) - data["foot_force"][k].sum(axis=0)
+
+    checked = 0
+    for ts in np.arange(0.5 * params.linear_dynamics_dt, t[-1], params.linear_dynamics_dt):
+        # The samples fall between the 100 Hz grid points: interpolate the residual (a cubic in
+        # time) from its two neighbours, unless a contact switch lies between them.
+        k = int(np.floor(ts / dt + 1e-9))
+        if np.any(data["contact"][k] != data["contact"][k + 1]):
+            continue
+        s = (ts - t[k]) / dt
+        residual = (1 - s) * linear_residual(k) + s * linear_residual(k + 1)
+        worst_linear = max(worst_linear, np.abs(residual).max() / weight)
+        checked += 1
+    assert checked > 0.8 * t[-1] / params.linear_dynamics_dt
+    for ts in np.arange(0.5 * params.dynamics_dt, t[-1], params.dynamics_dt):
+        k = int(round(ts / dt))
         f, p = data["foot_force"][k], data["foot_pos"][k]
-        worst_linear = max(worst_linear, np.abs(m * (acc - gravity) - f.sum(axis=0)).max() / weight)
         w = [_body_rate(rpy[j], (rpy[j + 1] - rpy[j - 1]) / (2 * dt)) for j in (k - 1, k, k + 1)]
         w_dot = (w[2] - w[0]) / (2 * dt)
         torque_W = np.cross(p - r[k], f).sum(axis=0)
         residual = inertia @ w_dot + np.cross(w[1], inertia @ w[1]) - _rotation(rpy[k]).T @ torque_W
         worst_angular = max(worst_angular, np.abs(residual).max() / weight)
-    assert worst_linear < 2e-3  # body weights
+    # Body weights; the interpolation between grid points adds up to about 2e-3 where the
+    # forces bend fastest.
+    assert worst_linear < 5e-3
     assert worst_angular < 2e-3  # metres (torque / m g)
 
 
