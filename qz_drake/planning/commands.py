@@ -6,6 +6,13 @@ summary. ``qz astar SCENARIO.yaml --out DIR --json`` plans the body-centre path 
 from the robot's initial position to the route's last waypoint (or ``--start`` / ``--goal``),
 draws it on the cost map and prints found, length_m, cost, expansions and time_s; an
 unreachable goal is a reported outcome with exit status 1.
+
+``qz static-gait SCENARIO.yaml --out DIR`` (section 3-4) searches a static gait on a
+static-gait scenario (:mod:`qz_drake.planning.static_gait_scenario`), walks it in Drake and
+writes ``states.json``/``states.npz``, ``static_gait.png``, ``recording.html`` and
+``metrics.json``; exit 0 when the search found every step and the walk reached the last state,
+1 otherwise. ``qz gait-depth-study --out DIR`` measures the search's success rate against its
+depth on random cuboid terrains (Fig. 10) and draws it.
 """
 
 from __future__ import annotations
@@ -165,8 +172,66 @@ def run_astar(args) -> int:
     return 0 if result.found else 1
 
 
+def _positive_int(text: str, field: str) -> int:
+    try:
+        value = int(text)
+    except (TypeError, ValueError):
+        raise bad_value(field, text, "expected a whole number") from None
+    if value < 1:
+        raise bad_value(field, value, "must be >= 1")
+    return value
+
+
+def run_static_gait_command(args) -> int:
+    import sys
+
+    from qz_drake.planning.static_gait_scenario import load_static_gait_scenario, run_static_gait
+
+    scenario = load_static_gait_scenario(args.scenario)
+    if args.depth is not None:
+        scenario.depth = _positive_int(args.depth, "--depth")
+    if args.steps is not None:
+        scenario.steps = _positive_int(args.steps, "--steps")
+    metrics = run_static_gait(scenario, args.out, progress=not args.json and sys.stderr.isatty())
+    metrics = {k: v for k, v in metrics.items() if k != "scenario_yaml"}
+    print(json.dumps(metrics, indent=None if args.json else 2))
+    return 0 if metrics["success"] else 1
+
+
+def _depth_list(text: str) -> list[int]:
+    try:
+        depths = [int(v) for v in str(text).split(",")]
+    except ValueError:
+        raise bad_value("--depths", text, "expected depths like 1,2,3,4") from None
+    if not depths or min(depths) < 1:
+        raise bad_value("--depths", text, "depths must be >= 1")
+    return depths
+
+
+def run_depth_study_command(args) -> int:
+    import sys
+
+    from qz_drake.planning.depth_study import depth_study
+    from qz_drake.viz.costmap_plots import plot_depth_study
+
+    depths = _depth_list(args.depths)
+    terrains = _positive_int(args.terrains, "--terrains")
+    steps = _positive_int(args.steps, "--steps")
+    if not (math.isfinite(args.max_height) and args.max_height >= 0):
+        raise bad_value("--max-height", args.max_height, "must be >= 0 metres")
+    study = depth_study(depths, terrains, steps=steps, max_height=args.max_height, seed=args.seed,
+                        progress=not args.json and sys.stderr.isatty())
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = study.to_dict()
+    summary["png"] = str(plot_depth_study(study, out / "depth_study.png"))
+    (out / "depth_study.json").write_text(json.dumps(summary, indent=1))
+    print(json.dumps(summary, indent=None if args.json else 2))
+    return 0
+
+
 def register(subparsers) -> None:
-    """Adds ``costmap`` and ``astar`` to the ``qz`` command."""
+    """Adds ``costmap``, ``astar``, ``static-gait`` and ``gait-depth-study`` to the ``qz`` command."""
     p = subparsers.add_parser("costmap", help="terrain feature and cost maps (paper 003 Eq. 2-16)")
     p.add_argument("scenario", help="scenario YAML file (see scenarios/)")
     p.add_argument("--out", default="out/costmap", help="output folder")
@@ -188,3 +253,22 @@ def register(subparsers) -> None:
                    help="plan on the box around start and goal grown by this much [m]")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.set_defaults(func=run_astar)
+
+    p = subparsers.add_parser("static-gait", help="search a static gait and walk it in Drake (paper 003 sec. 3-4)")
+    p.add_argument("scenario", help="static-gait scenario YAML (see scenarios/static_gait_*.yaml)")
+    p.add_argument("--out", default="out/static_gait", help="output folder")
+    p.add_argument("--depth", default=None, help="override scenario.depth: steps searched ahead")
+    p.add_argument("--steps", default=None, help="override scenario.steps: swings to take")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_static_gait_command)
+
+    p = subparsers.add_parser("gait-depth-study",
+                              help="static-gait search success rate against depth on cuboid terrains (Fig. 10)")
+    p.add_argument("--out", default="out/gait_depth_study", help="output folder")
+    p.add_argument("--terrains", default="50", help="number of seeded cuboid terrains")
+    p.add_argument("--depths", default="1,2,3,4", help="comma-separated search depths")
+    p.add_argument("--steps", default="12", help="swings to find on each terrain")
+    p.add_argument("--max-height", type=float, default=0.025, help="largest cuboid height [m]")
+    p.add_argument("--seed", type=int, default=0, help="terrain k has seed SEED + k")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_depth_study_command)

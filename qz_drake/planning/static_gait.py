@@ -46,8 +46,6 @@ chain of ``depth`` states exists the first state of the deepest chain found is c
 receding-horizon reading of "searching several steps at a time").
 """
 
-from __future__ import annotations
-
 import dataclasses
 import math
 
@@ -81,7 +79,7 @@ class QuadrupedGeometry:
     # Shank length. [m]
     shank: float = 0.09
     # Body box (length, width, height) for collisions. [m]
-    body_size: tuple[float, float, float] = (0.26, 0.12, 0.05)
+    body_size: list[float] = dataclasses.field(default_factory=lambda: [0.26, 0.12, 0.05])
     # Largest abduction angle of the leg plane from vertical. [rad]
     max_abduction: float = 0.6
     # Largest hip swing angle of the hip-to-foot line from vertical in the leg plane. [rad]
@@ -131,7 +129,7 @@ class StaticGaitConfig:
     # Smallest distance of the body projection to a support triangle edge (Eq. 21). [m]
     stability_margin: float = 0.01
     # Half sizes (along, across the heading) of the candidate foothold rectangle (Eq. 23). [m]
-    foothold_half_size: tuple[float, float] = (0.03, 0.02)
+    foothold_half_size: list[float] = dataclasses.field(default_factory=lambda: [0.03, 0.02])
     # Spacing of the candidate foothold grid. [m]
     foothold_spacing: float = 0.01
     # Footholds kept per step, best first (n_f of Eq. 27).
@@ -175,6 +173,24 @@ class RobotState:
 
 
 @dataclasses.dataclass(frozen=True)
+class SearchNode:
+    """One candidate state the search checked, for drawing the search tree (Fig. 7)."""
+
+    # Visit index, and the index of the node it was expanded from (-1: the committed state the
+    # decision started from).
+    index: int
+    parent: int
+    # The step it would take, and the decision (committed step) during which it was checked.
+    step: int
+    decision: int
+    # Passed the checks (kinematics, collisions); else the first failed check.
+    ok: bool
+    why: str
+    # Was committed as the gait's state of ``step``.
+    committed: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
 class GaitSearchResult:
     # True when all requested steps were found.
     success: bool
@@ -192,24 +208,6 @@ class GaitSearchResult:
     start_rpy: np.ndarray | None = None
     # With ``record_tree``: every candidate state checked, in visiting order (Fig. 7).
     tree: list[SearchNode] | None = None
-
-
-@dataclasses.dataclass(frozen=True)
-class SearchNode:
-    """One candidate state the search checked, for drawing the search tree (Fig. 7)."""
-
-    # Visit index, and the index of the node it was expanded from (-1: the committed state the
-    # decision started from).
-    index: int
-    parent: int
-    # The step it would take, and the decision (committed step) during which it was checked.
-    step: int
-    decision: int
-    # Passed the checks (kinematics, collisions); else the first failed check.
-    ok: bool
-    why: str
-    # Was committed as the gait's state of ``step``.
-    committed: bool = False
 
 
 def _offsets(count: int, step: float) -> list[float]:

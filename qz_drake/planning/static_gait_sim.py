@@ -14,8 +14,6 @@ A walk succeeds when the body ends within ``position_tolerance`` of the last sta
 position, never tilts past ``max_tilt_deg`` and the body never touches the terrain.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import math
 import time

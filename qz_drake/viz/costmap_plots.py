@@ -92,3 +92,118 @@ def plot_cost_map_path(cost_map, path: str | Path, *, paths_xy: dict[str, np.nda
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
+
+
+# -- static gait (paper 003 section 3-4) -----------------------------------------------------------
+_LEG_COLOURS = {"LF": "tab:red", "RF": "tab:orange", "LB": "tab:blue", "RB": "tab:cyan"}
+
+
+def plot_static_gait(heightmap, result, path: str | Path, *, title: str = "") -> Path:
+    """Footholds of a searched static gait over the heightmap (Fig. 9 / Fig. 14): each leg's
+    footholds in its colour, the body centre's path during the swings in white."""
+    from qz_drake.planning.static_gait import LEGS
+
+    h = np.asarray(heightmap.heights)
+    H, W = h.shape
+    x0, y0 = heightmap.origin
+    res = heightmap.resolution
+    extent = (x0 - res / 2, x0 + (W - 0.5) * res, y0 - res / 2, y0 + (H - 0.5) * res)
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    im = ax.imshow(h, origin="lower", extent=extent, cmap="terrain", interpolation="nearest")
+    fig.colorbar(im, ax=ax, label="height [m]")
+    if result.start_feet is not None:
+        feet = np.concatenate([np.asarray(result.start_feet)[None]] + [s.feet[None] for s in result.states])
+        for i, leg in enumerate(LEGS):
+            ax.plot(feet[:, i, 0], feet[:, i, 1], "o-", color=_LEG_COLOURS[leg], ms=5, lw=1, label=leg)
+        body = np.array([result.start_p_WB] + [s.p_WB for s in result.states])
+        ax.plot(body[:, 0], body[:, 1], ".-", color="w", lw=1.5, label="body")
+    pad = 0.12
+    if result.start_feet is not None:
+        ax.set_xlim(feet[..., 0].min() - pad, feet[..., 0].max() + pad)
+        ax.set_ylim(feet[..., 1].min() - pad, feet[..., 1].max() + pad)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_aspect("equal")
+    ax.set_title(title or f"static gait: {result.reason}")
+    ax.legend(loc="upper left", fontsize=7, ncol=5)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_search_tree(results: dict, path: str | Path, *, max_steps: int | None = None) -> Path:
+    """The recursive backtracking search as a tree (Fig. 7), one panel per search depth.
+
+    Args:
+        results: panel title (e.g. "depth 1") -> GaitSearchResult made with ``record_tree``.
+        max_steps: draw only the nodes of the first ``max_steps`` steps.
+
+    Each checked candidate state is a marker at (step, visiting order): green the committed
+    states, grey the states that passed the checks but were backtracked from, red crosses the
+    rejected ones. Lines join a state to the candidates checked from it.
+    """
+    fig, axes = plt.subplots(1, len(results), figsize=(5.5 * len(results), 5), squeeze=False)
+    for ax, (label, result) in zip(axes[0], results.items()):
+        tree = result.tree or []
+        nodes = [n for n in tree if max_steps is None or n.step < max_steps]
+        keep = {n.index for n in nodes}
+        y = {n.index: k for k, n in enumerate(nodes)}
+        committed_by_step = {n.step: n.index for n in nodes if n.committed}
+        for n in nodes:
+            # A first-level node grows from the state committed at the step before.
+            parent = n.parent if n.parent in keep else committed_by_step.get(n.step - 1)
+            if parent is not None and parent in keep:
+                ax.plot([n.step - 1, n.step], [y[parent], y[n.index]], "-", color="0.75", lw=0.5, zorder=1)
+        for kind, colour, marker, size in (("rejected", "tab:red", "x", 12), ("backtracked", "0.45", "o", 10),
+                                          ("committed", "tab:green", "o", 40)):
+            pick = [n for n in nodes if (kind == "rejected" and not n.ok)
+                    or (kind == "backtracked" and n.ok and not n.committed)
+                    or (kind == "committed" and n.committed)]
+            ax.scatter([n.step for n in pick], [y[n.index] for n in pick], c=colour, marker=marker, s=size,
+                       label=f"{kind} ({len(pick)})", zorder=3 if kind == "committed" else 2)
+        chain = sorted(committed_by_step.items())
+        if chain:
+            ax.plot([s for s, _ in chain], [y[i] for _, i in chain], "-", color="tab:green", lw=2, zorder=2)
+        ax.invert_yaxis()
+        ax.set_xlabel("step")
+        ax.set_ylabel("candidate states in visiting order")
+        ax.set_title(f"{label}: {'found' if result.success else result.reason}", fontsize=9)
+        ax.legend(loc="lower left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_depth_study(study, path: str | Path) -> Path:
+    """Success rate of the static-gait search against search depth (Fig. 10 as numbers), with
+    the share of failures by cause stacked under each bar."""
+    depths = list(study.depths)
+    rates = [study.success_rate[d] for d in depths]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    bars = ax.bar([str(d) for d in depths], rates, color="tab:green", label="success")
+    for bar, rate in zip(bars, rates):
+        ax.text(bar.get_x() + bar.get_width() / 2, rate + 0.01, f"{rate:.0%}", ha="center", va="bottom")
+    ax.set_ylim(0, 1.1)
+    ax.set_xlabel("search depth (steps looked ahead)")
+    ax.set_ylabel(f"success rate over {study.terrains} cuboid terrains")
+    ax.set_title(f"static gait search, {study.steps} steps, cuboids up to {study.max_height * 100:g} cm")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_safety_weight_paths(cost_map, results: dict, path: str | Path, *, start_xy=None, goal_xy=None,
+                             title: str = "") -> Path:
+    """Fig. 13: A* paths for several safety weights over the cost map, each labelled with its
+    length and mean cell cost.
+
+    Args:
+        results: safety weight -> AStarResult.
+    """
+    paths = {f"w2 = {w:g}: {r.length:.1f} m, mean cost {r.mean_cell_cost:.3f}": r.xy
+             for w, r in results.items() if r.found}
+    return plot_cost_map_path(cost_map, path, paths_xy=paths, start_xy=start_xy, goal_xy=goal_xy,
+                              title=title or "A* body paths for two safety weights (Fig. 13)")
