@@ -255,7 +255,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run_astar)
 
     p = subparsers.add_parser("static-gait", help="search a static gait and walk it in Drake (paper 003 sec. 3-4)")
-    p.add_argument("scenario", help="static-gait scenario YAML (see scenarios/static_gait_*.yaml)")
+    p.add_argument("scenario", help="static-gait scenario YAML (see scenarios/static_gait/)")
     p.add_argument("--out", default="out/static_gait", help="output folder")
     p.add_argument("--depth", default=None, help="override scenario.depth: steps searched ahead")
     p.add_argument("--steps", default=None, help="override scenario.steps: swings to take")

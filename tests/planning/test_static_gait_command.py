@@ -15,7 +15,8 @@ from qz_drake.planning.static_gait_scenario import (StaticGaitScenario, load_sta
                                                     validate_static_gait_scenario)
 from qz_drake.viz.recording import recording_summary
 
-SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
+# Static-gait scenarios have their own schema, so they live apart from the robot scenarios.
+SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios" / "static_gait"
 
 FLAT = """
 name: cli_flat
@@ -51,6 +52,7 @@ def _json(capsys) -> dict:
 @pytest.mark.parametrize("path", sorted(SCENARIOS.glob("static_gait_*.yaml")), ids=lambda p: p.stem)
 def test_scenario_files_load_and_round_trip(path, tmp_path):
     scenario = load_static_gait_scenario(path)
+    assert scenario.name == path.stem
     heightmap = make_static_gait_heightmap(scenario)
     assert np.isfinite(heightmap.heights).all()
     save_static_gait_scenario(scenario, tmp_path / "again.yaml")
