@@ -197,13 +197,28 @@ def plot_depth_study(study, path: str | Path) -> Path:
 
 def plot_safety_weight_paths(cost_map, results: dict, path: str | Path, *, start_xy=None, goal_xy=None,
                              title: str = "") -> Path:
-    """Fig. 13: A* paths for several safety weights over the cost map, each labelled with its
-    length and mean cell cost.
+    """Fig. 13: A* body paths for several safety weights w2 (Eq. 17) over the cost map, each
+    labelled with its length and mean cell cost; where the paths share cells the later ones are
+    drawn dashed over the earlier ones.
 
     Args:
         results: safety weight -> AStarResult.
     """
-    paths = {f"w2 = {w:g}: {r.length:.1f} m, mean cost {r.mean_cell_cost:.3f}": r.xy
-             for w, r in results.items() if r.found}
-    return plot_cost_map_path(cost_map, path, paths_xy=paths, start_xy=start_xy, goal_xy=goal_xy,
-                              title=title or "A* body paths for two safety weights (Fig. 13)")
+    extent = _extent(cost_map)
+    fig, ax = plt.subplots(figsize=(7.5, 6.5))
+    _draw(ax, fig, np.min(cost_map.heading_cost(), axis=0), extent, "cost (Eq. 16, cheapest heading) [-]",
+          title or "A* body paths for two safety weights (Fig. 13)")
+    styles = (("r", "-", 3.0), ("w", "--", 1.8), ("m", ":", 1.8), ("c", "-.", 1.8))
+    for (weight, result), (colour, line, width) in zip(sorted(results.items()), styles):
+        if result.found:
+            ax.plot(result.xy[:, 0], result.xy[:, 1], line, color=colour, lw=width,
+                    label=f"w2 = {weight:g}: {result.length:.1f} m, mean cost {result.mean_cell_cost:.3f}")
+    if start_xy is not None:
+        ax.plot(start_xy[0], start_xy[1], "^", color="orange", ms=9, label="start")
+    if goal_xy is not None:
+        ax.plot(goal_xy[0], goal_xy[1], "*", color="orange", ms=12, label="goal")
+    ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
