@@ -17,6 +17,7 @@ depth on random cuboid terrains (Fig. 10) and draws it.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -211,7 +212,7 @@ def _depth_list(text: str) -> list[int]:
 def run_depth_study_command(args) -> int:
     import sys
 
-    from qz_drake.planning.depth_study import depth_study
+    from qz_drake.planning.depth_study import DEPTH_STUDY_GAIT, depth_study
     from qz_drake.viz.costmap_plots import plot_depth_study
 
     depths = _depth_list(args.depths)
@@ -219,11 +220,18 @@ def run_depth_study_command(args) -> int:
     steps = _positive_int(args.steps, "--steps")
     if not (math.isfinite(args.max_height) and args.max_height >= 0):
         raise bad_value("--max-height", args.max_height, "must be >= 0 metres")
-    study = depth_study(depths, terrains, steps=steps, max_height=args.max_height, seed=args.seed,
+    config = dataclasses.replace(DEPTH_STUDY_GAIT)
+    for name in ("height_count", "pitch_count", "roll_count", "max_nodes"):
+        value = getattr(args, name)
+        if value is not None:
+            setattr(config, name, _positive_int(value, "--" + name.replace("_", "-")))
+    study = depth_study(depths, terrains, steps=steps, max_height=args.max_height, seed=args.seed, config=config,
                         progress=not args.json and sys.stderr.isatty())
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     summary = study.to_dict()
+    summary["candidates"] = {name: getattr(config, name) for name in
+                             ("foothold_count", "height_count", "pitch_count", "roll_count", "max_nodes")}
     summary["png"] = str(plot_depth_study(study, out / "depth_study.png"))
     (out / "depth_study.json").write_text(json.dumps(summary, indent=1))
     print(json.dumps(summary, indent=None if args.json else 2))
@@ -270,5 +278,8 @@ def register(subparsers) -> None:
     p.add_argument("--steps", default="12", help="swings to find on each terrain")
     p.add_argument("--max-height", type=float, default=0.025, help="largest cuboid height [m]")
     p.add_argument("--seed", type=int, default=0, help="terrain k has seed SEED + k")
+    for name, default in (("height-count", 3), ("pitch-count", 1), ("roll-count", 1), ("max-nodes", 2000)):
+        p.add_argument(f"--{name}", default=None,
+                       help=f"candidates of the search (default {default}, depth_study.DEPTH_STUDY_GAIT)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.set_defaults(func=run_depth_study_command)
