@@ -1,7 +1,17 @@
-"""``qz impedance-sweep`` and ``qz classify {collect,train,experiment}`` (paper 002).
+"""``qz impedance-sweep``, ``qz trot`` and ``qz classify {collect,train,experiment}`` (paper 002).
 
 ``qz impedance-sweep [--json] [--out DIR]`` runs Fig. 13's one-leg model at 5, 15 and 25 kN/m
 and prints ``{"stiffness_N_per_m": [...], "max_error_m": [...], "oscillates": [...]}``.
+
+``qz trot SCENARIO.yaml`` trots a scenario's floor at ``controller.speed`` for
+``simulation.duration`` (the trot_*.yaml scenarios).
+
+``qz classify collect --out DIR`` trots over each material at random speeds (5 kg payload)
+and writes ``DIR/dataset.npz``; ``qz classify train --dataset DIR --out DIR [--json]`` trains
+the per-leg SVMs, writes ``models.npz``, ``report.json`` and ``confusion.png`` and prints the
+tables (or ``{"classes": [...], "per_leg": [{"leg", "accuracy", "confusion", "C", "gamma"},
+...]}``); ``qz classify experiment --models FILE --out DIR`` runs Figs. 15-16 (fixed against
+adaptive stiffness on foam and concrete) and the mixed floor.
 """
 
 from __future__ import annotations
@@ -49,11 +59,116 @@ def run_impedance_sweep(args) -> int:
     return 0
 
 
+def run_trot(args) -> int:
+    from qz_drake.classification.runs import simulate_trot
+    from qz_drake.config import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    duration = scenario.simulation.duration if args.duration is None else args.duration
+    speed = scenario.controller.speed if args.speed is None else args.speed
+    run = simulate_trot(scenario, duration=duration, speed=speed)
+    T = 1.0 if run.times[-1] > 2.0 else run.times[-1] / 2
+    late = run.times >= run.times[-1] - T
+    metrics = {"scenario": scenario.name, "fell": run.fell, "success": not run.fell,
+               "distance_m": float(run.states[-1, 4] - run.states[0, 4]),
+               "final_speed_m_per_s": float((run.states[late][-1, 4] - run.states[late][0, 4]) / T),
+               "stances": int(len(run.stance_leg)), "wall_time_s": run.wall_time_s}
+    print(json.dumps(metrics))
+    return 0 if metrics["success"] else 1
+
+
+def _collect_config(args):
+    from qz_drake.classification.dataset import CollectConfig
+
+    config = CollectConfig(seed=args.seed)
+    if args.materials:
+        config.materials = [m.strip() for m in args.materials.split(",") if m.strip()]
+    if args.stances is not None:
+        config.stances_per_class = args.stances
+    if args.run_duration is not None:
+        config.run_duration = args.run_duration
+    return config.check()
+
+
+def run_collect(args) -> int:
+    from qz_drake.classification.dataset import collect_dataset, summary
+
+    config = _collect_config(args)
+    dataset = collect_dataset(config, args.out, progress=not args.json)
+    result = dict(summary(dataset), dataset=str(Path(args.out) / "dataset.npz"))
+    print(json.dumps(result) if args.json else json.dumps(result, indent=2))
+    return 0
+
+
+def run_train(args) -> int:
+    from qz_drake.classification.dataset import StanceDataset
+    from qz_drake.classification.plots import plot_confusion_matrices
+    from qz_drake.classification.svm import format_tables, save_models, train_all_legs
+
+    dataset = StanceDataset.load(args.dataset)
+    models, report = train_all_legs(dataset, seed=args.seed)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    save_models(models, out / "models.npz", metadata={"classes": report["classes"], "seed": args.seed,
+                                                      "dataset": str(args.dataset)})
+    (out / "report.json").write_text(json.dumps(report, indent=2))
+    plot_confusion_matrices(report, out / "confusion.png")
+    if args.json:
+        keys = ("leg", "accuracy", "confusion", "precision", "recall", "C", "gamma")
+        print(json.dumps({"classes": report["classes"],
+                          "per_leg": [{k: leg[k] for k in keys} for leg in report["per_leg"]]}))
+    else:
+        print(format_tables(report))
+        print(f"models: {out / 'models.npz'}")
+    return 0
+
+
+def run_experiment(args) -> int:
+    from qz_drake.classification.experiments import ExperimentConfig, run_experiments
+
+    config = ExperimentConfig.quick() if args.quick else ExperimentConfig()
+    result = run_experiments(args.models, args.out, config, progress=not args.json)
+    print(json.dumps(result) if args.json else json.dumps(result, indent=2))
+    return 0
+
+
 def register(subparsers) -> None:
-    """Adds ``impedance-sweep`` and ``classify`` to the ``qz`` command."""
+    """Adds ``impedance-sweep``, ``trot`` and ``classify`` to the ``qz`` command."""
     p = subparsers.add_parser("impedance-sweep", help="leg impedance stiffness sweep (paper 002 Fig. 13)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.add_argument("--out", default=None, help="folder for impedance_sweep.png and .json")
     p.add_argument("--stiffness", default=None, metavar="K1,K2,...", help="leg stiffnesses [N/m]")
     p.add_argument("--torque-lag", type=float, default=None, help="torque-loop lag [s] (default 0.012)")
     p.set_defaults(func=run_impedance_sweep)
+
+    p = subparsers.add_parser("trot", help="trot a scenario's floor (paper 002 tripod trotting)")
+    p.add_argument("scenario", help="scenario YAML file (scenarios/trot_*.yaml)")
+    p.add_argument("--speed", type=float, default=None, help="forward speed [m/s] (default controller.speed)")
+    p.add_argument("--duration", type=float, default=None, help="simulated time [s]")
+    p.set_defaults(func=run_trot)
+
+    classify = subparsers.add_parser("classify", help="terrain classification (paper 002)")
+    sub = classify.add_subparsers(dest="classify_command", required=True, parser_class=type(classify))
+
+    p = sub.add_parser("collect", help="trot over each material and write a stance dataset")
+    p.add_argument("--out", default="out/classify", help="output folder (dataset.npz, runs/)")
+    p.add_argument("--stances", type=int, default=None, help="stances per class and leg (default 200)")
+    p.add_argument("--run-duration", type=float, default=None, help="simulated time per run [s] (default 20)")
+    p.add_argument("--materials", default=None, help="comma-separated materials (default concrete,wood,foam)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_collect)
+
+    p = sub.add_parser("train", help="per-leg RBF SVMs with grid search (Tables 1-2)")
+    p.add_argument("--dataset", default="out/classify/dataset.npz", help="dataset.npz or its folder")
+    p.add_argument("--out", default="out/classify", help="output folder (models.npz, report.json, confusion.png)")
+    p.add_argument("--seed", type=int, default=0, help="seeds the 80/20 split and the CV folds")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_train)
+
+    p = sub.add_parser("experiment", help="fixed vs adaptive stiffness (Figs. 15-16) and the mixed floor")
+    p.add_argument("--models", default="out/classify/models.npz", help="models.npz from qz classify train")
+    p.add_argument("--out", default="out/classify/experiment", help="output folder")
+    p.add_argument("--quick", action="store_true", help="short runs (for tests)")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_experiment)
