@@ -93,9 +93,10 @@ def depth_study(depths=(1, 2, 3, 4), terrains: int = 50, *, steps: int = 12, max
     causes: dict[int, dict[str, int]] = {d: {} for d in depths}
     rows = range(int(terrains))
     if progress:
-        from tqdm import tqdm
+        from rich.console import Console
+        from rich.progress import track
 
-        rows = tqdm(rows, desc="depth study", unit="terrain")
+        rows = track(rows, description="depth study (terrains)", console=Console(stderr=True), transient=True)
     for k in rows:
         terrain = cuboid_terrain(seed + k, max_height=max_height)
         for j, depth in enumerate(depths):

@@ -315,9 +315,10 @@ def simulate_static_gait(heightmap, result: GaitSearchResult, config: StaticGait
     body_contact_time = None
     ticks = range(n)
     if progress:
-        from tqdm import tqdm
+        from rich.console import Console
+        from rich.progress import track
 
-        ticks = tqdm(ticks, desc="static gait walk", unit="tick")
+        ticks = track(ticks, description="static gait walk", console=Console(stderr=True), transient=True)
     for k in ticks:
         t = min(k * config.monitor_period, duration)
         simulator.AdvanceTo(t)

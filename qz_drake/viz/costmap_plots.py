@@ -177,8 +177,8 @@ def plot_search_tree(results: dict, path: str | Path, *, max_steps: int | None =
 
 
 def plot_depth_study(study, path: str | Path) -> Path:
-    """Success rate of the static-gait search against search depth (Fig. 10 as numbers), with
-    the share of failures by cause stacked under each bar."""
+    """Success rate of the static-gait search against search depth (Fig. 10 as numbers), one
+    bar per depth of a :class:`~qz_drake.planning.depth_study.DepthStudy`."""
     depths = list(study.depths)
     rates = [study.success_rate[d] for d in depths]
     fig, ax = plt.subplots(figsize=(6, 4))

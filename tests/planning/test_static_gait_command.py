@@ -109,7 +109,7 @@ def test_missing_scenario_file_exits_2(tmp_path, capsys):
 def test_depth_four_beats_greedy_on_cuboids():
     """Fig. 10 measured: on cuboids of random heights (edges invalid) looking four steps ahead
     finds gaits where a greedy search runs into a dead end, and never does worse."""
-    study = depth_study((1, 4), terrains=10, steps=12)
+    study = depth_study((1, 4), terrains=10, steps=12, progress=True)
     assert study.success_rate[4] > study.success_rate[1]
     assert np.all(study.success[:, 1] >= study.success[:, 0])
     assert 0 < study.success_rate[1] < 1  # neither trivial nor impossible

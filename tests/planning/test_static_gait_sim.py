@@ -69,7 +69,8 @@ def test_reference_follows_the_states(flat_gait):
 
 def test_walks_four_steps_on_flat_ground_with_recording(flat_gait, tmp_path):
     terrain, result = flat_gait
-    walk = simulate_static_gait(terrain, result, meshcat=Meshcat(), recording_path=tmp_path / "walk.html")
+    walk = simulate_static_gait(terrain, result, meshcat=Meshcat(), recording_path=tmp_path / "walk.html",
+                                progress=True)
     m = walk.metrics
     assert m["success"], m["reason"]
     assert m["final_error_m"] < 0.02 and m["max_tilt_deg"] < 3.0 and not m["body_terrain_contact"]
