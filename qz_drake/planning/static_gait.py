@@ -43,7 +43,10 @@ The extracted paper lost its symbols and tables; this is how we reconstructed th
 
 Only the states on the current branch are stored; ``max_nodes`` bounds one decision. When no
 chain of ``depth`` states exists the first state of the deepest chain found is committed (the
-receding-horizon reading of "searching several steps at a time").
+receding-horizon reading of "searching several steps at a time"). ``record_tree`` keeps every
+checked candidate for drawing the search tree (Fig. 7); the search itself does not use it.
+The standing footholds are chosen like the others (the best valid one around each default
+foothold), so a walk never starts with a foot on an edge.
 """
 
 import dataclasses
