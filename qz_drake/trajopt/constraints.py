@@ -17,6 +17,8 @@ without evaluating Python.
 
 from __future__ import annotations
 
+import abc
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -121,7 +123,7 @@ class _Block:
         return (partials[:, :, None, :] * self.weights[:, None, :, :]).ravel()[self.select]
 
 
-class SampledConstraint:
+class SampledConstraint(abc.ABC):
     """lower <= g(x) <= upper, g vectorised over samples, with a fixed sparse Jacobian pattern.
 
     Subclasses set ``name``, ``lower``, ``upper``, call ``_set_blocks`` and implement
@@ -151,8 +153,9 @@ class SampledConstraint:
     def num_constraints(self) -> int:
         return len(self.lower)
 
+    @abc.abstractmethod
     def _compute(self, x, with_partials: bool):
-        raise NotImplementedError
+        """(g, [dg/dq per block] or None)."""
 
     def evaluate(self, x) -> np.ndarray:
         """g(x), (m,). x is the full decision vector (floats, or AutoDiffXd where supported)."""

@@ -17,6 +17,7 @@ of the function it evaluates, so every constraint Jacobian is exact.
 
 from __future__ import annotations
 
+import abc
 import math
 
 import numpy as np
@@ -24,14 +25,14 @@ import numpy as np
 from qz_drake.errors import TerrainError, bad_value
 
 
-class TerrainModel:
+class TerrainModel(abc.ABC):
     """Base class: subclasses implement ``height_derivatives``."""
 
     name = "terrain"
 
+    @abc.abstractmethod
     def height_derivatives(self, x, y):
         """Returns (h, h_x, h_y, h_xx, h_xy, h_yy), each of the broadcast shape of x and y."""
-        raise NotImplementedError
 
     def height(self, x, y) -> np.ndarray:
         return self.height_derivatives(x, y)[0]
@@ -95,8 +96,9 @@ def smooth_ramp(s, width: float):
 class _ProfileTerrain(TerrainModel):
     """A terrain that varies along x only: h(x) from _profile(x) -> (h, h', h'')."""
 
+    @abc.abstractmethod
     def _profile(self, x):
-        raise NotImplementedError
+        """(h, h', h'') along x."""
 
     def height_derivatives(self, x, y):
         x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
