@@ -21,6 +21,7 @@ SUITES = {
     "blc": ("bench_blc.py", "run"),
     "astar": ("bench_planning.py", "bench_astar"),
     "costmap": ("bench_planning.py", "bench_costmap"),
+    "svm": ("bench_svm.py", "run"),
 }
 
 

@@ -38,6 +38,12 @@ class CollectConfig:
     seed: int = 0
     # Most runs per material before giving up on stances_per_class.
     max_runs: int = 40
+    # Runs over floors of random material patches (stripes of patch length along x, cut every
+    # patch width along y), labelled by the material under each foot: a foot's classifier
+    # then sees its material with the other feet on every other material, as on a mixed floor.
+    mixed_runs: int = 6
+    # Range of the mixed floors' patch length and width. [m]
+    mixed_patch_range: list[float] = dataclasses.field(default_factory=lambda: [0.6, 2.0])
 
     def check(self) -> "CollectConfig":
         from qz_drake.terrain import get_material
@@ -61,7 +67,16 @@ class CollectConfig:
             raise bad_value("payload_kg", self.payload_kg, "must be within [0, 20] kg")
         if not (isinstance(self.max_runs, int) and self.max_runs >= 1):
             raise bad_value("max_runs", self.max_runs, "must be a positive integer")
+        if not (isinstance(self.mixed_runs, int) and self.mixed_runs >= 0):
+            raise bad_value("mixed_runs", self.mixed_runs, "must be a non-negative integer")
+        lo, hi = self.mixed_patch_range
+        if not (0.2 <= lo <= hi):
+            raise bad_value("mixed_patch_range", self.mixed_patch_range, "expected 0.2 <= min <= max metres")
         return self
+
+
+# Run ids of the mixed-floor runs start here (one-material runs: 1000 * material + k).
+MIXED_RUN_ID = 100_000
 
 
 @dataclasses.dataclass
@@ -74,8 +89,14 @@ class StanceDataset:
     legs: np.ndarray  # (N,) leg id 0..5
     speeds: np.ndarray  # (N,) commanded forward speed [m/s]
     runs: np.ndarray  # (N,) run number within its material
-    skipped: np.ndarray  # (n_classes, 6) stances too short for three windows
+    skipped: np.ndarray  # (n_classes, 6) stances too short for three windows (one-material runs)
     config: dict
+    # Stances too short for three windows on the mixed floors, per leg.
+    skipped_mixed: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_LEGS, dtype=int))
+
+    def from_mixed_floors(self) -> np.ndarray:
+        """Which rows come from the mixed floors (run ids from MIXED_RUN_ID on)."""
+        return np.asarray(self.runs) >= MIXED_RUN_ID
 
     def counts(self) -> np.ndarray:
         """Stances per (class, leg)."""
@@ -88,6 +109,7 @@ class StanceDataset:
         path.parent.mkdir(parents=True, exist_ok=True)
         np.savez(path, classes=np.asarray(self.classes, dtype=np.str_), features=self.features, labels=self.labels,
                  legs=self.legs, speeds=self.speeds, runs=self.runs, skipped=self.skipped,
+                 skipped_mixed=self.skipped_mixed,
                  feature_names=np.asarray(feat.FEATURE_NAMES, dtype=np.str_),
                  config=np.asarray(json.dumps(self.config), dtype=np.str_))
         return path
@@ -103,7 +125,8 @@ class StanceDataset:
             with np.load(path, allow_pickle=False) as d:
                 data = cls(classes=tuple(str(c) for c in d["classes"]), features=d["features"], labels=d["labels"],
                            legs=d["legs"], speeds=d["speeds"], runs=d["runs"], skipped=d["skipped"],
-                           config=json.loads(str(d["config"])))
+                           config=json.loads(str(d["config"])),
+                           skipped_mixed=d["skipped_mixed"] if "skipped_mixed" in d.files else np.zeros(NUM_LEGS, int))
         except (KeyError, ValueError, OSError) as e:
             raise ConfigError(f"dataset = {str(path)!r}: not a qz stance dataset ({e})") from None
         if data.features.ndim != 2 or data.features.shape[1] != feat.NUM_FEATURES:
@@ -115,9 +138,23 @@ def _run_file(out: Path, material: str, k: int) -> Path:
     return out / "runs" / f"{material}_{k:03d}.npz"
 
 
+def _load_or_run(path: Path, fingerprint: str, simulate) -> dict:
+    """A cached run when its fingerprint matches, else a fresh one (saved)."""
+    if path.is_file():
+        with np.load(path, allow_pickle=False) as d:
+            if "fingerprint" in d.files and str(d["fingerprint"]) == fingerprint:
+                return {key: d[key] for key in d.files}
+    run = simulate()
+    run["fingerprint"] = np.asarray(fingerprint, dtype=np.str_)
+    np.savez(path, **run)
+    return run
+
+
 def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True) -> StanceDataset:
     """Trots over each material until every leg has ``stances_per_class`` stances there (or
-    ``max_runs`` runs); writes ``<out_dir>/dataset.npz`` and returns the dataset."""
+    ``max_runs`` runs), then ``mixed_runs`` times over floors of random material patches;
+    keeps ``stances_per_class`` one-material stances per class and leg and every mixed-floor
+    stance; writes ``<out_dir>/dataset.npz`` and returns the dataset."""
     from qz_drake.classification.runs import simulate_trot, speed_schedule, trot_scenario
 
     config.check()
@@ -126,58 +163,75 @@ def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True) ->
     classes = tuple(config.materials)
     rows = {"features": [], "labels": [], "legs": [], "speeds": [], "runs": []}
     skipped = np.zeros((len(classes), NUM_LEGS), dtype=int)
+    skipped_mixed = np.zeros(NUM_LEGS, dtype=int)
+    distance = config.run_duration * config.speed_range[1] + 1.0
+
+    def trot(scenario, seed, what):
+        times, speeds = speed_schedule(config.run_duration, config.speed_range, config.speed_hold, seed)
+        result = simulate_trot(scenario, duration=config.run_duration, speed=(times, speeds))
+        if result.fell:
+            raise RuntimeError(f"the robot fell on {what} (seed {seed})")
+        return {"features": result.stance_features, "legs": result.stance_leg, "speeds": result.stance_speed,
+                "skipped": result.skipped_stances,
+                "truth": np.asarray([result.classes[i] if i >= 0 else "" for i in result.stance_truth],
+                                    dtype=np.str_).reshape(-1)}
+
+    def add(run, labels, run_id):
+        rows["features"].append(np.asarray(run["features"]).reshape(-1, feat.NUM_FEATURES))
+        rows["legs"].append(np.asarray(run["legs"], dtype=int))
+        rows["speeds"].append(np.asarray(run["speeds"], dtype=float))
+        rows["labels"].append(np.asarray(labels, dtype=int))
+        rows["runs"].append(np.full(len(run["legs"]), run_id))
+
     bar = _progress(progress)
     with bar:
-        task = bar.add_task("collecting stances", total=len(classes) * config.stances_per_class)
+        task = bar.add_task("collecting stances", total=len(classes) * config.stances_per_class + config.mixed_runs)
         for m, material in enumerate(classes):
             have = np.zeros(NUM_LEGS, dtype=int)
             for k in range(config.max_runs):
                 if have.min() >= config.stances_per_class:
                     break
-                path = _run_file(out, material, k)
                 seed = config.seed + 1000 * m + k
                 fingerprint = json.dumps([config.run_duration, list(config.speed_range), config.speed_hold,
                                           config.payload_kg, seed])
-                run = None
-                if path.is_file():
-                    with np.load(path, allow_pickle=False) as d:
-                        if "fingerprint" in d.files and str(d["fingerprint"]) == fingerprint:
-                            run = {key: d[key] for key in d.files}
-                if run is None:
-                    times, speeds = speed_schedule(config.run_duration, config.speed_range, config.speed_hold, seed)
-                    distance = config.run_duration * config.speed_range[1] + 1.0
-                    result = simulate_trot(trot_scenario(material, distance=distance, payload_kg=config.payload_kg,
-                                                         seed=seed),
-                                           duration=config.run_duration, speed=(times, speeds))
-                    if result.fell:
-                        raise RuntimeError(f"the robot fell on {material} (run {k}, seed {seed})")
-                    run = {"features": result.stance_features, "legs": result.stance_leg,
-                           "speeds": result.stance_speed, "skipped": result.skipped_stances,
-                           "fingerprint": np.asarray(fingerprint, dtype=np.str_)}
-                    np.savez(path, **run)
-                n = len(run["legs"])
-                rows["features"].append(run["features"])
-                rows["legs"].append(run["legs"])
-                rows["speeds"].append(run["speeds"])
-                rows["labels"].append(np.full(n, m))
-                rows["runs"].append(np.full(n, k))
+                run = _load_or_run(_run_file(out, material, k), fingerprint, lambda: trot(
+                    trot_scenario(material, distance=distance, payload_kg=config.payload_kg, seed=seed), seed,
+                    material))
+                add(run, np.full(len(run["legs"]), m), 1000 * m + k)
                 skipped[m] += run["skipped"]
-                have += np.bincount(run["legs"], minlength=NUM_LEGS)
+                have += np.bincount(np.asarray(run["legs"], dtype=int), minlength=NUM_LEGS)
                 bar.update(task, completed=m * config.stances_per_class + min(have.min(), config.stances_per_class))
-    dataset = StanceDataset(classes=classes, features=np.vstack(rows["features"]),
-                            labels=np.concatenate(rows["labels"]).astype(int),
-                            legs=np.concatenate(rows["legs"]).astype(int),
-                            speeds=np.concatenate(rows["speeds"]), runs=np.concatenate(rows["runs"]).astype(int),
-                            skipped=skipped, config=dataclasses.asdict(config))
-    # Keep exactly stances_per_class per (class, leg) when more were collected (the last run
-    # overshoots), so that the classes stay balanced.
-    keep = np.zeros(len(dataset.labels), dtype=bool)
+        rng = np.random.default_rng(config.seed)
+        for k in range(config.mixed_runs):
+            # Stripes along x cut into patches along y: every material borders every other.
+            length, width = rng.uniform(*config.mixed_patch_range, size=2)
+            seed = config.seed + 100_000 + k
+            fingerprint = json.dumps([config.run_duration, list(config.speed_range), config.speed_hold,
+                                      config.payload_kg, seed, float(length), float(width)])
+            run = _load_or_run(_run_file(out, "mixed", k), fingerprint, lambda: trot(
+                trot_scenario("concrete", distance=distance, payload_kg=config.payload_kg, seed=seed,
+                              mixed_patch_length=length, mixed_patch_width=width), seed, "a mixed floor"))
+            # Labelled by the material under the foot; stances off the known classes are dropped.
+            known = np.array([str(t) in classes for t in run["truth"]], dtype=bool)
+            labels = np.array([classes.index(str(t)) if str(t) in classes else -1 for t in run["truth"]], dtype=int)
+            add({"features": np.asarray(run["features"])[known], "legs": np.asarray(run["legs"])[known],
+                 "speeds": np.asarray(run["speeds"])[known]}, labels[known], MIXED_RUN_ID + k)
+            skipped_mixed += run["skipped"]
+            bar.update(task, advance=1)
+    pool = StanceDataset(classes=classes, features=np.vstack(rows["features"]),
+                         labels=np.concatenate(rows["labels"]).astype(int),
+                         legs=np.concatenate(rows["legs"]).astype(int),
+                         speeds=np.concatenate(rows["speeds"]), runs=np.concatenate(rows["runs"]).astype(int),
+                         skipped=skipped, config=dataclasses.asdict(config), skipped_mixed=skipped_mixed)
+    # Keep the first stances_per_class one-material stances per (class, leg) (the last run
+    # overshoots), so that the classes stay balanced; keep every mixed-floor stance.
+    keep = pool.from_mixed_floors()
     for c in range(len(classes)):
         for leg in range(NUM_LEGS):
-            idx = np.flatnonzero((dataset.labels == c) & (dataset.legs == leg))
+            idx = np.flatnonzero((pool.labels == c) & (pool.legs == leg) & ~keep)
             keep[idx[:config.stances_per_class]] = True
-    dataset = dataclasses.replace(dataset, features=dataset.features[keep], labels=dataset.labels[keep],
-                                  legs=dataset.legs[keep], speeds=dataset.speeds[keep], runs=dataset.runs[keep])
+    dataset = dataclasses.replace(pool, features=pool.features[keep], labels=pool.labels[keep],
+                                  legs=pool.legs[keep], speeds=pool.speeds[keep], runs=pool.runs[keep])
     dataset.save(out / "dataset.npz")
     return dataset
 
@@ -190,8 +244,13 @@ def _progress(enabled: bool):
 
 
 def summary(dataset: StanceDataset) -> dict:
-    counts = dataset.counts()
+    """Stance counts of the one-material runs per class and leg, skipped stances, mixed-floor stances."""
+    one_material = ~dataset.from_mixed_floors()
+    counts = np.zeros((len(dataset.classes), NUM_LEGS), dtype=int)
+    np.add.at(counts, (dataset.labels[one_material], dataset.legs[one_material]), 1)
     return {"classes": list(dataset.classes), "stances": int(len(dataset.labels)),
             "per_class_per_leg": {c: dict(zip(LEG_NAMES, map(int, counts[i]))) for i, c in enumerate(dataset.classes)},
             "skipped_short_stances": {c: dict(zip(LEG_NAMES, map(int, dataset.skipped[i])))
-                                      for i, c in enumerate(dataset.classes)}}
+                                      for i, c in enumerate(dataset.classes)},
+            "skipped_short_stances_mixed_floors": dict(zip(LEG_NAMES, map(int, dataset.skipped_mixed))),
+            "stances_from_mixed_floors": int(np.count_nonzero(dataset.from_mixed_floors()))}

@@ -79,7 +79,7 @@ def plot_vibration_boxes(runs: dict, path, *, quantity: str = "vertical_accelera
         trace.set_xlabel("time [s]")
         trace.set_ylabel(f"{quantity.replace('_', ' ')} [{unit}]")
         trace.legend(fontsize=8)
-        box.boxplot(data, labels=list(runs[case]))
+        box.boxplot(data, tick_labels=list(runs[case]))
         box.set_title("judged window")
     fig.tight_layout()
     fig.savefig(path, dpi=110)

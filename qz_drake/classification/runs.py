@@ -37,10 +37,11 @@ _MARGIN = 2.0
 
 
 def trot_scenario(material: str = "concrete", *, distance: float = 6.0, payload_kg: float = 5.0,
-                  mixed_patch_length: float = 0.0, seed: int = 0) -> Scenario:
+                  mixed_patch_length: float = 0.0, mixed_patch_width: float = math.inf, seed: int = 0) -> Scenario:
     """A flat floor of one material for ``distance`` metres of trotting; with a positive
     ``mixed_patch_length`` [m] a floor of concrete, wood and foam stripes instead (the
-    material_floor generator; ``material`` is then the floor's default)."""
+    material_floor generator; a finite ``mixed_patch_width`` [m] cuts the stripes into patches
+    along y; ``material`` is then the default of the robot's contact properties)."""
     from qz_drake.terrain import get_material
 
     get_material(material)  # an unknown name is an error naming it
@@ -51,6 +52,8 @@ def trot_scenario(material: str = "concrete", *, distance: float = 6.0, payload_
     if mixed_patch_length > 0:
         scenario.terrain.kind = "material_floor"
         scenario.terrain.params = {"patch_length": float(mixed_patch_length), "size_x": size_x, "size_y": 3.0}
+        if math.isfinite(mixed_patch_width):
+            scenario.terrain.params["patch_width"] = float(mixed_patch_width)
     else:
         scenario.terrain.kind = "flat"
         scenario.terrain.params = {"size_x": size_x, "size_y": 3.0}
@@ -69,7 +72,7 @@ class TrotRun:
     states: np.ndarray  # (N, 49)
     imu: np.ndarray  # (N, 10)
     gait_state: np.ndarray  # (N, 6)
-    stiffness: np.ndarray  # (N, 6)
+    stiffness: np.ndarray  # (N, 6) stance stiffness the impedance applied [N/m]
     terrain_label: np.ndarray  # (N, 6) confirmed labels (-1 unknown)
     ground_truth: np.ndarray  # (N, 6) index of the material under each foot (-1 off the map)
     classes: tuple[str, ...]
@@ -103,12 +106,13 @@ def speed_schedule(duration: float, speed_range=(0.0, 0.6), hold: float = 2.0, s
 
 def simulate_trot(scenario: Scenario, *, duration: float, speed=0.3, trot_config: TrotConfig | None = None,
                   models=None, adaptive: bool = False, stiffness: float = DEFAULT_STIFFNESS,
-                  meshcat=None) -> TrotRun:
+                  stiffness_by_material: dict | None = None, meshcat=None) -> TrotRun:
     """Trots a scenario for ``duration`` s.
 
     ``speed`` is a forward speed [m/s] or a schedule (times, speeds) held piecewise constant.
     With ``models`` the TerrainClassifier labels every stance; with ``adaptive`` its stiffness
-    output drives the impedance, otherwise every leg keeps ``stiffness`` [N/m].
+    output (``stiffness_by_material``, default the paper's presets) drives the impedance,
+    otherwise every leg keeps ``stiffness`` [N/m].
     """
     from pydrake.trajectories import PiecewisePolynomial
     from pydrake.systems.primitives import TrajectorySource
@@ -133,6 +137,7 @@ def simulate_trot(scenario: Scenario, *, duration: float, speed=0.3, trot_config
         schedule = (times, speeds)
     config = trot_config or TrotConfig()
     classifier = builder.AddSystem(TerrainClassifier(models=models, period=config.control_period,
+                                                     stiffness_by_material=stiffness_by_material,
                                                      params=info.params))
     classifier.set_name("terrain_classifier")
     trot, _ = add_trotting_controller(builder, station, info, config=config, velocity_port=velocity_port,
@@ -167,8 +172,10 @@ def simulate_trot(scenario: Scenario, *, duration: float, speed=0.3, trot_config
     truth = _ground_truth(heightmap, data["state"], classes, scenario.terrain.material, info.params)
     stance = _stances(stance_logs, context, data["state"], times, truth, schedule)
     skipped = stance_logs["skipped_stances"].FindLog(context).data()[:, -1].astype(int)
+    # The stiffness the impedance applied: the classifier's command only when adaptive.
+    applied = data["stiffness"] if adaptive else np.full_like(data["stiffness"], stiffness)
     return TrotRun(times=times, states=data["state"], imu=data["imu"], gait_state=data["gait"],
-                   stiffness=data["stiffness"], terrain_label=data["label"], ground_truth=truth, classes=classes,
+                   stiffness=applied, terrain_label=data["label"], ground_truth=truth, classes=classes,
                    skipped_stances=skipped, fell=fell, wall_time_s=wall, **stance)
 
 

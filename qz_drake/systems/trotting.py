@@ -218,7 +218,6 @@ class TrottingController(LeafSystem):
         quat = x[BASE_QUAT] / np.linalg.norm(x[BASE_QUAT])
         R_WB = _rotation(quat)
         v_B = R_WB.T @ x[BASE_VEL]
-        w_B = R_WB.T @ x[BASE_ANGVEL]
         feet_B = kinematics.all_foot_positions(x[JOINT_Q], self._params)
         stance_z = self._nominal[:, 2]
 
@@ -266,7 +265,7 @@ class TrottingController(LeafSystem):
                 s = (t - entered[i]) / c.phase_duration
                 support[i] = max(0.0, 1.0 - s / c.lift_fraction) * 0.3
 
-        forces_W = self._stabiliser(R_WB, x, v_B, w_B, feet_B, support, velocity)
+        forces_W = self._stabiliser(R_WB, x, feet_B, support, velocity)
         p_L = np.einsum("lji,lj->li", self._R_BL, p_des - self._hips)
         v_L = np.einsum("lji,lj->li", self._R_BL, v_des)
         # The leg pushes its foot against the ground: the opposite of the force on the body.
@@ -277,7 +276,7 @@ class TrottingController(LeafSystem):
         discrete_state.get_mutable_vector(self._mode_out).SetFromVector((state != LDS).astype(float))
         discrete_state.get_mutable_vector(self._gait_out).SetFromVector(state.copy())
 
-    def _stabiliser(self, R_WB, x, v_B, w_B, feet_B, support, velocity) -> np.ndarray:
+    def _stabiliser(self, R_WB, x, feet_B, support, velocity) -> np.ndarray:
         """Forces (world frame, on the body, per foot) that carry the weight, level the body and
         hold the commanded velocity, spread over the supporting feet by weighted least squares."""
         c = self._config

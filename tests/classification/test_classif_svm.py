@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from sklearn.svm import SVC
 
-from qz_drake.classification.dataset import CollectConfig, StanceDataset
-from qz_drake.classification.svm import (SvmModel, evaluation_report, format_tables, load_models, save_models,
-                                         train_all_legs, train_leg)
+from qz_drake.classification.dataset import MIXED_RUN_ID, CollectConfig, StanceDataset
+from qz_drake.classification.svm import (SvmModel, evaluation_report, format_tables, load_models, model_from_svc,
+                                         save_models, train_all_legs, train_leg)
 from qz_drake.errors import ConfigError, TerrainError
 
 CLASSES = ("concrete", "wood", "foam")
@@ -28,6 +28,17 @@ def test_decision_matches_libsvm_one_against_one():
     probe = _blobs(seed=3)[0]
     np.testing.assert_allclose(model.pair_decisions(probe), svc.decision_function(probe / 100), atol=1e-9)
     np.testing.assert_array_equal(model.predict_index(probe), svc.predict(probe / 100))
+
+
+def test_two_classes_vote_like_libsvm():
+    X, y = _blobs()
+    two = y < 2
+    svc = SVC(C=4.0, gamma=0.05).fit(X[two] / 100, y[two])
+    model = model_from_svc(svc, CLASSES[:2], np.zeros(18), np.full(18, 100.0))
+    probe = _blobs(seed=4)[0]
+    np.testing.assert_array_equal(model.predict_index(probe), svc.predict(probe / 100))
+    # LIBSVM's convention: a positive decision votes for the first class.
+    np.testing.assert_allclose(model.pair_decisions(probe)[:, 0], -svc.decision_function(probe / 100), atol=1e-9)
 
 
 def test_training_scales_with_the_training_split_and_evaluates_the_held_out_fifth():
@@ -91,3 +102,16 @@ def test_collect_config_names_bad_values():
         CollectConfig(stances_per_class=0).check()
     with pytest.raises(ConfigError, match="speed_range"):
         CollectConfig(speed_range=[0.5, 0.2]).check()
+
+
+def test_mixed_floor_stances_train_but_are_reported_apart():
+    X, y = _blobs(n=60)
+    legs = np.tile(np.arange(6), 30)
+    runs = np.where((np.arange(180) // 6) % 3 == 0, MIXED_RUN_ID, 0)
+    data = StanceDataset(CLASSES, X, y, legs, np.zeros(180), runs, np.zeros((3, 6), int), {})
+    _, report = train_all_legs(data, C_grid=(4.0,), gamma_grid=(0.1,))
+    for leg in report["per_leg"]:
+        # 20 one-material stances per leg (4 held out) and 10 mixed-floor ones (2 held out).
+        assert leg["test_size"] == 4 and leg["mixed"]["test_size"] == 2
+        assert leg["train_size"] == 16 + 8
+    assert report["mean_accuracy_mixed_floors"] is not None
