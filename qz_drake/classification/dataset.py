@@ -1,6 +1,8 @@
 """Stance datasets (paper 002, section 5's first experiment): Qingzhui trots over each ground
 material with a 5 kg payload at random speeds in 0-0.6 m/s; every finished stance of every leg
-gives one labelled 18-feature row.
+gives one labelled 18-feature row. Each run draws each leg's stance stiffness from the paper's
+three (7, 9, 11 kN/m), and further runs cross floors of random material patches, labelled by
+the material under each foot: the adaptive robot meets both.
 
 Runs are saved one file per run under ``<out>/runs/``, so an interrupted collection resumes
 where it stopped and a finished one is re-read instead of re-simulated (same config, same
@@ -44,6 +46,10 @@ class CollectConfig:
     mixed_runs: int = 6
     # Range of the mixed floors' patch length and width. [m]
     mixed_patch_range: list[float] = dataclasses.field(default_factory=lambda: [0.6, 2.0])
+    # Each leg's stance stiffness in a run is drawn from these (the paper's three): the
+    # classifier must recognise the ground whichever stiffness an adaptive leg has switched
+    # to. Empty: every leg at 9 kN/m. [N/m]
+    stiffness_choices: list[float] = dataclasses.field(default_factory=lambda: [7000.0, 9000.0, 11000.0])
 
     def check(self) -> "CollectConfig":
         from qz_drake.terrain import get_material
@@ -69,6 +75,8 @@ class CollectConfig:
             raise bad_value("max_runs", self.max_runs, "must be a positive integer")
         if not (isinstance(self.mixed_runs, int) and self.mixed_runs >= 0):
             raise bad_value("mixed_runs", self.mixed_runs, "must be a non-negative integer")
+        if not all(math.isfinite(k) and k > 0 for k in self.stiffness_choices):
+            raise bad_value("stiffness_choices", self.stiffness_choices, "must be positive stiffnesses in N/m")
         lo, hi = self.mixed_patch_range
         if not (0.2 <= lo <= hi):
             raise bad_value("mixed_patch_range", self.mixed_patch_range, "expected 0.2 <= min <= max metres")
@@ -166,9 +174,15 @@ def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True) ->
     skipped_mixed = np.zeros(NUM_LEGS, dtype=int)
     distance = config.run_duration * config.speed_range[1] + 1.0
 
+    def leg_stiffness(seed):
+        if not config.stiffness_choices:
+            return np.full(NUM_LEGS, 9000.0)
+        return np.random.default_rng(seed).choice(np.asarray(config.stiffness_choices, dtype=float), NUM_LEGS)
+
     def trot(scenario, seed, what):
         times, speeds = speed_schedule(config.run_duration, config.speed_range, config.speed_hold, seed)
-        result = simulate_trot(scenario, duration=config.run_duration, speed=(times, speeds))
+        result = simulate_trot(scenario, duration=config.run_duration, speed=(times, speeds),
+                               stiffness=leg_stiffness(seed))
         if result.fell:
             raise RuntimeError(f"the robot fell on {what} (seed {seed})")
         return {"features": result.stance_features, "legs": result.stance_leg, "speeds": result.stance_speed,
@@ -193,7 +207,7 @@ def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True) ->
                     break
                 seed = config.seed + 1000 * m + k
                 fingerprint = json.dumps([config.run_duration, list(config.speed_range), config.speed_hold,
-                                          config.payload_kg, seed])
+                                          config.payload_kg, seed, leg_stiffness(seed).tolist()])
                 run = _load_or_run(_run_file(out, material, k), fingerprint, lambda: trot(
                     trot_scenario(material, distance=distance, payload_kg=config.payload_kg, seed=seed), seed,
                     material))
@@ -207,7 +221,8 @@ def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True) ->
             length, width = rng.uniform(*config.mixed_patch_range, size=2)
             seed = config.seed + 100_000 + k
             fingerprint = json.dumps([config.run_duration, list(config.speed_range), config.speed_hold,
-                                      config.payload_kg, seed, float(length), float(width)])
+                                      config.payload_kg, seed, float(length), float(width),
+                                      leg_stiffness(seed).tolist()])
             run = _load_or_run(_run_file(out, "mixed", k), fingerprint, lambda: trot(
                 trot_scenario("concrete", distance=distance, payload_kg=config.payload_kg, seed=seed,
                               mixed_patch_length=length, mixed_patch_width=width), seed, "a mixed floor"))

@@ -105,14 +105,14 @@ def speed_schedule(duration: float, speed_range=(0.0, 0.6), hold: float = 2.0, s
 
 
 def simulate_trot(scenario: Scenario, *, duration: float, speed=0.3, trot_config: TrotConfig | None = None,
-                  models=None, adaptive: bool = False, stiffness: float = DEFAULT_STIFFNESS,
+                  models=None, adaptive: bool = False, stiffness=DEFAULT_STIFFNESS,
                   stiffness_by_material: dict | None = None, meshcat=None) -> TrotRun:
     """Trots a scenario for ``duration`` s.
 
     ``speed`` is a forward speed [m/s] or a schedule (times, speeds) held piecewise constant.
     With ``models`` the TerrainClassifier labels every stance; with ``adaptive`` its stiffness
     output (``stiffness_by_material``, default the paper's presets) drives the impedance,
-    otherwise every leg keeps ``stiffness`` [N/m].
+    otherwise every leg keeps ``stiffness`` [N/m] (one value, or one per leg).
     """
     from pydrake.trajectories import PiecewisePolynomial
     from pydrake.systems.primitives import TrajectorySource
@@ -173,7 +173,8 @@ def simulate_trot(scenario: Scenario, *, duration: float, speed=0.3, trot_config
     stance = _stances(stance_logs, context, data["state"], times, truth, schedule)
     skipped = stance_logs["skipped_stances"].FindLog(context).data()[:, -1].astype(int)
     # The stiffness the impedance applied: the classifier's command only when adaptive.
-    applied = data["stiffness"] if adaptive else np.full_like(data["stiffness"], stiffness)
+    applied = data["stiffness"] if adaptive else np.broadcast_to(
+        np.asarray(stiffness, dtype=float), data["stiffness"].shape).copy()
     return TrotRun(times=times, states=data["state"], imu=data["imu"], gait_state=data["gait"],
                    stiffness=applied, terrain_label=data["label"], ground_truth=truth, classes=classes,
                    skipped_stances=skipped, fell=fell, wall_time_s=wall, **stance)

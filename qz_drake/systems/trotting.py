@@ -328,12 +328,12 @@ def _roll_pitch(R: np.ndarray) -> np.ndarray:
 
 
 def add_trotting_controller(builder, station, info, *, config: TrotConfig | None = None,
-                            stiffness_port=None, stance_stiffness: float = 9000.0, velocity_port=None,
+                            stiffness_port=None, stance_stiffness=9000.0, velocity_port=None,
                             velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)):
     """Wires TrottingController -> SphericalImpedance -> station; returns (trot, impedance).
 
     The stance stiffness comes from ``stiffness_port`` (e.g. a TerrainClassifier's output) or
-    is the constant ``stance_stiffness`` [N/m]; the velocity command from ``velocity_port`` or
+    is the constant ``stance_stiffness`` [N/m] (one value, or one per leg); the velocity command from ``velocity_port`` or
     the constant ``velocity``.
     """
     from pydrake.systems.primitives import ConstantVectorSource
@@ -353,7 +353,8 @@ def add_trotting_controller(builder, station, info, *, config: TrotConfig | None
     for name in ("desired_foot_position", "desired_foot_velocity", "reference_force", "mode"):
         builder.Connect(trot.GetOutputPort(name), impedance.GetInputPort(name))
     if stiffness_port is None:
-        stiffness_port = builder.AddSystem(ConstantVectorSource(np.full(NUM_LEGS, stance_stiffness))).get_output_port()
+        stiffness = np.broadcast_to(np.asarray(stance_stiffness, dtype=float), (NUM_LEGS,)).copy()
+        stiffness_port = builder.AddSystem(ConstantVectorSource(stiffness)).get_output_port()
     builder.Connect(stiffness_port, impedance.GetInputPort("stiffness"))
     builder.Connect(station.GetOutputPort("state"), impedance.GetInputPort("state"))
     builder.Connect(impedance.GetOutputPort("joint_torque"), station.GetInputPort("joint_torque"))
