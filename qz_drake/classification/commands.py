@@ -96,7 +96,7 @@ def run_collect(args) -> int:
     from qz_drake.classification.dataset import collect_dataset, summary
 
     config = _collect_config(args)
-    dataset = collect_dataset(config, args.out, progress=not args.json)
+    dataset = collect_dataset(config, args.out, progress=not args.json, workers=args.workers)
     result = dict(summary(dataset), dataset=str(Path(args.out) / "dataset.npz"))
     print(json.dumps(result) if args.json else json.dumps(result, indent=2))
     return 0
@@ -162,6 +162,7 @@ def register(subparsers) -> None:
     p.add_argument("--mixed-runs", type=int, default=None,
                    help="extra runs over floors of random material patches (default 6)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=1, help="simulate runs in this many processes (default 1)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.set_defaults(func=run_collect)
 

@@ -146,49 +146,115 @@ def _run_file(out: Path, material: str, k: int) -> Path:
     return out / "runs" / f"{material}_{k:03d}.npz"
 
 
-def _load_or_run(path: Path, fingerprint: str, simulate) -> dict:
-    """A cached run when its fingerprint matches, else a fresh one (saved)."""
+def _cached_run(path: Path, fingerprint: str) -> dict | None:
+    """The saved run at ``path`` when its fingerprint matches, else None."""
     if path.is_file():
         with np.load(path, allow_pickle=False) as d:
             if "fingerprint" in d.files and str(d["fingerprint"]) == fingerprint:
                 return {key: d[key] for key in d.files}
-    run = simulate()
-    run["fingerprint"] = np.asarray(fingerprint, dtype=np.str_)
-    np.savez(path, **run)
+    return None
+
+
+@dataclasses.dataclass(frozen=True)
+class _RunSpec:
+    """One trotting run of a collection: what it simulates and where it is saved."""
+
+    path: Path
+    material: str  # the floor's material, or the mixed floors' default
+    seed: int
+    patch: tuple[float, float] | None  # mixed floor patch (length, width) [m], None: one material
+    stiffness: tuple[float, ...]  # each leg's stance stiffness [N/m]
+
+    def fingerprint(self, config: "CollectConfig") -> str:
+        head = [config.run_duration, list(config.speed_range), config.speed_hold, config.payload_kg, self.seed]
+        return json.dumps(head + ([] if self.patch is None else list(self.patch)) + [list(self.stiffness)])
+
+
+def _simulate_run(spec: _RunSpec, config: "CollectConfig") -> dict:
+    """Simulates one run and saves it under its fingerprint (also in a worker process)."""
+    from qz_drake.classification.runs import simulate_trot, speed_schedule, trot_scenario
+
+    distance = config.run_duration * config.speed_range[1] + 1.0
+    length, width = spec.patch if spec.patch is not None else (0.0, math.inf)
+    scenario = trot_scenario(spec.material, distance=distance, payload_kg=config.payload_kg, seed=spec.seed,
+                             mixed_patch_length=length, mixed_patch_width=width)
+    times, speeds = speed_schedule(config.run_duration, config.speed_range, config.speed_hold, spec.seed)
+    result = simulate_trot(scenario, duration=config.run_duration, speed=(times, speeds),
+                           stiffness=np.asarray(spec.stiffness))
+    if result.fell:
+        where = "a mixed floor" if spec.patch is not None else spec.material
+        raise RuntimeError(f"the robot fell on {where} (seed {spec.seed})")
+    run = {"features": result.stance_features, "legs": result.stance_leg, "speeds": result.stance_speed,
+           "skipped": result.skipped_stances,
+           "truth": np.asarray([result.classes[i] if i >= 0 else "" for i in result.stance_truth],
+                               dtype=np.str_).reshape(-1),
+           "fingerprint": np.asarray(spec.fingerprint(config), dtype=np.str_)}
+    np.savez(spec.path, **run)
     return run
 
 
-def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True) -> StanceDataset:
+class _Runner:
+    """Runs specs in order, from the cache where it can, else here (one worker) or on a pool of
+    worker processes; the results do not depend on the number of workers."""
+
+    def __init__(self, config: "CollectConfig", workers: int):
+        self._config = config
+        self._pool = None
+        if workers > 1:
+            import concurrent.futures
+            import multiprocessing
+
+            # Spawned workers: a fork would copy the parent's Drake and BLAS threads' state.
+            self._pool = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+
+    def map(self, specs):
+        """Yields each spec's run, in order, as soon as it and those before it are done."""
+        pending = []
+        for spec in specs:
+            cached = _cached_run(spec.path, spec.fingerprint(self._config))
+            if cached is not None:
+                pending.append(cached)
+            elif self._pool is None:
+                pending.append(_simulate_run(spec, self._config))
+            else:
+                pending.append(self._pool.submit(_simulate_run, spec, self._config))
+        for item in pending:
+            yield item if isinstance(item, dict) else item.result()
+
+
+def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True, workers: int = 1) -> StanceDataset:
     """Trots over each material until every leg has ``stances_per_class`` stances there (or
     ``max_runs`` runs), then ``mixed_runs`` times over floors of random material patches;
     keeps ``stances_per_class`` one-material stances per class and leg and every mixed-floor
-    stance; writes ``<out_dir>/dataset.npz`` and returns the dataset."""
-    from qz_drake.classification.runs import simulate_trot, speed_schedule, trot_scenario
+    stance; writes ``<out_dir>/dataset.npz`` and returns the dataset.
+
+    With ``workers`` > 1 the runs are simulated in that many processes, ``workers`` runs of a
+    material at a time; the dataset is the same as with one.
+    """
+    from qz_drake.systems.terrain_classifier import DEFAULT_STIFFNESS
 
     config.check()
+    if not (isinstance(workers, int) and workers >= 1):
+        raise bad_value("workers", workers, "must be a positive integer")
     out = Path(out_dir)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     classes = tuple(config.materials)
     rows = {"features": [], "labels": [], "legs": [], "speeds": [], "runs": []}
     skipped = np.zeros((len(classes), NUM_LEGS), dtype=int)
     skipped_mixed = np.zeros(NUM_LEGS, dtype=int)
-    distance = config.run_duration * config.speed_range[1] + 1.0
 
-    def leg_stiffness(seed):
+    def leg_stiffness(seed) -> tuple[float, ...]:
         if not config.stiffness_choices:
-            return np.full(NUM_LEGS, 9000.0)
-        return np.random.default_rng(seed).choice(np.asarray(config.stiffness_choices, dtype=float), NUM_LEGS)
-
-    def trot(scenario, seed, what):
-        times, speeds = speed_schedule(config.run_duration, config.speed_range, config.speed_hold, seed)
-        result = simulate_trot(scenario, duration=config.run_duration, speed=(times, speeds),
-                               stiffness=leg_stiffness(seed))
-        if result.fell:
-            raise RuntimeError(f"the robot fell on {what} (seed {seed})")
-        return {"features": result.stance_features, "legs": result.stance_leg, "speeds": result.stance_speed,
-                "skipped": result.skipped_stances,
-                "truth": np.asarray([result.classes[i] if i >= 0 else "" for i in result.stance_truth],
-                                    dtype=np.str_).reshape(-1)}
+            return (DEFAULT_STIFFNESS,) * NUM_LEGS
+        choice = np.random.default_rng(seed).choice(np.asarray(config.stiffness_choices, dtype=float), NUM_LEGS)
+        return tuple(float(k) for k in choice)
 
     def add(run, labels, run_id):
         rows["features"].append(np.asarray(run["features"]).reshape(-1, feat.NUM_FEATURES))
@@ -198,34 +264,32 @@ def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True) ->
         rows["runs"].append(np.full(len(run["legs"]), run_id))
 
     bar = _progress(progress)
-    with bar:
+    with bar, _Runner(config, workers) as runner:
         task = bar.add_task("collecting stances", total=len(classes) * config.stances_per_class + config.mixed_runs)
         for m, material in enumerate(classes):
             have = np.zeros(NUM_LEGS, dtype=int)
-            for k in range(config.max_runs):
-                if have.min() >= config.stances_per_class:
-                    break
-                seed = config.seed + 1000 * m + k
-                fingerprint = json.dumps([config.run_duration, list(config.speed_range), config.speed_hold,
-                                          config.payload_kg, seed, leg_stiffness(seed).tolist()])
-                run = _load_or_run(_run_file(out, material, k), fingerprint, lambda: trot(
-                    trot_scenario(material, distance=distance, payload_kg=config.payload_kg, seed=seed), seed,
-                    material))
-                add(run, np.full(len(run["legs"]), m), 1000 * m + k)
-                skipped[m] += run["skipped"]
-                have += np.bincount(np.asarray(run["legs"], dtype=int), minlength=NUM_LEGS)
-                bar.update(task, completed=m * config.stances_per_class + min(have.min(), config.stances_per_class))
+            k = 0
+            while k < config.max_runs and have.min() < config.stances_per_class:
+                batch = range(k, min(k + workers, config.max_runs))
+                specs = [_RunSpec(_run_file(out, material, j), material, config.seed + 1000 * m + j, None,
+                                  leg_stiffness(config.seed + 1000 * m + j)) for j in batch]
+                for j, run in zip(batch, runner.map(specs)):
+                    # Runs past the one that completes the class are simulated (and cached)
+                    # alongside it but not used, as with one worker.
+                    if have.min() >= config.stances_per_class:
+                        break
+                    add(run, np.full(len(run["legs"]), m), 1000 * m + j)
+                    skipped[m] += run["skipped"]
+                    have += np.bincount(np.asarray(run["legs"], dtype=int), minlength=NUM_LEGS)
+                    bar.update(task, completed=m * config.stances_per_class + min(have.min(), config.stances_per_class))
+                k = batch.stop
         rng = np.random.default_rng(config.seed)
-        for k in range(config.mixed_runs):
-            # Stripes along x cut into patches along y: every material borders every other.
-            length, width = rng.uniform(*config.mixed_patch_range, size=2)
-            seed = config.seed + 100_000 + k
-            fingerprint = json.dumps([config.run_duration, list(config.speed_range), config.speed_hold,
-                                      config.payload_kg, seed, float(length), float(width),
-                                      leg_stiffness(seed).tolist()])
-            run = _load_or_run(_run_file(out, "mixed", k), fingerprint, lambda: trot(
-                trot_scenario("concrete", distance=distance, payload_kg=config.payload_kg, seed=seed,
-                              mixed_patch_length=length, mixed_patch_width=width), seed, "a mixed floor"))
+        # Stripes along x cut into patches along y: every material borders every other.
+        patches = [tuple(float(v) for v in rng.uniform(*config.mixed_patch_range, size=2))
+                   for _ in range(config.mixed_runs)]
+        specs = [_RunSpec(_run_file(out, "mixed", k), "concrete", config.seed + MIXED_RUN_ID + k, patch,
+                          leg_stiffness(config.seed + MIXED_RUN_ID + k)) for k, patch in enumerate(patches)]
+        for k, run in enumerate(runner.map(specs)):
             # Labelled by the material under the foot; stances off the known classes are dropped.
             known = np.array([str(t) in classes for t in run["truth"]], dtype=bool)
             labels = np.array([classes.index(str(t)) if str(t) in classes else -1 for t in run["truth"]], dtype=int)
