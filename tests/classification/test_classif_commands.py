@@ -54,3 +54,7 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys):
     assert main(["classify", "experiment", "--models", str(tmp_path / "none.npz")]) == 2
     assert main(["classify", "collect", "--stances", "0", "--out", str(tmp_path)]) == 2
     assert "stances_per_class = 0" in capsys.readouterr().err
+    assert main(["classify", "collect", "--workers", "0", "--out", str(tmp_path)]) == 2
+    assert "workers = 0" in capsys.readouterr().err
+    assert main(["classify", "train", "--repeats", "0", "--dataset", str(tmp_path)]) == 2
+    assert "--repeats = 0" in capsys.readouterr().err

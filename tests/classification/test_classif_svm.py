@@ -7,7 +7,7 @@ from sklearn.svm import SVC
 
 from qz_drake.classification.dataset import MIXED_RUN_ID, CollectConfig, StanceDataset
 from qz_drake.classification.svm import (SvmModel, evaluation_report, format_tables, load_models, model_from_svc,
-                                         save_models, train_all_legs, train_leg)
+                                         repeated_holdout, save_models, train_all_legs, train_leg)
 from qz_drake.errors import ConfigError, TerrainError
 
 CLASSES = ("concrete", "wood", "foam")
@@ -115,3 +115,22 @@ def test_mixed_floor_stances_train_but_are_reported_apart():
         assert leg["test_size"] == 4 and leg["mixed"]["test_size"] == 2
         assert leg["train_size"] == 16 + 8
     assert report["mean_accuracy_mixed_floors"] is not None
+
+
+def test_repeated_holdout_varies_the_split_and_averages():
+    X, y = _blobs(n=60)
+    # Two blobs overlap a little so that different splits give different accuracies.
+    X[y == 1] = X[y == 0][:60] + np.random.default_rng(5).normal(0, 60, (60, 18)) * np.linspace(1, 100, 18) / 50
+    legs = np.tile(np.arange(6), 30)
+    data = StanceDataset(CLASSES, X, y, legs, np.zeros(180), np.zeros(180, int), np.zeros((3, 6), int), {})
+    result = repeated_holdout(data, repeats=3, seed=7, C_grid=(4.0,), gamma_grid=(0.1,))
+    accuracy = np.asarray(result["accuracy"])
+    assert accuracy.shape == (3, 6) and result["seeds"] == [7, 8, 9]
+    assert result["mean_accuracy"] == pytest.approx(accuracy.mean())
+    assert result["per_leg_min"]["MF"] == pytest.approx(accuracy[:, 0].min())
+    # The first repeat is the single report of the same seed.
+    _, single = train_all_legs(data, seed=7, C_grid=(4.0,), gamma_grid=(0.1,))
+    np.testing.assert_allclose(accuracy[0], [leg["accuracy"] for leg in single["per_leg"]])
+    assert not np.all(accuracy == accuracy[0])
+    with pytest.raises(ConfigError, match="repeats = 0"):
+        repeated_holdout(data, repeats=0)
