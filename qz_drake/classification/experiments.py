@@ -11,7 +11,8 @@
   stiffnesses fixed and takes, per material, the one with the narrowest acceleration box;
   a third run per case switches to those "simulation presets".
 * The mixed floor: Qingzhui trots across stripes of concrete, wood and foam; each leg's
-  confirmed label over time is compared with the material under the foot.
+  confirmed label over time is compared with the material under the foot, and stance by
+  stance: settled accuracy (errors) apart from the switching latency (the confirmation rule).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from qz_drake.robot.params import LEG_NAMES, NUM_LEGS
+from qz_drake.systems.terrain_classifier import CONFIRMATIONS
 
 
 @dataclasses.dataclass
@@ -122,6 +124,41 @@ def vibration_case(models, material: str, speed: float, config: ExperimentConfig
     return {"summary": summary, "runs": runs}
 
 
+def stance_label_scores(stance_leg, stance_truth, confirmed, *, confirmations: int = CONFIRMATIONS) -> dict:
+    """Scores of the confirmed labels leg by leg, stance by stance, that separate the
+    classifier's errors from the delay its confirmation rule builds in.
+
+    ``confirmed`` is each stance's leg's confirmed label just after that stance ended. A stance
+    is *settled* when its leg's last ``confirmations`` stances stood on the same known
+    material (the rule could have switched by then); ``settled_accuracy`` is the share of
+    settled stances whose confirmed label is that material. At every change of the material
+    under a leg, ``switch_latency_stances`` counts the stances from the first one on the new
+    material to the first whose confirmed label names it (``confirmations`` at best; a
+    switch that never comes before the material changes again is counted in ``missed_switches``).
+    """
+    stance_leg, stance_truth, confirmed = (np.asarray(a, dtype=int) for a in (stance_leg, stance_truth, confirmed))
+    settled_hits, latencies, missed = [], [], 0
+    for leg in range(NUM_LEGS):
+        truth, label = stance_truth[stance_leg == leg], confirmed[stance_leg == leg]
+        for k in range(confirmations - 1, len(truth)):
+            window = truth[k - confirmations + 1:k + 1]
+            if window[0] >= 0 and np.all(window == window[0]):
+                settled_hits.append(label[k] == truth[k])
+        changes = [k for k in range(1, len(truth)) if truth[k] != truth[k - 1] and truth[k] >= 0]
+        for n, k in enumerate(changes):
+            end = changes[n + 1] if n + 1 < len(changes) else len(truth)
+            hits = np.flatnonzero(label[k:end] == truth[k])
+            if len(hits):
+                latencies.append(int(hits[0]) + 1)
+            elif end < len(truth):
+                missed += 1
+    return {"settled_accuracy": float(np.mean(settled_hits)) if settled_hits else None,
+            "settled_stances": len(settled_hits),
+            "switch_latency_stances": latencies,
+            "median_switch_latency_stances": float(np.median(latencies)) if latencies else None,
+            "missed_switches": missed}
+
+
 def mixed_floor(models, config: ExperimentConfig, *, meshcat=None) -> dict:
     """Per-leg confirmed labels against the material under each foot on a striped floor."""
     from qz_drake.classification.runs import simulate_trot, trot_scenario
@@ -143,6 +180,9 @@ def mixed_floor(models, config: ExperimentConfig, *, meshcat=None) -> dict:
         per_leg[LEG_NAMES[leg]] = float(np.mean(labels[valid, leg] == truth[valid, leg])) if valid.any() else None
     scored = [v for v in per_leg.values() if v is not None]
     known = run.stance_truth >= 0
+    # Each stance's leg's confirmed label at the logged sample of the stance's end.
+    at_end = np.clip(np.searchsorted(run.times, run.stance_time, side="right") - 1, 0, len(run.times) - 1)
+    confirmed = labels[at_end, run.stance_leg] if len(run.stance_leg) else np.zeros(0, dtype=int)
     return {"summary": {
         "speed_m_per_s": config.mixed_speed, "patch_length_m": config.mixed_patch_length,
         "distance_m": float(run.states[-1, 4] - run.states[0, 4]), "fell": run.fell,
@@ -150,6 +190,7 @@ def mixed_floor(models, config: ExperimentConfig, *, meshcat=None) -> dict:
         "mean_label_accuracy": float(np.mean(scored)) if scored else None,
         "stance_prediction_accuracy": float(np.mean(run.stance_prediction[known] == run.stance_truth[known]))
         if known.any() else None,
+        **stance_label_scores(run.stance_leg, run.stance_truth, confirmed),
         "stances": int(len(run.stance_leg))}, "run": run}
 
 

@@ -67,8 +67,8 @@ def plot_vibration_boxes(runs: dict, path, *, quantity: str = "vertical_accelera
     """Figs. 15-16: for each case (e.g. "foam, 0.6 m/s"), box plots of a body signal with the
     fixed default stiffness and with adaptive stiffness, next to its time trace."""
     cases = list(runs)
-    fig, axes = plt.subplots(len(cases), 2, figsize=(10, 3.2 * len(cases)), squeeze=False,
-                             gridspec_kw={"width_ratios": [3, 1]})
+    fig, axes = plt.subplots(len(cases), 2, figsize=(11, 3.4 * len(cases)), squeeze=False,
+                             gridspec_kw={"width_ratios": [2.4, 1.3]})
     for row, case in zip(axes, cases):
         trace, box = row
         data = []
@@ -79,7 +79,9 @@ def plot_vibration_boxes(runs: dict, path, *, quantity: str = "vertical_accelera
         trace.set_xlabel("time [s]")
         trace.set_ylabel(f"{quantity.replace('_', ' ')} [{unit}]")
         trace.legend(fontsize=8)
-        box.boxplot(data, tick_labels=list(runs[case]))
+        # One variant a line under its box: "adaptive (paper presets)" -> "adaptive\n(paper presets)".
+        box.boxplot(data, tick_labels=[label.replace(" (", "\n(") for label in runs[case]])
+        box.tick_params(axis="x", labelsize=7)
         box.set_title("judged window")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
