@@ -11,7 +11,9 @@ and writes ``DIR/dataset.npz``; ``qz classify train --dataset DIR --out DIR [--j
 the per-leg SVMs, writes ``models.npz``, ``report.json`` and ``confusion.png`` and prints the
 tables (or ``{"classes": [...], "per_leg": [{"leg", "accuracy", "confusion", "C", "gamma"},
 ...]}``); ``qz classify experiment --models FILE --out DIR`` runs Figs. 15-16 (fixed against
-adaptive stiffness on foam and concrete) and the mixed floor.
+adaptive stiffness on foam and concrete) and the mixed floor; ``qz classify stiffness-sweep``
+trots each material at fixed stance stiffnesses and reports the vibration of each (the sweep
+that chooses the experiment's "simulation presets").
 """
 
 from __future__ import annotations
@@ -150,6 +152,32 @@ def run_experiment(args) -> int:
     return 0
 
 
+def run_stiffness_sweep(args) -> int:
+    from qz_drake.classification.experiments import ExperimentConfig, preset_sweep
+    from qz_drake.terrain import get_material
+
+    materials = [m.strip() for m in args.materials.split(",") if m.strip()]
+    if not materials:
+        raise bad_value("--materials", args.materials, "give at least one ground material")
+    for name in materials:
+        get_material(name)
+    if not (math.isfinite(args.speed) and 0.0 <= args.speed <= 1.0):
+        raise bad_value("--speed", args.speed, "must be within [0, 1] m/s")
+    config = ExperimentConfig(preset_candidates=_positive_list(args.stiffness, "--stiffness"))
+    result = preset_sweep(materials, config, speed=args.speed)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        for material, rows in result["table"].items():
+            for row in rows:
+                a, h = row["vertical_acceleration_m_per_s2"], row["height_m"]
+                print(f"{material:9s} K = {row['stiffness_N_per_m'] / 1e3:5.1f} kN/m   acceleration IQR "
+                      f"{a['iqr']:.3f} m/s^2 (5-95 % {a['p5_p95']:.3f})   height IQR {1e3 * h['iqr']:.1f} mm"
+                      + ("   fell" if row["fell"] else ""))
+        print("narrowest acceleration box:", json.dumps(result["presets"]))
+    return 0
+
+
 def register(subparsers) -> None:
     """Adds ``impedance-sweep``, ``trot`` and ``classify`` to the ``qz`` command."""
     p = subparsers.add_parser("impedance-sweep", help="leg impedance stiffness sweep (paper 002 Fig. 13)")
@@ -188,6 +216,14 @@ def register(subparsers) -> None:
                    help="also report the held-out accuracy over this many random splits (default 1: none)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.set_defaults(func=run_train)
+
+    p = sub.add_parser("stiffness-sweep", help="vibration of a trot at fixed stance stiffnesses, per material")
+    p.add_argument("--materials", default="foam,concrete", help="comma-separated materials (default foam,concrete)")
+    p.add_argument("--stiffness", default="7000,9000,11000", metavar="K1,K2,...",
+                   help="stance stiffnesses [N/m] (default the paper's three)")
+    p.add_argument("--speed", type=float, default=0.6, help="forward speed [m/s] (default 0.6)")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_stiffness_sweep)
 
     p = sub.add_parser("experiment", help="fixed vs adaptive stiffness (Figs. 15-16) and the mixed floor")
     p.add_argument("--models", default="out/classify/models.npz", help="models.npz from qz classify train")

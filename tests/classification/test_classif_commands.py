@@ -56,5 +56,20 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys):
     assert "stances_per_class = 0" in capsys.readouterr().err
     assert main(["classify", "collect", "--workers", "0", "--out", str(tmp_path)]) == 2
     assert "workers = 0" in capsys.readouterr().err
+    assert main(["classify", "stiffness-sweep", "--materials", "foam,gravel"]) == 2
+    assert "'gravel'" in capsys.readouterr().err
+    assert main(["classify", "stiffness-sweep", "--stiffness", "9000,-1"]) == 2
+    assert "--stiffness" in capsys.readouterr().err
     assert main(["classify", "train", "--repeats", "0", "--dataset", str(tmp_path)]) == 2
     assert "--repeats = 0" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_stiffness_sweep_finds_the_softer_leg_quieter_on_foam(capsys):
+    assert main(["classify", "stiffness-sweep", "--materials", "foam", "--stiffness", "5000,13000", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    soft, stiff = result["table"]["foam"]
+    assert not soft["fell"] and not stiff["fell"]
+    # Measured: interquartile range 0.83 against 3.63 m/s^2 (benchmarks/BENCHMARKS.md).
+    assert soft["vertical_acceleration_m_per_s2"]["iqr"] < 0.6 * stiff["vertical_acceleration_m_per_s2"]["iqr"]
+    assert result["presets"] == {"foam": 5000.0}
