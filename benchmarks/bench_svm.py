@@ -7,7 +7,9 @@ Cases, medians of ``repeats`` timings:
 * classification: one stance's features through one leg's model as the TerrainClassifier runs
   it (numpy one-against-one decision from the saved arrays), and through scikit-learn's SVC for
   comparison;
-* training: all six legs' grid searches (11 x 9 grid, 3-fold CV) and fits.
+* training: all six legs' grid searches (11 x 9 grid, 3-fold CV) and fits;
+* trotting: real-time factor of the diagram every stance comes from (station, trotting
+  controller, SphericalImpedance, TerrainClassifier recording), 10 s on foam at 0.6 m/s.
 
 The data are ``out/classify/dataset.npz`` (``qz classify collect``) when it exists, otherwise a
 small dataset collected on the spot into a temporary folder.
@@ -45,6 +47,17 @@ def _dataset(quick: bool, path=None) -> tuple[StanceDataset, str]:
     folder = tempfile.mkdtemp(prefix="qz_bench_svm_")
     config = CollectConfig(stances_per_class=6, run_duration=4.0, speed_range=[0.2, 0.6])
     return collect_dataset(config, folder, progress=False), f"collected {config.stances_per_class} per class and leg"
+
+
+def _trot_realtime_factor(repeats: int, duration: float) -> float:
+    """Median simulated time per wall second of a trot on foam at 0.6 m/s (loop only)."""
+    from qz_drake.classification.runs import simulate_trot, trot_scenario
+
+    factors = []
+    for _ in range(repeats):
+        run = simulate_trot(trot_scenario("foam", distance=0.6 * duration + 1.0), duration=duration, speed=0.6)
+        factors.append(duration / run.wall_time_s)
+    return statistics.median(factors)
 
 
 def run(repeats: int = 5, quick: bool = False, dataset=None) -> dict:
@@ -92,4 +105,5 @@ def run(repeats: int = 5, quick: bool = False, dataset=None) -> dict:
         "training_all_legs_s": training_s,
         "grid": [len(grids[0]), len(grids[1])],
         "mean_held_out_accuracy": report["mean_accuracy"],
+        "trot_realtime_factor": _trot_realtime_factor(min(repeats, 3), 2.0 if quick else 10.0),
     }

@@ -77,13 +77,12 @@ def leg_jacobian_motor(m: np.ndarray, params: QingzhuiParams = DEFAULT_PARAMS) -
     s1, c1 = np.sin(m[..., 1]), np.cos(m[..., 1])
     s2, c2 = np.sin(m[..., 2]), np.cos(m[..., 2])
     reach = l1 * s1 + l2 * s2
-    zero = np.zeros_like(s0)
-    rows = [
-        [zero, -l1 * s1, -l2 * s2],
-        [-reach * s0, l1 * c1 * c0, l2 * c2 * c0],
-        [reach * c0, l1 * c1 * s0, l2 * c2 * s0],
-    ]
-    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+    # Filled in place: nested np.stack costs more than the arithmetic at six legs a step.
+    J = np.zeros(m.shape[:-1] + (3, 3))
+    J[..., 0, 1], J[..., 0, 2] = -l1 * s1, -l2 * s2
+    J[..., 1, 0], J[..., 1, 1], J[..., 1, 2] = -reach * s0, l1 * c1 * c0, l2 * c2 * c0
+    J[..., 2, 0], J[..., 2, 1], J[..., 2, 2] = reach * c0, l1 * c1 * s0, l2 * c2 * s0
+    return J
 
 
 def leg_jacobian_urdf(q_leg: np.ndarray, params: QingzhuiParams = DEFAULT_PARAMS) -> np.ndarray:
@@ -138,7 +137,10 @@ def all_foot_positions(q: np.ndarray, params: QingzhuiParams = DEFAULT_PARAMS) -
     """All six feet in the base frame from the 18 URDF angles (..., 18) -> (..., 6, 3)."""
     q = np.asarray(q, dtype=float)
     q = q.reshape(q.shape[:-1] + (NUM_LEGS, 3))
-    return np.stack([foot_position(i, q[..., i, :], params) for i in range(NUM_LEGS)], axis=-2)
+    p_L = foot_position_leg_frame(urdf_to_motor(q), params)
+    R_BL = np.stack([params.R_BL(i) for i in range(NUM_LEGS)])
+    hips = np.array([params.hip_position(i) for i in range(NUM_LEGS)])
+    return np.einsum("lij,...lj->...li", R_BL, p_L) + hips
 
 
 def leg_inverse_kinematics(leg: int | str, p_BF: np.ndarray, bend: int | str,

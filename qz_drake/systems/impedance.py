@@ -52,11 +52,12 @@ def spherical_jacobian(s: np.ndarray) -> np.ndarray:
     s = np.asarray(s, dtype=float)
     l, th, ph = s[..., 0], s[..., 1], s[..., 2]
     st, ct, sp, cp = np.sin(th), np.cos(th), np.sin(ph), np.cos(ph)
-    zero = np.zeros_like(l)
-    rows = [[st, l * ct, zero],
-            [ct * cp, -l * st * cp, -l * ct * sp],
-            [ct * sp, -l * st * sp, l * ct * cp]]
-    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+    # Filled in place: nested np.stack costs more than the arithmetic at six legs a step.
+    J = np.zeros(s.shape[:-1] + (3, 3))
+    J[..., 0, 0], J[..., 0, 1] = st, l * ct
+    J[..., 1, 0], J[..., 1, 1], J[..., 1, 2] = ct * cp, -l * st * cp, -l * ct * sp
+    J[..., 2, 0], J[..., 2, 1], J[..., 2, 2] = ct * sp, -l * st * sp, l * ct * cp
+    return J
 
 
 def velocity_to_spherical(s: np.ndarray, v_L: np.ndarray) -> np.ndarray:
@@ -128,25 +129,32 @@ class SphericalImpedance(LeafSystem):
         self._mode = self.DeclareVectorInputPort("mode", NUM_LEGS)
         self.DeclareVectorOutputPort("joint_torque", NUM_JOINTS, self._calc_torque)
 
-    def leg_torque(self, leg: int, q_leg, v_leg, p_d, v_d, f_ref, stiffness: float, stance: bool) -> np.ndarray:
-        """The impedance torques of one leg (URDF coordinates)."""
-        params = self._params
-        m = kinematics.urdf_to_motor(q_leg)
-        J_q = kinematics.leg_jacobian_urdf(q_leg, params)
-        p = kinematics.foot_position_leg_frame(m, params)
-        s, s_d = cartesian_to_spherical(p), cartesian_to_spherical(p_d)
-        s_dot = velocity_to_spherical(s, J_q @ v_leg)
+    def leg_torques(self, q, v, p_d, v_d, f_ref, stiffness, stance) -> np.ndarray:
+        """The impedance torques (URDF coordinates) of legs given as (..., 3) joint angles,
+        joint velocities, designed foot positions and velocities and reference forces in L,
+        with (...) stance stiffnesses and stance flags; all legs at once."""
+        q, v, p_d, v_d, f_ref = (np.asarray(a, dtype=float) for a in (q, v, p_d, v_d, f_ref))
+        stance = np.asarray(stance, dtype=bool)[..., None]
+        J_q = kinematics.leg_jacobian_urdf(q, self._params)
+        s = cartesian_to_spherical(kinematics.foot_position_leg_frame(kinematics.urdf_to_motor(q), self._params))
+        s_d = cartesian_to_spherical(p_d)
+        J_s = spherical_jacobian(s)
+        s_dot = np.linalg.solve(J_s, (J_q @ v[..., None]))[..., 0]
         s_d_dot = velocity_to_spherical(s_d, v_d)
-        if stance:
-            k = np.array([stiffness, *self._stance_k_angular])
-            b = self._stance_b
-        else:
-            k, b = self._swing_k, self._swing_b
+        k_stance = np.concatenate([np.asarray(stiffness, dtype=float)[..., None],
+                                   np.broadcast_to(self._stance_k_angular, s.shape[:-1] + (2,))], axis=-1)
+        k = np.where(stance, k_stance, self._swing_k)
+        b = np.where(stance, self._stance_b, self._swing_b)
         error = s - s_d
-        error[1:] = np.arctan2(np.sin(error[1:]), np.cos(error[1:]))
-        f_leg = force_to_spherical(s, f_ref) - k * error - b * (s_dot - s_d_dot)
-        f_L = np.linalg.solve(spherical_jacobian(s).T, f_leg)
-        return J_q.T @ f_L
+        error[..., 1:] = np.arctan2(np.sin(error[..., 1:]), np.cos(error[..., 1:]))
+        J_sT = np.swapaxes(J_s, -1, -2)
+        f_leg = (J_sT @ f_ref[..., None])[..., 0] - k * error - b * (s_dot - s_d_dot)
+        f_L = np.linalg.solve(J_sT, f_leg[..., None])
+        return (np.swapaxes(J_q, -1, -2) @ f_L)[..., 0]
+
+    def leg_torque(self, leg: int, q_leg, v_leg, p_d, v_d, f_ref, stiffness: float, stance: bool) -> np.ndarray:
+        """The impedance torques of one leg (URDF coordinates); see :meth:`leg_torques`."""
+        return self.leg_torques(q_leg, v_leg, p_d, v_d, f_ref, stiffness, stance)
 
     def _calc_torque(self, context, output: BasicVector):
         x = self._state.Eval(context)
@@ -156,6 +164,5 @@ class SphericalImpedance(LeafSystem):
         f_ref = self._f_ref.Eval(context).reshape(6, 3)
         stiffness = self._stiffness.Eval(context)
         mode = self._mode.Eval(context)
-        tau = np.concatenate([self.leg_torque(i, q[i], v[i], p_d[i], v_d[i], f_ref[i], stiffness[i],
-                                              mode[i] >= 0.5) for i in range(NUM_LEGS)])
+        tau = self.leg_torques(q, v, p_d, v_d, f_ref, stiffness, mode >= 0.5).reshape(-1)
         output.SetFromVector(np.clip(tau, -self._params.effort_limit, self._params.effort_limit))
