@@ -101,6 +101,8 @@ class StanceDataset:
     config: dict
     # Stances too short for three windows on the mixed floors, per leg.
     skipped_mixed: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_LEGS, dtype=int))
+    # Run ids (as in ``runs``) of the runs in which the robot fell; their stances are not used.
+    fallen_runs: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=int))
 
     def from_mixed_floors(self) -> np.ndarray:
         """Which rows come from the mixed floors (run ids from MIXED_RUN_ID on)."""
@@ -117,7 +119,7 @@ class StanceDataset:
         path.parent.mkdir(parents=True, exist_ok=True)
         np.savez(path, classes=np.asarray(self.classes, dtype=np.str_), features=self.features, labels=self.labels,
                  legs=self.legs, speeds=self.speeds, runs=self.runs, skipped=self.skipped,
-                 skipped_mixed=self.skipped_mixed,
+                 skipped_mixed=self.skipped_mixed, fallen_runs=self.fallen_runs,
                  feature_names=np.asarray(feat.FEATURE_NAMES, dtype=np.str_),
                  config=np.asarray(json.dumps(self.config), dtype=np.str_))
         return path
@@ -134,7 +136,8 @@ class StanceDataset:
                 data = cls(classes=tuple(str(c) for c in d["classes"]), features=d["features"], labels=d["labels"],
                            legs=d["legs"], speeds=d["speeds"], runs=d["runs"], skipped=d["skipped"],
                            config=json.loads(str(d["config"])),
-                           skipped_mixed=d["skipped_mixed"] if "skipped_mixed" in d.files else np.zeros(NUM_LEGS, int))
+                           skipped_mixed=d["skipped_mixed"] if "skipped_mixed" in d.files else np.zeros(NUM_LEGS, int),
+                           fallen_runs=d["fallen_runs"] if "fallen_runs" in d.files else np.zeros(0, int))
         except (KeyError, ValueError, OSError) as e:
             raise ConfigError(f"dataset = {str(path)!r}: not a qz stance dataset ({e})") from None
         if data.features.ndim != 2 or data.features.shape[1] != feat.NUM_FEATURES:
@@ -171,7 +174,9 @@ class _RunSpec:
 
 
 def _simulate_run(spec: _RunSpec, config: "CollectConfig") -> dict:
-    """Simulates one run and saves it under its fingerprint (also in a worker process)."""
+    """Simulates one run and saves it under its fingerprint (also in a worker process). A run
+    in which the robot falls is saved as such, with no stances: a fall is an outcome the
+    collection reports, not an error."""
     from qz_drake.classification.runs import simulate_trot, speed_schedule, trot_scenario
 
     distance = config.run_duration * config.speed_range[1] + 1.0
@@ -181,13 +186,13 @@ def _simulate_run(spec: _RunSpec, config: "CollectConfig") -> dict:
     times, speeds = speed_schedule(config.run_duration, config.speed_range, config.speed_hold, spec.seed)
     result = simulate_trot(scenario, duration=config.run_duration, speed=(times, speeds),
                            stiffness=np.asarray(spec.stiffness))
-    if result.fell:
-        where = "a mixed floor" if spec.patch is not None else spec.material
-        raise RuntimeError(f"the robot fell on {where} (seed {spec.seed})")
-    run = {"features": result.stance_features, "legs": result.stance_leg, "speeds": result.stance_speed,
-           "skipped": result.skipped_stances,
-           "truth": np.asarray([result.classes[i] if i >= 0 else "" for i in result.stance_truth],
+    # The stances before a fall are dropped with it: the last of them led to the fall.
+    keep = np.zeros(len(result.stance_leg), dtype=bool) if result.fell else np.ones(len(result.stance_leg), dtype=bool)
+    run = {"features": result.stance_features[keep], "legs": result.stance_leg[keep],
+           "speeds": result.stance_speed[keep], "skipped": result.skipped_stances,
+           "truth": np.asarray([result.classes[i] if i >= 0 else "" for i in result.stance_truth[keep]],
                                dtype=np.str_).reshape(-1),
+           "fell": np.asarray(result.fell),
            "fingerprint": np.asarray(spec.fingerprint(config), dtype=np.str_)}
     np.savez(spec.path, **run)
     return run
@@ -249,6 +254,7 @@ def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True, wo
     rows = {"features": [], "labels": [], "legs": [], "speeds": [], "runs": []}
     skipped = np.zeros((len(classes), NUM_LEGS), dtype=int)
     skipped_mixed = np.zeros(NUM_LEGS, dtype=int)
+    fallen = []
 
     def leg_stiffness(seed) -> tuple[float, ...]:
         if not config.stiffness_choices:
@@ -257,6 +263,8 @@ def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True, wo
         return tuple(float(k) for k in choice)
 
     def add(run, labels, run_id):
+        if "fell" in run and bool(run["fell"]):
+            fallen.append(run_id)
         rows["features"].append(np.asarray(run["features"]).reshape(-1, feat.NUM_FEATURES))
         rows["legs"].append(np.asarray(run["legs"], dtype=int))
         rows["speeds"].append(np.asarray(run["speeds"], dtype=float))
@@ -294,14 +302,16 @@ def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True, wo
             known = np.array([str(t) in classes for t in run["truth"]], dtype=bool)
             labels = np.array([classes.index(str(t)) if str(t) in classes else -1 for t in run["truth"]], dtype=int)
             add({"features": np.asarray(run["features"])[known], "legs": np.asarray(run["legs"])[known],
-                 "speeds": np.asarray(run["speeds"])[known]}, labels[known], MIXED_RUN_ID + k)
+                 "speeds": np.asarray(run["speeds"])[known], "fell": run.get("fell", False)},
+                labels[known], MIXED_RUN_ID + k)
             skipped_mixed += run["skipped"]
             bar.update(task, advance=1)
     pool = StanceDataset(classes=classes, features=np.vstack(rows["features"]),
                          labels=np.concatenate(rows["labels"]).astype(int),
                          legs=np.concatenate(rows["legs"]).astype(int),
                          speeds=np.concatenate(rows["speeds"]), runs=np.concatenate(rows["runs"]).astype(int),
-                         skipped=skipped, config=dataclasses.asdict(config), skipped_mixed=skipped_mixed)
+                         skipped=skipped, config=dataclasses.asdict(config), skipped_mixed=skipped_mixed,
+                         fallen_runs=np.asarray(fallen, dtype=int))
     # Keep the first stances_per_class one-material stances per (class, leg) (the last run
     # overshoots), so that the classes stay balanced; keep every mixed-floor stance.
     keep = pool.from_mixed_floors()
@@ -332,4 +342,5 @@ def summary(dataset: StanceDataset) -> dict:
             "skipped_short_stances": {c: dict(zip(LEG_NAMES, map(int, dataset.skipped[i])))
                                       for i, c in enumerate(dataset.classes)},
             "skipped_short_stances_mixed_floors": dict(zip(LEG_NAMES, map(int, dataset.skipped_mixed))),
-            "stances_from_mixed_floors": int(np.count_nonzero(dataset.from_mixed_floors()))}
+            "stances_from_mixed_floors": int(np.count_nonzero(dataset.from_mixed_floors())),
+            "fallen_runs": [int(r) for r in dataset.fallen_runs]}

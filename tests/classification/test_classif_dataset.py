@@ -48,3 +48,33 @@ def test_bad_collect_settings_are_named(tmp_path):
         collect_dataset(_tiny(stiffness_choices=[9000.0, -1.0]), tmp_path, progress=False)
     with pytest.raises(QzError, match="'gravel'"):
         collect_dataset(_tiny(materials=["concrete", "gravel"]), tmp_path, progress=False)
+
+
+def _fake_run(path, spec, config, *, fell, stances_per_leg=3, truth="concrete"):
+    """A saved run as _simulate_run writes it, with made-up stances."""
+    n = 0 if fell else 6 * stances_per_leg
+    rng = np.random.default_rng(len(str(path)))
+    np.savez(path, features=rng.normal(size=(n, 18)), legs=np.tile(np.arange(6), n // 6), speeds=np.full(n, 0.3),
+             skipped=np.zeros(6, int), truth=np.full(n, truth), fell=np.asarray(fell),
+             fingerprint=np.asarray(spec.fingerprint(config)))
+
+
+def test_a_fall_is_counted_and_its_run_left_out(tmp_path):
+    from qz_drake.classification.dataset import _run_file, _RunSpec
+    from qz_drake.classification.dataset import summary
+
+    config = _tiny(stances_per_class=3, mixed_runs=0, stiffness_choices=[9000.0])
+    (tmp_path / "runs").mkdir()
+    stiffness = (9000.0,) * 6
+    for material, m, runs in (("concrete", 0, (True, False)), ("foam", 1, (False,))):
+        for k, fell in enumerate(runs):
+            spec = _RunSpec(_run_file(tmp_path, material, k), material, config.seed + 1000 * m + k, None, stiffness)
+            _fake_run(spec.path, spec, config, fell=fell, truth=material)
+    data = collect_dataset(config, tmp_path, progress=False)
+    # Concrete's first run fell: its stances come from the second; nothing was simulated.
+    assert data.fallen_runs.tolist() == [0]
+    assert set(data.runs[data.labels == 0].tolist()) == {1}
+    assert np.all(data.counts() == 3)
+    assert summary(data)["fallen_runs"] == [0]
+    again = type(data).load(tmp_path / "dataset.npz")
+    assert again.fallen_runs.tolist() == [0]
