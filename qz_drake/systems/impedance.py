@@ -152,10 +152,6 @@ class SphericalImpedance(LeafSystem):
         f_L = np.linalg.solve(J_sT, f_leg[..., None])
         return (np.swapaxes(J_q, -1, -2) @ f_L)[..., 0]
 
-    def leg_torque(self, leg: int, q_leg, v_leg, p_d, v_d, f_ref, stiffness: float, stance: bool) -> np.ndarray:
-        """The impedance torques of one leg (URDF coordinates); see :meth:`leg_torques`."""
-        return self.leg_torques(q_leg, v_leg, p_d, v_d, f_ref, stiffness, stance)
-
     def _calc_torque(self, context, output: BasicVector):
         x = self._state.Eval(context)
         q, v = x[JOINT_Q].reshape(6, 3), x[JOINT_V].reshape(6, 3)

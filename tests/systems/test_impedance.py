@@ -63,7 +63,7 @@ def test_stiffness_pulls_the_foot_back_along_the_leg():
     p = kinematics.foot_position_leg_frame(kinematics.urdf_to_motor(q))
     s = imp.cartesian_to_spherical(p)
     target = imp.spherical_to_cartesian(s - np.array([0.02, 0.0, 0.0]))  # 2 cm shorter leg
-    tau = controller.leg_torque(0, q, np.zeros(3), target, np.zeros(3), np.zeros(3), 9000.0, True)
+    tau = controller.leg_torques(q, np.zeros(3), target, np.zeros(3), np.zeros(3), 9000.0, True)
     # The drives' force on the foot: -K * 0.02 m along l (shortening), nothing else.
     J_q = kinematics.leg_jacobian_urdf(q)
     f_L = np.linalg.solve(J_q.T, tau)
@@ -96,3 +96,21 @@ def test_qingzhui_stands_on_impedance_legs():
     assert abs(x[1]) < 0.01 and abs(x[2]) < 0.01
     np.testing.assert_array_equal(
         station.GetOutputPort("foot_contact").Eval(station.GetMyContextFromRoot(simulator.get_context())), np.ones(6))
+
+
+def test_six_legs_at_once_equal_one_at_a_time():
+    rng = np.random.default_rng(3)
+    controller = imp.SphericalImpedance()
+    q = np.array([0.0, 0.5, 1.5]) + rng.normal(0, 0.1, (6, 3))
+    v, v_d, f_ref = rng.normal(0, 0.5, (6, 3)), rng.normal(0, 0.3, (6, 3)), rng.normal(0, 80, (6, 3))
+    p_d = kinematics.foot_position_leg_frame(kinematics.urdf_to_motor(q)) + rng.normal(0, 0.02, (6, 3))
+    stiffness = np.array([7000.0, 9000.0, 11000.0, 7000.0, 9000.0, 11000.0])
+    stance = np.array([True, False, True, True, False, False])
+    together = controller.leg_torques(q, v, p_d, v_d, f_ref, stiffness, stance)
+    for i in range(6):
+        alone = controller.leg_torques(q[i], v[i], p_d[i], v_d[i], f_ref[i], stiffness[i], stance[i])
+        np.testing.assert_allclose(together[i], alone, rtol=1e-12, atol=1e-9)
+    # Swing legs ignore the stance stiffness; stance legs do not.
+    other = controller.leg_torques(q, v, p_d, v_d, f_ref, stiffness * 2, stance)
+    np.testing.assert_allclose(other[~stance], together[~stance], atol=1e-12)
+    assert np.all(np.abs(other[stance] - together[stance]).max(axis=1) > 1e-3)
