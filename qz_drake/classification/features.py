@@ -37,8 +37,8 @@ SAMPLE_SIZE = 4
 
 def _batched_foot_jacobians(q: np.ndarray, params: QingzhuiParams) -> np.ndarray:
     """d p_BF / d q of all six legs, (6, 3, 3), from the 18 URDF angles."""
-    R_BL = np.stack([params.R_BL(i) for i in range(NUM_LEGS)])
-    return R_BL @ kinematics.leg_jacobian_urdf(np.asarray(q).reshape(NUM_LEGS, 3), params)
+    return kinematics.all_leg_rotations(params) @ kinematics.leg_jacobian_urdf(np.asarray(q).reshape(NUM_LEGS, 3),
+                                                                                 params)
 
 
 def foot_forces(q: np.ndarray, tau: np.ndarray, params: QingzhuiParams = DEFAULT_PARAMS) -> np.ndarray:

@@ -117,8 +117,12 @@ def all_shank_rotations(q: np.ndarray, params: QingzhuiParams = DEFAULT_PARAMS) 
     """The six shanks' orientations in the base frame from 18 URDF angles, (..., 6, 3, 3)."""
     q = np.asarray(q, dtype=float)
     m = urdf_to_motor(q.reshape(q.shape[:-1] + (NUM_LEGS, 3)))
-    R_BL = np.stack([params.R_BL(i) for i in range(NUM_LEGS)])
-    return R_BL @ _rx_rz(m)
+    return all_leg_rotations(params) @ _rx_rz(m)
+
+
+def all_leg_rotations(params: QingzhuiParams = DEFAULT_PARAMS) -> np.ndarray:
+    """R_BL of the six legs, (6, 3, 3)."""
+    return np.stack([params.R_BL(i) for i in range(NUM_LEGS)])
 
 
 def _rx_rz(m: np.ndarray) -> np.ndarray:
@@ -138,9 +142,7 @@ def all_foot_positions(q: np.ndarray, params: QingzhuiParams = DEFAULT_PARAMS) -
     q = np.asarray(q, dtype=float)
     q = q.reshape(q.shape[:-1] + (NUM_LEGS, 3))
     p_L = foot_position_leg_frame(urdf_to_motor(q), params)
-    R_BL = np.stack([params.R_BL(i) for i in range(NUM_LEGS)])
-    hips = np.array([params.hip_position(i) for i in range(NUM_LEGS)])
-    return np.einsum("lij,...lj->...li", R_BL, p_L) + hips
+    return np.einsum("lij,...lj->...li", all_leg_rotations(params), p_L) + np.asarray(params.hip_positions)
 
 
 def leg_inverse_kinematics(leg: int | str, p_BF: np.ndarray, bend: int | str,
@@ -183,7 +185,7 @@ def all_legs_inverse_kinematics(p_BF: np.ndarray, bends, params: QingzhuiParams 
     The same solution as :func:`leg_inverse_kinematics` leg by leg, vectorised across legs
     (the tracker calls it hundreds of times per simulated second)."""
     hips = np.array(params.hip_positions, dtype=float)
-    R = np.stack([params.R_BL(i) for i in range(NUM_LEGS)])
+    R = all_leg_rotations(params)
     signs = np.array([bend_sign(b) for b in bends], dtype=float)
     l1, l2 = params.thigh_length, params.shank_length
     p_L = np.einsum("...li,lij->...lj", np.asarray(p_BF, dtype=float) - hips, R)

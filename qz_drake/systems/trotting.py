@@ -131,7 +131,7 @@ class TrottingController(LeafSystem):
         self._config = (config or TrotConfig()).check()
         self._params = params
         self._hips = np.array(params.hip_positions, dtype=float)
-        self._R_BL = np.stack([params.R_BL(i) for i in range(NUM_LEGS)])
+        self._R_BL = kinematics.all_leg_rotations(params)
         nominal = np.stack([params.nominal_foothold(i) for i in range(NUM_LEGS)])
         self._nominal = nominal if initial_feet_B is None else np.asarray(initial_feet_B, dtype=float).reshape(6, 3)
         self._group = np.array([0 if i in TRIPOD_A else 1 for i in range(NUM_LEGS)])
@@ -333,8 +333,8 @@ def add_trotting_controller(builder, station, info, *, config: TrotConfig | None
     """Wires TrottingController -> SphericalImpedance -> station; returns (trot, impedance).
 
     The stance stiffness comes from ``stiffness_port`` (e.g. a TerrainClassifier's output) or
-    is the constant ``stance_stiffness`` [N/m] (one value, or one per leg); the velocity command from ``velocity_port`` or
-    the constant ``velocity``.
+    is the constant ``stance_stiffness`` [N/m] (one value, or one per leg); the velocity
+    command from ``velocity_port`` or the constant ``velocity``.
     """
     from pydrake.systems.primitives import ConstantVectorSource
 
