@@ -35,6 +35,18 @@ def _positive_list(text: str, field: str) -> list[float]:
     return values
 
 
+def _materials(text: str, field: str) -> list[str]:
+    """Comma-separated ground material names, each checked (an unknown one is named)."""
+    from qz_drake.terrain import get_material
+
+    names = [m.strip() for m in str(text).split(",") if m.strip()]
+    if not names:
+        raise bad_value(field, text, "give at least one ground material")
+    for name in names:
+        get_material(name)
+    return names
+
+
 def run_impedance_sweep(args) -> int:
     from qz_drake.classification.impedance_sweep import ImpedanceSweepConfig, plot_sweep, run_sweep
 
@@ -84,7 +96,7 @@ def _collect_config(args):
 
     config = CollectConfig(seed=args.seed)
     if args.materials:
-        config.materials = [m.strip() for m in args.materials.split(",") if m.strip()]
+        config.materials = _materials(args.materials, "--materials")
     if args.stances is not None:
         config.stances_per_class = args.stances
     if args.run_duration is not None:
@@ -114,7 +126,8 @@ def run_train(args) -> int:
     dataset = StanceDataset.load(args.dataset)
     models, report = train_all_legs(dataset, seed=args.seed)
     if args.repeats > 1:
-        report["repeated_holdout"] = repeated_holdout(dataset, repeats=args.repeats, seed=args.seed)
+        report["repeated_holdout"] = repeated_holdout(dataset, repeats=args.repeats, seed=args.seed,
+                                                      first_report=report)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     save_models(models, out / "models.npz", metadata={"classes": report["classes"], "seed": args.seed,
@@ -154,13 +167,8 @@ def run_experiment(args) -> int:
 
 def run_stiffness_sweep(args) -> int:
     from qz_drake.classification.experiments import ExperimentConfig, preset_sweep
-    from qz_drake.terrain import get_material
 
-    materials = [m.strip() for m in args.materials.split(",") if m.strip()]
-    if not materials:
-        raise bad_value("--materials", args.materials, "give at least one ground material")
-    for name in materials:
-        get_material(name)
+    materials = _materials(args.materials, "--materials")
     if not (math.isfinite(args.speed) and 0.0 <= args.speed <= 1.0):
         raise bad_value("--speed", args.speed, "must be within [0, 1] m/s")
     config = ExperimentConfig(preset_candidates=_positive_list(args.stiffness, "--stiffness"))

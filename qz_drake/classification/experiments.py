@@ -182,7 +182,7 @@ def mixed_floor(models, config: ExperimentConfig, *, meshcat=None) -> dict:
     known = run.stance_truth >= 0
     # Each stance's leg's confirmed label at the logged sample of the stance's end.
     at_end = np.clip(np.searchsorted(run.times, run.stance_time, side="right") - 1, 0, len(run.times) - 1)
-    confirmed = labels[at_end, run.stance_leg] if len(run.stance_leg) else np.zeros(0, dtype=int)
+    confirmed = labels[at_end, run.stance_leg]
     return {"summary": {
         "speed_m_per_s": config.mixed_speed, "patch_length_m": config.mixed_patch_length,
         "distance_m": float(run.states[-1, 4] - run.states[0, 4]), "fell": run.fell,

@@ -257,15 +257,19 @@ def train_all_legs(dataset, *, seed: int = 0, test_fraction: float = 0.2, folds:
                     "min_accuracy": float(np.min(accuracies)), "C_grid": list(C_grid), "gamma_grid": list(gamma_grid)}
 
 
-def repeated_holdout(dataset, *, repeats: int, seed: int = 0, **train_kwargs) -> dict:
+def repeated_holdout(dataset, *, repeats: int, seed: int = 0, first_report: dict | None = None,
+                     **train_kwargs) -> dict:
     """Held-out accuracy over ``repeats`` random 80/20 splits (seeds ``seed``, ``seed`` + 1, ...),
     each with its own grid search: one split's 120 test stances per leg move its accuracy by
-    0.8 % a stance, so the spread over splits says how far a single report can be trusted."""
+    0.8 % a stance, so the spread over splits says how far a single report can be trusted.
+    ``first_report``: :func:`train_all_legs`'s report for ``seed`` when the caller has it
+    already (it is not trained again)."""
     if not (isinstance(repeats, int) and repeats >= 1):
         raise bad_value("repeats", repeats, "must be a positive integer")
     accuracy = np.empty((repeats, len(LEG_NAMES)))
     for r in range(repeats):
-        _, report = train_all_legs(dataset, seed=seed + r, **train_kwargs)
+        report = first_report if r == 0 and first_report is not None else \
+            train_all_legs(dataset, seed=seed + r, **train_kwargs)[1]
         accuracy[r] = [leg["accuracy"] for leg in report["per_leg"]]
     return {"repeats": repeats, "seeds": list(range(seed, seed + repeats)),
             "per_leg_mean": dict(zip(LEG_NAMES, accuracy.mean(axis=0).tolist())),
