@@ -1,0 +1,108 @@
+"""The capability networks' inputs (paper 000 section II-E.1, Fig. 4 and section III-B).
+
+One place defines what a trial records and what a planner asks the model, so that the two can
+never disagree:
+
+* ``orthogonal`` and ``diagonal`` moves: a 20 x 20 body-frame height patch at 0.1 m spacing,
+  a 2 m x 2 m window centred half way between the start and the target cell centres (so it
+  covers both cells: the light yellow / light blue regions of Fig. 4);
+* ``turn`` (45 deg in place): a 20 x 20 patch at 0.05 m spacing over the start cell;
+* heights relative to the robot's standing ground: the median height of the start cell
+  (sampled as the turn patch), so that the same step looks the same at any altitude;
+* the start feet in the heading frame: ``R_z(yaw)^T (p_WF - (x, y, ground))``, (6, 3);
+* ``d`` for the turn network: 0 turns left (+45 deg), 1 turns right (-45 deg).
+
+Grid world conventions (paper 000 II-E.1): cells of ``CELL_SIZE``; headings are multiples of
+45 deg, ``heading_index`` k in 0..7 meaning yaw = k * 45 deg; an orthogonal move goes 1 cell
+along an axis-aligned heading (k even), a diagonal move one cell along each axis (k odd).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from qz_drake.errors import bad_value
+
+# The three networks of each topology (paper 000 Fig. 4).
+KINDS: tuple[str, ...] = ("orthogonal", "diagonal", "turn")
+# Grid world cell. [m]
+CELL_SIZE = 1.0
+# Samples along each side of a patch (paper 000 III-B).
+PATCH_SIZE = 20
+# Sample spacing of the move patches and the turn patch. [m]
+MOVE_PATCH_SPACING = 0.1
+TURN_PATCH_SPACING = 0.05
+# Heading step of the grid world. [rad]
+HEADING_STEP = math.pi / 4
+# Turn directions d (paper 000 Eq. 8): 0 left (+45 deg), 1 right (-45 deg).
+TURN_LEFT, TURN_RIGHT = 0, 1
+
+
+def check_kind(kind: str, field: str = "kind") -> str:
+    if kind not in KINDS:
+        raise bad_value(field, kind, f"expected one of {', '.join(KINDS)}")
+    return kind
+
+
+def move_distance(kind: str) -> float:
+    """Length of a move of this kind: one cell (orthogonal), one cell diagonally, 0 (turn). [m]"""
+    check_kind(kind)
+    return {"orthogonal": CELL_SIZE, "diagonal": CELL_SIZE * math.sqrt(2.0), "turn": 0.0}[kind]
+
+
+def heading_yaw(heading_index) -> np.ndarray:
+    """Yaw of heading index k (multiples of 45 deg). [rad]"""
+    return np.asarray(heading_index, dtype=float) * HEADING_STEP
+
+
+def kind_of_heading(heading_index: int) -> str:
+    """The forward move along heading k: orthogonal for even k, diagonal for odd k."""
+    return "orthogonal" if int(heading_index) % 2 == 0 else "diagonal"
+
+
+def ground_reference(heightmap, x, y) -> np.ndarray:
+    """The robot's standing ground at (x, y): the median height over its 1 m cell. [m]"""
+    cell = heightmap.patch(x, y, np.zeros_like(np.asarray(x, dtype=float)), PATCH_SIZE,
+                           TURN_PATCH_SPACING)
+    return np.median(cell, axis=(-2, -1))
+
+
+def sample_patches(heightmap, x, y, yaw, kind: str, ground=None) -> np.ndarray:
+    """The network's height patches for robots at (x, y) heading yaw; (..., 20, 20) float32.
+
+    x, y, yaw broadcast (e.g. arrays of shape (B,) give (B, 20, 20)); ``ground`` is the
+    reference height (default: :func:`ground_reference`). Entry [i, j] is the body offset
+    (u, v) of HeightMap.patch with u along the heading.
+    """
+    check_kind(kind)
+    x, y, yaw = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (x, y, yaw)))
+    ground = ground_reference(heightmap, x, y) if ground is None else np.asarray(ground, dtype=float)
+    if kind == "turn":
+        cx, cy, spacing = x, y, TURN_PATCH_SPACING
+    else:
+        half = 0.5 * move_distance(kind)
+        cx, cy, spacing = x + half * np.cos(yaw), y + half * np.sin(yaw), MOVE_PATCH_SPACING
+    patch = heightmap.patch(cx, cy, yaw, PATCH_SIZE, spacing)
+    return (patch - ground[..., None, None]).astype(np.float32)
+
+
+def feet_in_heading_frame(feet_W, x, y, yaw, ground) -> np.ndarray:
+    """Start feet (..., 6, 3) in the heading frame, relative to (x, y, ground); float32."""
+    feet_W = np.asarray(feet_W, dtype=float)
+    x, y, yaw, ground = (np.asarray(a, dtype=float)[..., None] for a in (x, y, yaw, ground))
+    dx, dy, dz = feet_W[..., 0] - x, feet_W[..., 1] - y, feet_W[..., 2] - ground
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([c * dx + s * dy, -s * dx + c * dy, dz], axis=-1).astype(np.float32)
+
+
+def nominal_feet_W(heightmap, x, y, yaw, topology, foot_radius: float) -> np.ndarray:
+    """The topology's nominal footholds on the terrain around (x, y) heading yaw, (..., 6, 3):
+    what a planner assumes the feet are when it has no better guess."""
+    x, y, yaw = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (x, y, yaw)))
+    p_B = topology.footholds_B
+    c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]
+    fx = x[..., None] + c * p_B[:, 0] - s * p_B[:, 1]
+    fy = y[..., None] + s * p_B[:, 0] + c * p_B[:, 1]
+    return np.stack([fx, fy, heightmap.height(fx, fy) + foot_radius], axis=-1)
