@@ -197,8 +197,10 @@ def _tripod_planner(heightmap, params, control):
 
 
 def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | Path | None = None,
-         max_duration: float | None = None) -> SimulationResult:
-    """Walks a scenario's route: missions planned from the measured state, IK + joint PD."""
+         max_duration: float | None = None, heightmap=None) -> SimulationResult:
+    """Walks a scenario's route: missions planned from the measured state, IK + joint PD.
+
+    ``heightmap`` replaces the map of the scenario's terrain section (see make_station)."""
     from qz_drake.systems.mission_sequencer import split_route
 
     out = Path(out_dir) if out_dir is not None else None
@@ -207,7 +209,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
         meshcat = meshcat or Meshcat()
     control = scenario.controller
     builder = DiagramBuilder()
-    station_diagram, info = make_station(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh")
+    station_diagram, info = make_station(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh",
+                                         heightmap=heightmap)
     station = builder.AddSystem(station_diagram)
     x0 = info.initial_state
     targets = split_route(tuple(x0[4:6]), [(w.x, w.y, w.yaw, w.topology) for w in control.route],
@@ -225,6 +228,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
                                          position_mode=scenario.station.control_mode == "position")
     state_log, contact_log, trunk_log = _log_station(builder, station)
     desired_log = LogVectorOutput(tracker.GetOutputPort("desired_state"), builder, 1.0 / LOG_RATE)
+    leg_log, self_log = (LogVectorOutput(station.GetOutputPort(name), builder, 1.0 / LOG_RATE)
+                         for name in ("leg_link_force", "self_contact"))
     diagram = builder.Build()
     simulator = Simulator(diagram)
     simulator.Initialize()
@@ -253,8 +258,10 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     contacts = contact_log.FindLog(context).data().T
     trunk = trunk_log.FindLog(context).data()[0]
     desired = desired_log.FindLog(context).data().T
+    links = (leg_log.FindLog(context).data().T, self_log.FindLog(context).data()[0])
     metrics = walking_metrics(scenario, info, missions.log, targets, times, states, contacts, trunk, desired,
-                              fell=fell, timed_out=not missions.done or context.get_time() >= limit)
+                              fell=fell, timed_out=not missions.done or context.get_time() >= limit,
+                              leg_link_force=links[0], self_force=links[1])
     sim_time = float(context.get_time())
     counts = missions.counts()
     metrics.update(sim_time_s=sim_time, wall_time_s=wall, realtime_factor=sim_time / wall if wall > 0 else 0.0,
@@ -303,7 +310,7 @@ class _PlannerMissions:
         return self.sequencer.done
 
     def counts(self) -> dict:
-        return {"blc_solves": 0, "blc_failures": 0, "blc_solve_time_s": 0.0}
+        return {"blc_solves": 0, "blc_failures": 0, "blc_solve_time_s": 0.0, "blc_iterations": 0}
 
 
 class _BlcMissions:
@@ -351,12 +358,16 @@ class _BlcMissions:
     def counts(self) -> dict:
         log = self.blc.log
         return {"blc_solves": len(log.solves), "blc_failures": len(log.failures),
-                "blc_solve_time_s": log.solve_time_s}
+                "blc_solve_time_s": log.solve_time_s,
+                "blc_iterations": int(sum(s[6] for s in log.solves))}
 
 
 def _unplanned(scenario, out, missions) -> SimulationResult:
+    from qz_drake.verdict import blc_failure_code
+
     metrics = {"scenario": scenario.name, "success": False,
                "reason": f"mission 0 could not be planned: {missions.first_failure}",
+               "reasons": [blc_failure_code(missions.first_failure)],
                "missions": 0, "planner": scenario.controller.planner, **missions.counts()}
     if out is not None:
         (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
@@ -374,57 +385,39 @@ def _planned_base(plans, times):
     return out
 
 
-def _foot_slip(times, states, contacts, params) -> float:
-    """Largest horizontal drift of a foot during one continuous contact. [m]"""
+def feet_in_world(states, params) -> np.ndarray:
+    """Foot-sphere centres (N, 6, 3) in the world from logged station states."""
     from qz_drake.robot.kinematics import all_foot_positions
     from qz_drake.systems.state_layout import base_pose
 
-    worst = 0.0
-    feet = np.array([all_foot_positions(x[7:25], params) @ base_pose(x).rotation().matrix().T
-                     + x[4:7] for x in states])
-    for leg in range(6):
-        start = None
-        for k in range(len(times)):
-            if contacts[k, leg] > 0.5:
-                start = k if start is None else start
-                worst = max(worst, float(np.linalg.norm(feet[k, leg, :2] - feet[start, leg, :2])))
-            else:
-                start = None
-    return worst
+    return np.array([all_foot_positions(x[7:25], params) @ base_pose(x).rotation().matrix().T
+                     + x[4:7] for x in states]).reshape(len(states), 6, 3)
 
 
 def walking_metrics(scenario, info, log, targets, times, states, contacts, trunk, desired, *, fell: bool,
-                    timed_out: bool) -> dict:
-    """The metrics of issue 4: success, final error, tilt, contacts, slip, tracking, solves."""
-    goal = np.array(targets[-1][:2])
-    final_error = float(np.linalg.norm(states[-1, 4:6] - goal))
-    tilts = np.array([tilt_deg(x) for x in states])
+                    timed_out: bool, leg_link_force=None, self_force=None) -> dict:
+    """A walk's metrics and its strict verdict (qz_drake.verdict): success, the reason codes
+    and messages, final errors, tilt, contacts, slip, tracking, solves."""
+    from qz_drake.verdict import judge_walk
+
     planned = _planned_base(log.plans, times)
     valid = ~np.isnan(planned[:, 0])
-    tracking = float(np.sqrt(np.mean(np.sum((states[valid, 4:7] - planned[valid]) ** 2, axis=1))))
+    tracking = float(np.sqrt(np.mean(np.sum((states[valid, 4:7] - planned[valid]) ** 2, axis=1)))) \
+        if valid.any() else 0.0
     joint_rms = float(np.sqrt(np.mean((states[:, JOINT_Q] - desired[:, :18]) ** 2)))
-    trunk_contacts = int(np.count_nonzero(trunk > 0.5))
-    crit = scenario.success
-    fell = fell or bool(tilts.max() > crit.max_tilt_deg)
-    reasons = []
-    if log.failures:
-        reasons.append(f"mission {log.failures[0][0]} could not be planned: {log.failures[0][1]}")
-    if fell:
-        reasons.append("fell")
-    if trunk_contacts:
-        reasons.append("trunk touched the terrain")
-    if final_error > crit.max_final_xy_error:
-        reasons.append(f"final base {final_error:.2f} m from the goal")
-    if timed_out and not reasons:
-        reasons.append("ran out of simulated time")
+    n = len(times)
+    verdict = judge_walk(
+        scenario.success, goal_xy_yaw=targets[-1][:3], times=times, states=states,
+        desired_q=desired, feet_W=feet_in_world(states, info.params), contacts=contacts,
+        trunk=trunk, leg_link_force=np.zeros((n, 6)) if leg_link_force is None else leg_link_force,
+        self_force=np.zeros(n) if self_force is None else self_force,
+        blc_failures=[f"mission {i}: {r}" for i, r in log.failures], fell=fell, timed_out=timed_out)
     return {
         "scenario": scenario.name,
-        "success": not reasons,
-        "reason": "; ".join(reasons),
-        "final_xy_error_m": final_error,
-        "max_tilt_deg": float(tilts.max()),
-        "trunk_terrain_contacts": trunk_contacts,
-        "max_foot_slip_m": _foot_slip(times, states, contacts, info.params),
+        "success": verdict.success,
+        "reason": verdict.message,
+        "reasons": verdict.reasons,
+        **verdict.measures,
         "tracking_rms_m": tracking,
         "joint_tracking_rms_rad": joint_rms,
         "missions": len(log.plans),

@@ -9,7 +9,9 @@
   ``imu`` (10: orientation quaternion, gyro, accelerometer), ``foot_contact`` (6, 1.0 = in
   contact);
 * simulation-only outputs for monitors and metrics (never for controllers):
-  ``trunk_contact`` (1), ``foot_normal_force`` (6), ``contact_results``, ``body_poses``.
+  ``trunk_contact`` (1), ``foot_normal_force`` (6), ``leg_link_force`` (6: terrain on each
+  leg's thigh and shank [N]), ``self_contact`` (1: largest force between two legs [N]),
+  ``contact_results``, ``body_poses``.
 
 The build is a straight line: plant -> terrain -> robot -> contact properties -> finalize ->
 sensors -> visualizer. Controllers are added by the caller (see qz_drake.simulation).
@@ -34,7 +36,7 @@ from qz_drake.config import Scenario, TerrainConfig
 from qz_drake.errors import ConfigError, bad_value
 from qz_drake.robot import kinematics
 from qz_drake.robot.model import JointOrder, add_qingzhui
-from qz_drake.robot.params import DEFAULT_PARAMS, NUM_LEGS, QingzhuiParams
+from qz_drake.robot.params import DEFAULT_PARAMS, LEG_NAMES, NUM_LEGS, QingzhuiParams
 from qz_drake.robot.topology import Topology, get_topology
 from qz_drake.systems.sensors import FootContactSensor, ImuAssembler
 from qz_drake.systems.state_layout import make_state
@@ -63,11 +65,20 @@ def make_heightmap(config: TerrainConfig, seed: int = 0):
 
 
 def standing_state(heightmap, topology: Topology, xy=(0.0, 0.0), yaw: float = 0.0,
-                   params: QingzhuiParams = DEFAULT_PARAMS) -> np.ndarray:
+                   params: QingzhuiParams = DEFAULT_PARAMS, foot_offsets=None) -> np.ndarray:
     """A station state standing on the terrain: base level at the nominal height above the mean
-    ground under the feet, each foot placed on the ground by leg IK (topology's bends)."""
+    ground under the feet, each foot placed on the ground by leg IK (topology's bends).
+
+    foot_offsets: (6, 2) moves of the feet from their nominal footholds in the base frame
+    (the stance a previous mission may leave), or None. [m]"""
     R = RollPitchYaw(0.0, 0.0, yaw).ToRotationMatrix().matrix()
-    p_B = topology.footholds_B
+    p_B = topology.footholds_B.copy()
+    if foot_offsets is not None and len(foot_offsets):
+        offsets = np.asarray(foot_offsets, dtype=float)
+        if offsets.shape != (NUM_LEGS, 2) or not np.all(np.isfinite(offsets)):
+            raise bad_value("scenario.robot.initial_foot_offsets", np.asarray(foot_offsets).tolist(),
+                            "expected six finite (dx, dy) pairs", ConfigError)
+        p_B[:, :2] += offsets
     feet_xy = np.asarray(xy, dtype=float) + (p_B[:, :2] @ R[:2, :2].T)
     ground = heightmap.height(feet_xy[:, 0], feet_xy[:, 1])
     base_z = float(np.mean(ground)) + params.standing_height
@@ -120,26 +131,36 @@ class StationInfo:
 
 
 def _set_robot_contact(plant, scene_graph, instance, *, hydroelastic: bool, material) -> None:
-    """Feet and trunk collide with the terrain with material-matched properties; the robot's
-    own bodies never collide with each other."""
-    inspector = scene_graph.model_inspector()
+    """Feet, leg links and trunk collide with the terrain with material-matched properties.
+
+    A leg's own links, and every leg's links with the trunk, never collide: the joints and the
+    drives between them make that impossible. Links of different legs may (two legs crossing is
+    a real failure, reported on the ``self_contact`` output).
+    """
     source = plant.get_source_id()
-    robot_geometries = []
+    trunk = list(plant.GetCollisionGeometriesForBody(plant.GetBodyByName("base", instance)))
+    legs = {leg: [] for leg in LEG_NAMES}
     for b in plant.GetBodyIndices(instance):
-        for g in plant.GetCollisionGeometriesForBody(plant.get_body(b)):
-            robot_geometries.append(g)
+        body = plant.get_body(b)
+        for g in plant.GetCollisionGeometriesForBody(body):
             props = make_robot_proximity_properties(
                 hydroelastic=hydroelastic, material=material,
                 friction=material.static_friction)
             scene_graph.AssignRole(source, g, props, RoleAssign.kReplace)
-    del inspector
-    scene_graph.collision_filter_manager().Apply(
-        CollisionFilterDeclaration().ExcludeWithin(GeometrySet(robot_geometries)))
+            prefix = body.name().split("_")[0]
+            if prefix in legs:
+                legs[prefix].append(g)
+    manager = scene_graph.collision_filter_manager()
+    for geometries in legs.values():
+        manager.Apply(CollisionFilterDeclaration().ExcludeWithin(GeometrySet(geometries + trunk)))
 
 
 def make_station(scenario: Scenario, meshcat: Meshcat | None = None, *,
-                 mesh_dir: str | Path | None = None) -> tuple[Diagram, StationInfo]:
-    """Builds the simulated station for a scenario; returns (diagram, info)."""
+                 mesh_dir: str | Path | None = None, heightmap=None) -> tuple[Diagram, StationInfo]:
+    """Builds the simulated station for a scenario; returns (diagram, info).
+
+    ``heightmap`` replaces the scenario's terrain section's map (e.g. a capability scene held
+    in memory); the section's contact, material and region still apply."""
     from qz_drake.terrain import get_material
 
     builder = DiagramBuilder()
@@ -149,7 +170,8 @@ def make_station(scenario: Scenario, meshcat: Meshcat | None = None, *,
                              discrete_contact_approximation=sim.discrete_contact_approximation,
                              contact_model="hydroelastic_with_fallback"), builder)
     plant.set_name("plant")
-    heightmap = make_heightmap(scenario.terrain, scenario.random_seed)
+    if heightmap is None:
+        heightmap = make_heightmap(scenario.terrain, scenario.random_seed)
     region = scenario.terrain.region or default_region(scenario)
     heightmap = _crop_to(heightmap, region)
     representation = add_heightmap_to_plant(plant, heightmap, contact=scenario.terrain.contact,
@@ -174,7 +196,8 @@ def make_station(scenario: Scenario, meshcat: Meshcat | None = None, *,
     if not (np.array_equal(order.q_index, np.arange(7, 25)) and np.array_equal(order.u_index, np.arange(18))):
         raise RuntimeError("the plant's joint ordering differs from the station's state layout")
     topology = get_topology(scenario.robot.topology, params)
-    x0 = standing_state(heightmap, topology, scenario.robot.initial_xy, scenario.robot.initial_yaw, params)
+    x0 = standing_state(heightmap, topology, scenario.robot.initial_xy, scenario.robot.initial_yaw, params,
+                        foot_offsets=scenario.robot.initial_foot_offsets or None)
     plant.SetDefaultPositions(x0[:25])
 
     base = plant.GetBodyByName("base", instance)
@@ -206,6 +229,8 @@ def make_station(scenario: Scenario, meshcat: Meshcat | None = None, *,
     builder.ExportOutput(contact.GetOutputPort("foot_contact"), "foot_contact")
     builder.ExportOutput(contact.GetOutputPort("trunk_contact"), "trunk_contact")
     builder.ExportOutput(contact.GetOutputPort("foot_normal_force"), "foot_normal_force")
+    builder.ExportOutput(contact.GetOutputPort("leg_link_force"), "leg_link_force")
+    builder.ExportOutput(contact.GetOutputPort("self_contact"), "self_contact")
     builder.ExportOutput(plant.get_contact_results_output_port(), "contact_results")
     builder.ExportOutput(plant.get_body_poses_output_port(), "body_poses")
 

@@ -18,6 +18,14 @@ from qz_drake.robot.params import DEFAULT_PARAMS, LEG_NAMES, QingzhuiParams
 # Radii used for inertia and visuals of the leg links. [m]
 _LINK_RADIUS = 0.025
 _HIP_RADIUS = 0.07
+# Leg-link collision capsules (paper 000 Fig. 2: a bent-out shank hits a stair's edge). The
+# radius is the link tube's; the thigh's capsule starts outside the hip drive, and the shank's
+# ends SHANK_COLLISION_END_INSET short of the foot centre, so that on flat ground its lowest
+# point stays 0.09 sin(theta) + 0.005 m above the ground for a shank at angle theta to it: a
+# standing foot is never a shank contact, a shank lying on an edge is. [m]
+LINK_COLLISION_RADIUS = 0.025
+THIGH_COLLISION_START = 0.09
+SHANK_COLLISION_END_INSET = 0.09
 
 
 def _f(x: float) -> str:
@@ -35,16 +43,23 @@ def _inertial(mass: float, com, ixx: float, iyy: float, izz: float) -> str:
             f'izz="{_f(izz)}"/>\n    </inertial>\n')
 
 
-def _rod_link(name: str, mass: float, length: float, rgba: str) -> str:
-    """A link whose mass is a uniform rod along its +x axis, from 0 to length."""
+def _rod_link(name: str, mass: float, length: float, rgba: str,
+              collision: tuple[float, float]) -> str:
+    """A link whose mass is a uniform rod along its +x axis, from 0 to length, colliding as a
+    capsule whose segment spans x in ``collision`` (start, end)."""
     ixx = 0.5 * mass * _LINK_RADIUS**2
     iyy = mass * (3 * _LINK_RADIUS**2 + length**2) / 12.0
+    c0, c1 = collision
     return (f'  <link name="{name}">\n'
             + _inertial(mass, (length / 2, 0, 0), ixx, iyy, iyy)
             + f'    <visual>\n      <origin xyz="{_f(length / 2)} 0 0" rpy="0 {_f(math.pi / 2)} 0"/>\n'
             f'      <geometry><cylinder radius="{_f(_LINK_RADIUS)}" length="{_f(length)}"/></geometry>\n'
             f'      <material name="{name}_color"><color rgba="{rgba}"/></material>\n'
-            f'    </visual>\n  </link>\n')
+            f'    </visual>\n'
+            f'    <collision name="{name}_collision">\n'
+            f'      <origin xyz="{_f((c0 + c1) / 2)} 0 0" rpy="0 {_f(math.pi / 2)} 0"/>\n'
+            f'      <geometry><capsule radius="{_f(LINK_COLLISION_RADIUS)}" length="{_f(c1 - c0)}"/></geometry>\n'
+            f'    </collision>\n  </link>\n')
 
 
 def _joint(name: str, parent: str, child: str, xyz, rpy, axis, lower: float, upper: float,
@@ -102,9 +117,11 @@ def make_urdf(params: QingzhuiParams = DEFAULT_PARAMS) -> str:
             '      <material name="hip_color"><color rgba="0.2 0.2 0.2 1"/></material>\n'
             '    </visual>\n  </link>\n')
         parts.append(_rod_link(f"{leg}_thigh", params.thigh_mass, params.thigh_length,
-                               "0.3 0.3 0.35 1"))
+                               "0.3 0.3 0.35 1",
+                               (THIGH_COLLISION_START, params.thigh_length)))
         parts.append(_rod_link(f"{leg}_shank", params.shank_mass, params.shank_length,
-                               "0.45 0.45 0.5 1"))
+                               "0.45 0.45 0.5 1",
+                               (0.0, params.shank_length - SHANK_COLLISION_END_INSET)))
         parts.append(
             f'  <link name="{leg}_foot">\n'
             + _inertial(params.foot_mass, (0, 0, 0), i_foot, i_foot, i_foot)

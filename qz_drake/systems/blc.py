@@ -40,7 +40,8 @@ class MissionTiming:
 
 @dataclasses.dataclass
 class BlcLog:
-    """Every solve the system made: (time, target, topology, success, solve time, reason)."""
+    """Every solve the system made: (time, target, topology, success, solve time, reason,
+    Ipopt iterations)."""
 
     solves: list = dataclasses.field(default_factory=list)
 
@@ -181,7 +182,7 @@ class TrajectoryOptimizationBLC(LeafSystem):
         plan, reason = planner(start, target, topology, start.time)
         solution = planner.last_solution
         self.log.solves.append((start.time, target, topology, plan is not None, solution.solve_time,
-                                reason))
+                                reason, int(solution.iterations)))
         state.get_mutable_abstract_state(self._solution).set_value(solution)
         if plan is not None:
             state.get_mutable_abstract_state(self._next if ahead else self._plan).set_value(plan)

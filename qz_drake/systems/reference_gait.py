@@ -26,10 +26,15 @@ SWING_HORIZONTAL_FRACTION = 0.75
 # Foothold selection: search radius around the nominal foothold [m] (inside the kinematic
 # box), grid step [m], clearance radius a safe point needs [m], and the height variation
 # tolerated within it [m].
-FOOTHOLD_SEARCH = 0.12
+FOOTHOLD_SEARCH = 0.15
 FOOTHOLD_GRID = 0.02
-FOOTHOLD_CLEARANCE = 0.06
+FOOTHOLD_CLEARANCE = 0.045
 FOOTHOLD_STEP = 0.02
+# A level spot is still no foothold when it is the floor of a narrow gap: ground higher by
+# more than FOOTHOLD_PIT_DEPTH on both sides within FOOTHOLD_PIT_RADIUS would catch the shank on
+# the edge (paper 000 Fig. 2). [m]
+FOOTHOLD_PIT_RADIUS = 0.2
+FOOTHOLD_PIT_DEPTH = 0.05
 
 
 def _offsets() -> np.ndarray:
@@ -42,6 +47,10 @@ def _offsets() -> np.ndarray:
 _FOOTHOLD_OFFSETS = _offsets()
 _RING = np.array([[FOOTHOLD_CLEARANCE * np.cos(a), FOOTHOLD_CLEARANCE * np.sin(a)]
                   for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)] + [[0.0, 0.0]])
+# Four opposite pairs of directions at FOOTHOLD_PIT_RADIUS: [pair, side, xy].
+_PIT_PAIRS = np.array([[[FOOTHOLD_PIT_RADIUS * np.cos(a), FOOTHOLD_PIT_RADIUS * np.sin(a)],
+                        [-FOOTHOLD_PIT_RADIUS * np.cos(a), -FOOTHOLD_PIT_RADIUS * np.sin(a)]]
+                       for a in np.linspace(0, np.pi, 4, endpoint=False)])
 
 
 def _min_jerk(s):
@@ -114,17 +123,22 @@ class TripodGaitPlan:
     def _foothold(self, leg: int, t: float) -> np.ndarray:
         """The safe point nearest the nominal foothold, within FOOTHOLD_SEARCH of it: a point is
         safe when the ground within FOOTHOLD_CLEARANCE of it is level to FOOTHOLD_STEP (not on
-        an edge, not in a gap); if none is, the nominal foothold."""
+        an edge) and it is not the floor of a narrow gap (see FOOTHOLD_PIT_RADIUS); if none
+        is, the least uneven point outside a gap."""
         xy = self._nominal_world(t)[leg]
         offsets = _FOOTHOLD_OFFSETS
         candidates = xy[None, :] + offsets
         centre = self.heightmap.height(candidates[:, 0], candidates[:, 1])
         ring = candidates[:, None, :] + _RING[None, :, :]
         around = self.heightmap.height(ring[..., 0], ring[..., 1])
-        safe = np.max(np.abs(around - centre[:, None]), axis=1) <= FOOTHOLD_STEP
-        if safe.any():
-            k = int(np.flatnonzero(safe)[0])  # offsets are sorted by distance
-            xy = candidates[k]
+        unevenness = np.max(np.abs(around - centre[:, None]), axis=1)
+        pairs = candidates[:, None, None, :] + _PIT_PAIRS[None]
+        sides = self.heightmap.height(pairs[..., 0], pairs[..., 1]) - centre[:, None, None]
+        in_pit = np.any(np.all(sides > FOOTHOLD_PIT_DEPTH, axis=2), axis=1)
+        # The nearest safe point; with none, the least uneven point outside a gap (offsets are
+        # sorted by distance, and argmin takes the first of equals).
+        badness = np.where(unevenness <= FOOTHOLD_STEP, 0.0, unevenness) + np.where(in_pit, 10.0, 0.0)
+        xy = candidates[int(np.argmin(badness))]
         return np.array([xy[0], xy[1], float(self.heightmap.height(xy[0], xy[1])) + self.params.foot_radius])
 
     def _swing(self, leg: int, t: float):

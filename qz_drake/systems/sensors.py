@@ -11,9 +11,12 @@ from qz_drake.systems.state_layout import IMU_SIZE
 
 
 class FootContactSensor(LeafSystem):
-    """Which feet touch the terrain, and whether the trunk does, from the plant's contact results.
+    """Which feet touch the terrain, and whether the trunk or a leg link does, from the plant's
+    contact results.
 
-    A foot counts as in contact when the normal force on it exceeds ``force_threshold``.
+    A foot counts as in contact when the normal force on it exceeds ``force_threshold``. Leg
+    links (thighs and shanks) touching the terrain are reported apart from the feet: paper 000
+    Fig. 2's failure, a shank on a stair edge, is a contact a walk must not have.
 
     .. pydrake_system::
 
@@ -24,6 +27,12 @@ class FootContactSensor(LeafSystem):
         - foot_contact
         - foot_normal_force
         - trunk_contact
+        - leg_link_force
+        - self_contact
+
+    ``leg_link_force`` (6) is the force of the terrain on each leg's thigh and shank [N];
+    ``self_contact`` (1) the largest force between two of the robot's own bodies (legs of
+    different hips) [N].
 
     Args:
         plant: the station's plant (finalized), used to map bodies to feet.
@@ -34,10 +43,12 @@ class FootContactSensor(LeafSystem):
     def __init__(self, *, plant: MultibodyPlant, instance, force_threshold: float = 5.0):
         super().__init__()
         self._threshold = force_threshold
-        inspector_bodies = {}
+        self._foot_of_body = {}
+        self._leg_of_link = {}
         for i, leg in enumerate(LEG_NAMES):
-            inspector_bodies[int(plant.GetBodyByName(f"{leg}_foot", instance).index())] = i
-        self._foot_of_body = inspector_bodies
+            self._foot_of_body[int(plant.GetBodyByName(f"{leg}_foot", instance).index())] = i
+            for link in ("thigh", "shank"):
+                self._leg_of_link[int(plant.GetBodyByName(f"{leg}_{link}", instance).index())] = i
         self._trunk = int(plant.GetBodyByName("base", instance).index())
         self._robot_bodies = {int(b) for b in plant.GetBodyIndices(instance)}
         # Hydroelastic results name geometries, not bodies.
@@ -50,40 +61,51 @@ class FootContactSensor(LeafSystem):
         self.DeclareVectorOutputPort("foot_contact", 6, self._calc_contact)
         self.DeclareVectorOutputPort("foot_normal_force", 6, self._calc_force)
         self.DeclareVectorOutputPort("trunk_contact", 1, self._calc_trunk)
+        self.DeclareVectorOutputPort("leg_link_force", 6, self._calc_leg_links)
+        self.DeclareVectorOutputPort("self_contact", 1, self._calc_self)
 
-    def _forces(self, context) -> tuple[np.ndarray, float]:
+    def _add(self, bodies, f: float, forces) -> None:
+        foot, trunk, legs, own = forces
+        if all(b in self._robot_bodies for b in bodies):
+            own[0] = max(own[0], f)
+            return
+        for body in bodies:
+            if body in self._foot_of_body:
+                foot[self._foot_of_body[body]] += f
+            elif body in self._leg_of_link:
+                legs[self._leg_of_link[body]] += f
+            elif body == self._trunk:
+                trunk[0] += f
+
+    def _forces(self, context):
+        """(foot (6), trunk (1), leg links (6), self (1)) contact forces. [N]"""
         results: ContactResults = self._contact_port.Eval(context)
-        foot = np.zeros(6)
-        trunk = 0.0
+        forces = (np.zeros(6), np.zeros(1), np.zeros(6), np.zeros(1))
         for k in range(results.num_point_pair_contacts()):
             info = results.point_pair_contact_info(k)
-            f = np.linalg.norm(info.contact_force())
-            for body in (int(info.bodyA_index()), int(info.bodyB_index())):
-                if body in self._foot_of_body:
-                    foot[self._foot_of_body[body]] += f
-                elif body == self._trunk:
-                    trunk += f
+            self._add((int(info.bodyA_index()), int(info.bodyB_index())),
+                      float(np.linalg.norm(info.contact_force())), forces)
         for k in range(results.num_hydroelastic_contacts()):
             info = results.hydroelastic_contact_info(k)
-            f = np.linalg.norm(info.F_Ac_W().translational())
             surface = info.contact_surface()
-            for g in (surface.id_M(), surface.id_N()):
-                body = self._body_of_geometry.get(g)
-                if body in self._foot_of_body:
-                    foot[self._foot_of_body[body]] += f
-                elif body == self._trunk:
-                    trunk += f
-        return foot, trunk
+            bodies = tuple(self._body_of_geometry.get(g, -1) for g in (surface.id_M(), surface.id_N()))
+            self._add(bodies, float(np.linalg.norm(info.F_Ac_W().translational())), forces)
+        return forces
 
     def _calc_contact(self, context, output: BasicVector):
-        foot, _ = self._forces(context)
-        output.SetFromVector((foot > self._threshold).astype(float))
+        output.SetFromVector((self._forces(context)[0] > self._threshold).astype(float))
 
     def _calc_force(self, context, output: BasicVector):
         output.SetFromVector(self._forces(context)[0])
 
     def _calc_trunk(self, context, output: BasicVector):
-        output.SetFromVector([float(self._forces(context)[1] > self._threshold)])
+        output.SetFromVector([float(self._forces(context)[1][0] > self._threshold)])
+
+    def _calc_leg_links(self, context, output: BasicVector):
+        output.SetFromVector(self._forces(context)[2])
+
+    def _calc_self(self, context, output: BasicVector):
+        output.SetFromVector(self._forces(context)[3])
 
 
 class ImuAssembler(LeafSystem):

@@ -1,0 +1,307 @@
+"""Runs capability trials at scale: local worker processes or Ray tasks, one writer.
+
+The driver keeps a window of trials in flight, gathers each record as it finishes, and writes
+shards itself (TrialStore). Both backends run the same pure function, ``run_trial(spec)``, so
+the dataset is the same array for array whichever ran it (the measured wall times aside).
+
+Faults: a local worker that dies in the middle of a trial (a crash in Drake, a kill) is
+replaced and its trial run again, up to ``max_retries`` times, as Ray retries a task whose
+worker died (``ray.remote(max_retries=...)``); a trial that still cannot finish is recorded
+with status "error" and its reason, never lost and never used for training.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import multiprocessing as mp
+import os
+import time
+from multiprocessing.connection import wait
+
+from qz_drake.capability.dataset import TrialStore, fingerprints, settings_dict
+from qz_drake.capability.trials import TrialConfig, TrialSpec, run_trial, trial_specs
+from qz_drake.errors import bad_value
+
+# Test hook: "INDEX:FILE" makes the worker running trial INDEX kill itself once (FILE marks
+# that it did), the fault the collection must survive.
+CRASH_ENV = "QZ_CAPABILITY_CRASH_ONCE"
+
+
+def _maybe_crash(spec: TrialSpec) -> None:
+    hook = os.environ.get(CRASH_ENV, "")
+    if not hook:
+        return
+    index, _, marker = hook.partition(":")
+    if int(index) == spec.index and marker and not os.path.exists(marker):
+        open(marker, "w").close()
+        os._exit(17)
+
+
+def execute(spec: TrialSpec, config: TrialConfig) -> dict:
+    """What a worker runs: the trial, behind the fault-injection hook."""
+    _maybe_crash(spec)
+    return run_trial(spec, config)
+
+
+@dataclasses.dataclass
+class CollectionSummary:
+    """What a collection run did."""
+
+    out: str
+    planned: int
+    already_done: int
+    ran: int
+    errors: int
+    retries: int
+    wall_time_s: float
+
+
+def _worker_main(conn, config):
+    while True:
+        spec = conn.recv()
+        if spec is None:
+            return
+        conn.send(execute(spec, config))
+
+
+class LocalPool:
+    """Worker processes (spawned: Drake is not fork-safe) fed one trial at a time."""
+
+    def __init__(self, workers: int, config: TrialConfig, max_retries: int):
+        self._ctx = mp.get_context("spawn")
+        self._config = config
+        self._max_retries = max_retries
+        self._workers = [self._start() for _ in range(workers)]
+        self.retries = 0
+
+    def _start(self):
+        parent, child = self._ctx.Pipe()
+        process = self._ctx.Process(target=_worker_main, args=(child, self._config), daemon=True)
+        process.start()
+        child.close()
+        return {"process": process, "conn": parent, "spec": None, "attempt": 0}
+
+    def run(self, specs, on_record) -> None:
+        queue = [(spec, 0) for spec in specs]
+        queue.reverse()
+        while queue or any(w["spec"] is not None for w in self._workers):
+            for w in self._workers:
+                if w["spec"] is None and queue:
+                    w["spec"], w["attempt"] = queue.pop()
+                    w["conn"].send(w["spec"])
+            busy = [w for w in self._workers if w["spec"] is not None]
+            ready = wait([w["conn"] for w in busy] + [w["process"].sentinel for w in busy])
+            for i, w in enumerate(self._workers):
+                if w["spec"] is None:
+                    continue
+                if w["conn"] in ready:
+                    try:
+                        record = w["conn"].recv()
+                    except (EOFError, OSError):
+                        record = None
+                    if record is not None:
+                        w["spec"] = None
+                        on_record(record)
+                        continue
+                if w["process"].sentinel in ready or not w["process"].is_alive():
+                    spec, attempt = w["spec"], w["attempt"]
+                    code = w["process"].exitcode
+                    w["conn"].close()
+                    self._workers[i] = self._start()
+                    if attempt < self._max_retries:
+                        self.retries += 1
+                        queue.append((spec, attempt + 1))
+                    else:
+                        on_record(_crashed(spec, f"worker died (exit code {code}) "
+                                                 f"{attempt + 1} times", self._config))
+
+    def close(self) -> None:
+        for w in self._workers:
+            try:
+                w["conn"].send(None)
+            except (BrokenPipeError, OSError):
+                pass
+        for w in self._workers:
+            w["process"].join(timeout=10)
+            if w["process"].is_alive():
+                w["process"].kill()
+
+
+def _crashed(spec: TrialSpec, message: str, config: TrialConfig) -> dict:
+    """The error record of a trial whose worker died every time."""
+    from qz_drake.capability.scenes import scene_for
+    from qz_drake.capability.trials import ARRAY_FIELDS, RECORD_FIELDS, TIME_FIELDS, start_of
+
+    import numpy as np
+
+    scene = scene_for(spec.seed, spec.scene)
+    heading, offsets, direction = start_of(spec, config)
+    record = {name: np.zeros((), dtype=dt).item() for name, dt in RECORD_FIELDS.items()}
+    record.update({name: np.zeros(shape, dtype=dt) for name, (shape, dt) in ARRAY_FIELDS.items()})
+    record.update({name: 0.0 for name in TIME_FIELDS})
+    record.update(index=spec.index, scene=spec.scene, heading_sample=spec.heading_sample,
+                  scene_kind=scene.kind, difficulty=scene.difficulty, scene_seed=scene.seed,
+                  topology=spec.topology, kind=spec.kind, heading=heading,
+                  direction=direction if spec.kind == "turn" else -1, foot_offsets=offsets,
+                  status="error", error=message)
+    return record
+
+
+class RayPool:
+    """The same trials as Ray tasks on an existing cluster (``ray.init(address=...)``)."""
+
+    def __init__(self, address: str, config: TrialConfig, max_retries: int, window: int | None = None):
+        try:
+            import ray
+        except ImportError:
+            raise bad_value("--ray-address", address, "Ray is not installed (pip install 'qz_drake[cluster]')") from None
+        self._ray = ray
+        try:
+            ray.init(address=address, ignore_reinit_error=True, log_to_driver=False,
+                     include_dashboard=False)
+        except Exception as e:  # ConnectionError, ValueError, RuntimeError, depending on the address
+            raise bad_value("--ray-address", address, f"no Ray cluster reachable ({type(e).__name__}: "
+                                                       f"{str(e).splitlines()[0] if str(e) else ''})") from None
+        self._config = config
+        self._remote = ray.remote(max_retries=max_retries, num_cpus=1)(execute)
+        cpus = int(ray.cluster_resources().get("CPU", 1))
+        self._window = window or max(2 * cpus, 2)
+        self.retries = 0
+
+    def run(self, specs, on_record) -> None:
+        ray = self._ray
+        pending = {}
+        queue = list(specs)
+        queue.reverse()
+        while queue or pending:
+            while queue and len(pending) < self._window:
+                spec = queue.pop()
+                pending[self._remote.remote(spec, self._config)] = spec
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                spec = pending.pop(ref)
+                try:
+                    on_record(ray.get(ref))
+                except Exception as e:  # the task's worker died more than max_retries times
+                    on_record(_crashed(spec, f"{type(e).__name__}: {str(e).splitlines()[0]}", self._config))
+
+    def close(self) -> None:
+        self._ray.shutdown()
+
+
+def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=None,
+            config: TrialConfig = TrialConfig(), workers: int = 1, ray_address: str | None = None,
+            shard_size: int = 100, max_retries: int = 2, progress: bool = True,
+            command: str = "", limit: int | None = None) -> CollectionSummary:
+    """Collects (or resumes) the trials of ``scenes`` scenes into the dataset folder ``out``.
+
+    ``limit`` stops after that many new trials (the rest is left for a later resume).
+    """
+    from qz_drake.capability.patches import KINDS
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+    if isinstance(scenes, bool) or not isinstance(scenes, int) or scenes < 1:
+        raise bad_value("--scenes", scenes, "must be a positive whole number")
+    topologies = tuple(topologies or TOPOLOGY_NAMES)
+    kinds = tuple(kinds or KINDS)
+    for t in topologies:
+        if t not in TOPOLOGY_NAMES:
+            raise bad_value("--topologies", t, f"unknown topology (valid: {', '.join(TOPOLOGY_NAMES)})")
+    for k in kinds:
+        if k not in KINDS:
+            raise bad_value("--kinds", k, f"unknown kind (valid: {', '.join(KINDS)})")
+    if workers < 1:
+        raise bad_value("--workers", workers, "must be at least 1")
+    clock = time.perf_counter()
+    parts = fingerprints(config)
+    store = TrialStore(out, seed=seed, settings=settings_dict(config), parts=parts, command=command)
+    specs = trial_specs(seed, scenes, topologies=topologies, kinds=kinds,
+                        headings_per_scene=config.headings_per_scene)
+    done = store.done_indices()
+    todo = [s for s in specs if s.index not in done]
+    if limit is not None:
+        todo = todo[:limit]
+    buffer: list[dict] = []
+    counts = {"ran": 0, "errors": 0}
+    monitor = _Progress(len(todo), enabled=progress)
+
+    def on_record(record):
+        buffer.append(record)
+        counts["ran"] += 1
+        counts["errors"] += record["status"] == "error"
+        monitor.update(record)
+        if len(buffer) >= shard_size:
+            store.append(buffer)
+            buffer.clear()
+
+    pool = None
+    try:
+        if todo:
+            pool = RayPool(ray_address, config, max_retries) if ray_address else \
+                LocalPool(min(workers, len(todo)), config, max_retries)
+            pool.run(todo, on_record)
+    finally:
+        # Whatever finished is kept, also when the run is interrupted.
+        store.append(buffer)
+        monitor.close()
+        if pool is not None:
+            pool.close()
+    return CollectionSummary(out=str(out), planned=len(specs), already_done=len(done), ran=counts["ran"],
+                             errors=counts["errors"], retries=pool.retries if pool else 0,
+                             wall_time_s=time.perf_counter() - clock)
+
+
+class _Progress:
+    """A rich progress bar with trials per second, ETA and the success rate so far per
+    topology and kind."""
+
+    def __init__(self, total: int, enabled: bool):
+        self.enabled = enabled and total > 0
+        self.rates: dict[tuple[str, str], list[int]] = {}
+        if not self.enabled:
+            return
+        from rich.console import Group
+        from rich.live import Live
+        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+                                   TimeElapsedColumn, TimeRemainingColumn)
+
+        self._progress = Progress(TextColumn("trials"), BarColumn(), MofNCompleteColumn(),
+                                  TextColumn("{task.fields[rate]:.2f}/s"), TimeElapsedColumn(),
+                                  TextColumn("ETA"), TimeRemainingColumn())
+        self._task = self._progress.add_task("trials", total=total, rate=0.0)
+        self._start = time.perf_counter()
+        self._group = Group
+        self._live = Live(self._render(), refresh_per_second=2, transient=False)
+        self._live.start()
+
+    def _render(self):
+        from rich.table import Table
+
+        table = Table(title="success so far (executed trials)", show_edge=False)
+        table.add_column("topology")
+        kinds = sorted({k for _, k in self.rates})
+        for kind in kinds:
+            table.add_column(kind)
+        for topology in sorted({t for t, _ in self.rates}):
+            row = [topology]
+            for kind in kinds:
+                ok, n = self.rates.get((topology, kind), [0, 0])
+                row.append(f"{ok}/{n} ({100 * ok / n:.0f} %)" if n else "-")
+            table.add_row(*row)
+        return self._group(self._progress, table)
+
+    def update(self, record: dict) -> None:
+        if record["status"] == "executed":
+            entry = self.rates.setdefault((record["topology"], record["kind"]), [0, 0])
+            entry[0] += bool(record["success"])
+            entry[1] += 1
+        if not self.enabled:
+            return
+        elapsed = max(time.perf_counter() - self._start, 1e-9)
+        done = self._progress.tasks[0].completed + 1
+        self._progress.update(self._task, advance=1, rate=done / elapsed)
+        self._live.update(self._render())
+
+    def close(self) -> None:
+        if self.enabled:
+            self._live.stop()

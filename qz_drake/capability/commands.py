@@ -1,0 +1,141 @@
+"""``qz capability ...``: the capability pipeline of paper 000 II-E.1 on the command line.
+
+``collect`` runs (or resumes) BLC trials into a dataset folder, on local processes or a Ray
+cluster; ``stats`` summarises a dataset. The model commands (``train``, ``evaluate``, ``map``)
+are added by qz_drake.capability.model_commands when present.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shlex
+import sys
+
+import numpy as np
+
+from qz_drake.errors import ConfigError, bad_value
+
+
+def _names(text: str | None, field: str, valid) -> tuple[str, ...] | None:
+    if text is None:
+        return None
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    if not names:
+        raise bad_value(field, text, "expected a comma-separated list")
+    for n in names:
+        if n not in valid:
+            raise bad_value(field, n, f"unknown (valid: {', '.join(valid)})")
+    return names
+
+
+def run_collect(args) -> int:
+    from qz_drake.capability.collect import collect
+    from qz_drake.capability.patches import KINDS
+    from qz_drake.capability.trials import TrialConfig
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+    if args.scenes < 1:
+        raise bad_value("--scenes", args.scenes, "must be a positive whole number")
+    if args.workers < 1:
+        raise bad_value("--workers", args.workers, "must be at least 1")
+    if args.headings < 1:
+        raise bad_value("--headings", args.headings, "must be at least 1")
+    config = TrialConfig(headings_per_scene=args.headings)
+    summary = collect(args.out, seed=args.seed, scenes=args.scenes,
+                      topologies=_names(args.topologies, "--topologies", TOPOLOGY_NAMES),
+                      kinds=_names(args.kinds, "--kinds", KINDS), config=config,
+                      workers=args.workers, ray_address=args.ray_address, shard_size=args.shard_size,
+                      progress=not args.json and sys.stderr.isatty() or args.progress,
+                      command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+                      limit=args.limit)
+    print(json.dumps(dataclasses.asdict(summary), indent=None if args.json else 2))
+    return 0
+
+
+def dataset_stats(path) -> dict:
+    """Per topology and kind: executed trials, successes, BLC-only successes, errors; per
+    scene kind too; and the manifest's fingerprints."""
+    from qz_drake.capability.dataset import load_records
+
+    arrays, manifest = load_records(path)
+    executed = arrays["status"] == "executed"
+    rows = []
+    for topology in sorted(set(arrays["topology"].tolist())):
+        for kind in sorted(set(arrays["kind"].tolist())):
+            sel = (arrays["topology"] == topology) & (arrays["kind"] == kind)
+            ex = sel & executed
+            if not sel.any():
+                continue
+            ok = ex & arrays["success"]
+            blc = ex & arrays["blc_success"]
+            rows.append({"topology": topology, "kind": kind, "executed": int(ex.sum()),
+                         "successes": int(ok.sum()), "blc_successes": int(blc.sum()),
+                         "errors": int((sel & ~executed).sum()),
+                         "success_rate": float(ok.sum() / ex.sum()) if ex.any() else None,
+                         "blc_disagreement": float(np.mean(arrays["blc_success"][ex] != arrays["success"][ex]))
+                         if ex.any() else None})
+    scene_rows = []
+    for scene_kind in sorted(set(arrays["scene_kind"].tolist())):
+        ex = executed & (arrays["scene_kind"] == scene_kind)
+        scene_rows.append({"scene_kind": scene_kind, "executed": int(ex.sum()),
+                           "success_rate": float(arrays["success"][ex].mean()) if ex.any() else None})
+    reasons = {}
+    for r in arrays["reason"][executed & ~arrays["success"]].tolist():
+        reasons[r] = reasons.get(r, 0) + 1
+    return {"dataset": str(path), "trials": int(len(arrays["index"])), "executed": int(executed.sum()),
+            "errors": int((~executed).sum()), "successes": int(arrays["success"][executed].sum()),
+            "rows": rows, "scene_kinds": scene_rows, "failure_reasons": reasons,
+            "seed": manifest.get("seed"), "fingerprint": manifest.get("fingerprint"),
+            "fingerprints": manifest.get("fingerprints")}
+
+
+def run_stats(args) -> int:
+    stats = dataset_stats(args.dataset)
+    if args.json:
+        print(json.dumps(stats))
+        return 0
+    print(f"{stats['dataset']}: {stats['executed']} executed, {stats['errors']} errors, "
+          f"{stats['successes']} successes")
+    for row in stats["rows"]:
+        rate = "-" if row["success_rate"] is None else f"{100 * row['success_rate']:.0f} %"
+        print(f"  {row['topology']:>13} {row['kind']:>10}: {row['successes']}/{row['executed']} ({rate}), "
+              f"BLC alone {row['blc_successes']}, errors {row['errors']}")
+    return 0
+
+
+def register(subparsers) -> None:
+    """Adds ``capability`` (collect, stats, and the model commands) to the ``qz`` command."""
+    capability = subparsers.add_parser("capability", help="capability trials, dataset and model (paper 000)")
+    sub = capability.add_subparsers(dest="capability_command", required=True, parser_class=type(capability))
+
+    p = sub.add_parser("collect", help="run (or resume) BLC trials into a dataset folder")
+    p.add_argument("--out", required=True, help="dataset folder (manifest.json + shards)")
+    p.add_argument("--scenes", type=int, default=1000, help="number of scenes (paper 000: 1000)")
+    p.add_argument("--headings", type=int, default=1, help="heading samples per scene (each in every topology and kind)")
+    p.add_argument("--topologies", default=None, help="comma-separated topologies (default: all six)")
+    p.add_argument("--kinds", default=None, help="comma-separated kinds: orthogonal,diagonal,turn (default: all)")
+    p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    p.add_argument("--ray-address", default=None, help="run the trials on this Ray cluster (host:port)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--shard-size", type=int, default=100, help="records per shard file")
+    p.add_argument("--limit", type=int, default=None, help="stop after this many new trials")
+    p.add_argument("--progress", action="store_true", help="show the progress display even when not on a terminal")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_collect)
+
+    p = sub.add_parser("stats", help="summarise a capability dataset")
+    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_stats)
+
+    try:
+        from qz_drake.capability.model_commands import register_model_commands
+    except ModuleNotFoundError as e:
+        if e.name != "qz_drake.capability.model_commands":
+            raise
+    else:
+        register_model_commands(sub)
+
+
+__all__ = ["register", "dataset_stats", "ConfigError"]

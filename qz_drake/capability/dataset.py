@@ -1,0 +1,232 @@
+"""The capability dataset: append-only shards with a manifest (paper 000 II-E.1's samples).
+
+A dataset folder holds ``manifest.json`` and ``shard-NNNNN.npz`` files (compressed, no
+pickle). Each shard is a batch of finished trial records, written by the collection's driver
+only, atomically (a temporary file renamed), and the manifest is rewritten after each shard.
+A trial's index is derived from (seed, index), so a resumed collection skips exactly the
+trials some shard holds: a trial is never run twice into the dataset, and an interrupted one
+is simply run again.
+
+The manifest records what produced the labels: the collection's settings and a fingerprint of
+each component (robot, BLC, controller, verdict, scenes), each a hash of its configuration and
+of its code's syntax tree (comments and docstrings do not count). A folder whose fingerprints
+differ from the running code's is refused with the differing field named: the capability
+learned is that of one BLC-robot system, never a mix.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import hashlib
+import json
+import os
+from importlib import import_module
+from pathlib import Path
+
+import numpy as np
+
+from qz_drake.errors import ConfigError, bad_value
+
+FORMAT = "qz_drake.capability.dataset/1"
+MANIFEST = "manifest.json"
+
+# The modules whose code decides each component's behaviour.
+_COMPONENT_MODULES = {
+    "robot": ("qz_drake.robot.params", "qz_drake.robot.urdf", "qz_drake.robot.kinematics",
+              "qz_drake.robot.topology", "qz_drake.robot.model"),
+    "blc": ("qz_drake.trajopt.parameters", "qz_drake.trajopt.formulation", "qz_drake.trajopt.constraints",
+            "qz_drake.trajopt.splines", "qz_drake.trajopt.variables", "qz_drake.trajopt.gait",
+            "qz_drake.trajopt.terrain", "qz_drake.trajopt.robot_model", "qz_drake.trajopt.initial_guess",
+            "qz_drake.trajopt.solver", "qz_drake.trajopt.solution", "qz_drake.systems.blc",
+            "qz_drake.systems.blc_plan"),
+    "controller": ("qz_drake.systems.ik_tracker", "qz_drake.systems.joint_pd",
+                   "qz_drake.systems.mission_sequencer", "qz_drake.station",
+                   "qz_drake.terrain.drake_geometry", "qz_drake.terrain.materials",
+                   "qz_drake.systems.sensors"),
+    "verdict": ("qz_drake.verdict",),
+    "scenes": ("qz_drake.capability.scenes", "qz_drake.capability.patches",
+               "qz_drake.capability.trials"),
+}
+
+
+def _code_hash(module_name: str) -> str:
+    """Hash of a module's syntax tree without docstrings (comments are not in the tree)."""
+    source = Path(import_module(module_name).__file__).read_text()
+    tree = ast.parse(source)
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if isinstance(body, list) and body and isinstance(body[0], ast.Expr) \
+                and isinstance(getattr(body[0], "value", None), ast.Constant) \
+                and isinstance(body[0].value.value, str):
+            node.body = body[1:] or [ast.Pass()]
+    return hashlib.sha256(ast.dump(tree).encode()).hexdigest()
+
+
+def _digest(*parts) -> str:
+    return hashlib.sha256("\n".join(str(p) for p in parts).encode()).hexdigest()[:16]
+
+
+def fingerprints(trial_config, criteria=None) -> dict[str, str]:
+    """The running code's fingerprint per component (and the trial settings' own)."""
+    from qz_drake.config import SuccessCriteria
+    from qz_drake.robot.params import DEFAULT_PARAMS
+    from qz_drake.robot.urdf import make_urdf
+    from qz_drake.trajopt.parameters import BlcParameters
+
+    config = {
+        "robot": (repr(DEFAULT_PARAMS), make_urdf(DEFAULT_PARAMS)),
+        "blc": (repr(BlcParameters()),),
+        "controller": (repr((trial_config.speed, trial_config.phase_duration, trial_config.kp,
+                             trial_config.kd, trial_config.settle_after)),),
+        "verdict": (repr(criteria or SuccessCriteria()),),
+        "scenes": (repr(trial_config),),
+    }
+    return {name: _digest(*config[name], *(_code_hash(m) for m in modules))
+            for name, modules in _COMPONENT_MODULES.items()}
+
+
+def combined_fingerprint(parts: dict[str, str]) -> str:
+    return _digest(*(f"{k}={parts[k]}" for k in sorted(parts)))
+
+
+def _atomic_write(path: Path, write) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+class TrialStore:
+    """A dataset folder being collected into (one writer: the collection's driver)."""
+
+    def __init__(self, path, *, seed: int, settings: dict, parts: dict[str, str], command: str = ""):
+        self.path = Path(path)
+        if self.path.exists() and not self.path.is_dir():
+            raise bad_value("--out", str(path), "is a file, not a dataset folder")
+        self.path.mkdir(parents=True, exist_ok=True)
+        manifest_path = self.path / MANIFEST
+        if manifest_path.exists():
+            manifest = read_manifest(self.path)
+            check_same(manifest, seed=seed, settings=settings, parts=parts, where=str(path))
+        else:
+            if any(self.path.glob("shard-*.npz")):
+                raise bad_value("--out", str(path), "holds shards but no manifest.json")
+            manifest = {"format": FORMAT, "seed": int(seed), "settings": settings,
+                        "fingerprints": parts, "fingerprint": combined_fingerprint(parts),
+                        "commands": [], "shards": []}
+        if command:
+            manifest.setdefault("commands", []).append(command)
+        self.manifest = manifest
+        self._write_manifest()
+
+    def done_indices(self) -> set[int]:
+        done = set()
+        for shard in self.manifest["shards"]:
+            with np.load(self.path / shard["file"], allow_pickle=False) as data:
+                done.update(int(i) for i in data["index"])
+        return done
+
+    def append(self, records: list[dict]) -> Path | None:
+        """Writes a shard of finished records and lists it in the manifest."""
+        if not records:
+            return None
+        number = len(self.manifest["shards"])
+        name = f"shard-{number:05d}.npz"
+        arrays = records_to_arrays(records)
+        _atomic_write(self.path / name, lambda tmp: np.savez_compressed(open(tmp, "wb"), **arrays))
+        self.manifest["shards"].append({
+            "file": name, "count": len(records),
+            "executed": int(np.count_nonzero(arrays["status"] == "executed")),
+            "errors": int(np.count_nonzero(arrays["status"] == "error")),
+        })
+        self._write_manifest()
+        return self.path / name
+
+    def _write_manifest(self) -> None:
+        text = json.dumps(self.manifest, indent=1)
+        _atomic_write(self.path / MANIFEST, lambda tmp: tmp.write_text(text))
+
+
+def read_manifest(path) -> dict:
+    path = Path(path)
+    file = path / MANIFEST
+    if not file.is_file():
+        raise bad_value("dataset", str(path), "no manifest.json: not a capability dataset")
+    try:
+        manifest = json.loads(file.read_text())
+    except json.JSONDecodeError as e:
+        raise bad_value("dataset", str(file), f"manifest is not JSON ({e})") from None
+    if manifest.get("format") != FORMAT:
+        raise bad_value("dataset.format", manifest.get("format"), f"expected {FORMAT}")
+    return manifest
+
+
+def check_same(manifest: dict, *, seed=None, settings=None, parts=None, where: str = "dataset") -> None:
+    """Raises ConfigError naming the first field where a dataset differs from what is asked."""
+    if seed is not None and manifest.get("seed") != seed:
+        raise ConfigError(f"{where}: seed = {manifest.get('seed')} in the dataset, {seed} asked: "
+                          "a folder holds one collection")
+    if settings is not None:
+        for key in sorted(set(settings) | set(manifest.get("settings", {}))):
+            if manifest.get("settings", {}).get(key) != settings.get(key):
+                raise ConfigError(f"{where}: settings.{key} = {manifest.get('settings', {}).get(key)!r} "
+                                  f"in the dataset, {settings.get(key)!r} now")
+    if parts is not None:
+        for key in sorted(set(parts) | set(manifest.get("fingerprints", {}))):
+            if manifest.get("fingerprints", {}).get(key) != parts.get(key):
+                raise ConfigError(
+                    f"{where}: fingerprints.{key} = {manifest.get('fingerprints', {}).get(key)} in the "
+                    f"dataset, {parts.get(key)} in this code: the labels describe another {key}")
+
+
+def records_to_arrays(records: list[dict]) -> dict[str, np.ndarray]:
+    from qz_drake.capability.trials import ARRAY_FIELDS, RECORD_FIELDS, TIME_FIELDS
+
+    out = {name: np.array([r[name] for r in records], dtype=dt) for name, dt in RECORD_FIELDS.items()}
+    for name, (shape, dt) in ARRAY_FIELDS.items():
+        out[name] = np.array([np.asarray(r[name]).reshape(shape) for r in records], dtype=dt)
+    for name in TIME_FIELDS:
+        out[name] = np.array([r[name] for r in records], dtype="f8")
+    return out
+
+
+def load_records(path) -> tuple[dict[str, np.ndarray], dict]:
+    """Every record of a dataset (executed and errors), sorted by trial index, and the
+    manifest. Raises ConfigError when an index appears twice (a corrupted folder)."""
+    path = Path(path)
+    manifest = read_manifest(path)
+    parts = []
+    for shard in manifest["shards"]:
+        file = path / shard["file"]
+        if not file.is_file():
+            raise bad_value("dataset", str(path), f"{shard['file']} is listed but missing")
+        with np.load(file, allow_pickle=False) as data:
+            parts.append({k: data[k] for k in data.files})
+    if not parts:
+        from qz_drake.capability.trials import ARRAY_FIELDS, RECORD_FIELDS, TIME_FIELDS
+        empty = {k: np.zeros(0, dtype=dt) for k, dt in RECORD_FIELDS.items()}
+        empty.update({k: np.zeros((0, *s), dtype=dt) for k, (s, dt) in ARRAY_FIELDS.items()})
+        empty.update({k: np.zeros(0) for k in TIME_FIELDS})
+        return empty, manifest
+    arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    order = np.argsort(arrays["index"], kind="stable")
+    arrays = {k: v[order] for k, v in arrays.items()}
+    duplicated = np.flatnonzero(np.diff(arrays["index"]) == 0)
+    if duplicated.size:
+        raise bad_value("dataset", str(path), f"trial {int(arrays['index'][duplicated[0]])} is stored twice")
+    return arrays, manifest
+
+
+def load_training_arrays(path) -> tuple[dict[str, np.ndarray], dict]:
+    """The executed trials of a dataset as the networks' arrays (errors excluded):
+    patch (N, 20, 20), feet (N, 6, 3), direction (N,), success, blc_success, scene,
+    scene_kind, topology, kind; and the manifest (with ``fingerprint`` and ``fingerprints``)."""
+    arrays, manifest = load_records(path)
+    keep = arrays["status"] == "executed"
+    names = ("patch", "feet", "direction", "success", "blc_success", "scene", "scene_kind",
+             "topology", "kind", "index", "reason", "difficulty")
+    return {k: arrays[k][keep] for k in names}, manifest
+
+
+def settings_dict(trial_config) -> dict:
+    return dataclasses.asdict(trial_config)

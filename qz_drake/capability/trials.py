@@ -1,0 +1,223 @@
+"""Capability trials (paper 000 II-E.1, III-B): one BLC mission executed by the robot in Drake.
+
+A trial is a pure function of a small spec: the collection's seed, the trial's index, and from
+them the scene, the heading, the start feet, the topology and the kind (``orthogonal``: 1 m
+forward to the next cell centre; ``diagonal``: 1.41 m forward; ``turn``: 45 deg in place, left
+or right). It builds the scene, stands the robot at the start cell's centre with its feet
+moved around the topology's nominal stance (the state a previous mission leaves), and walks
+the mission exactly as ``qz simulate`` walks a BLC scenario: TrajectoryOptimizationBLC ->
+InverseKinematicsTracker -> joint PD (Eq. 7) -> the station, judged by the strict verdict
+(qz_drake.verdict). The record holds the outcome and its reason, whether the BLC alone solved
+it, the solver's time and iterations, the final errors, and the network inputs of paper 000
+Fig. 4 (qz_drake.capability.patches).
+
+Indices: trial ``index`` = ((scene * headings_per_scene + h) * 6 + topology) * 3 + kind, so
+every (scene, heading, start feet) is tried in all six topologies and three kinds (paired
+samples: the topology is the only difference), and choosing a subset of topologies or kinds
+does not renumber the others.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+import traceback
+
+import numpy as np
+
+from qz_drake.capability.patches import (HEADING_STEP, KINDS, feet_in_heading_frame,
+                                         ground_reference, move_distance, sample_patches)
+from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+# Number of heading samples (paper 000: 72 = 360 / 5 per scene); a trial's heading is one of
+# them, drawn from its seed.
+HEADING_SAMPLES = 72
+
+
+@dataclasses.dataclass(frozen=True)
+class TrialConfig:
+    """How trials are run; part of the dataset's fingerprint. Each subsystem reads only its
+    part: the mission timing goes to the BLC system, the bounds to the verdict."""
+
+    # Heading samples per scene; each is tried in every topology and kind.
+    headings_per_scene: int = 1
+    # Largest move of a start foot from its nominal foothold, along x and y (inside the
+    # kinematic box's 0.12-0.15 m). [m]
+    foot_offset: float = 0.06
+    # Mission speed and tripod phase, as the walking scenarios' defaults. [m/s], [s]
+    speed: float = 0.25
+    phase_duration: float = 0.4
+    # Joint PD gains (paper 000 Eq. 7). [N*m/rad], [N*m*s/rad]
+    kp: float = 1500.0
+    kd: float = 30.0
+    # Simulated time after the mission's planned end before the verdict. [s]
+    settle_after: float = 0.5
+
+
+@dataclasses.dataclass(frozen=True)
+class TrialSpec:
+    """Everything a trial depends on (small: it travels to worker processes or Ray tasks)."""
+
+    seed: int
+    index: int
+    scene: int
+    heading_sample: int
+    topology: str
+    kind: str
+
+    @property
+    def trial_id(self) -> str:
+        return f"{self.seed}-{self.index}"
+
+
+def trial_index(scene: int, heading_sample: int, topology: str, kind: str,
+                headings_per_scene: int) -> int:
+    return ((scene * headings_per_scene + heading_sample) * len(TOPOLOGY_NAMES)
+            + TOPOLOGY_NAMES.index(topology)) * len(KINDS) + KINDS.index(kind)
+
+
+def trial_specs(seed: int, scenes: int, *, topologies=TOPOLOGY_NAMES, kinds=KINDS,
+                headings_per_scene: int = 1) -> list[TrialSpec]:
+    """The specs of a collection of ``scenes`` scenes, in index order."""
+    specs = []
+    for scene in range(scenes):
+        for h in range(headings_per_scene):
+            for topology in TOPOLOGY_NAMES:
+                if topology not in topologies:
+                    continue
+                for kind in KINDS:
+                    if kind in kinds:
+                        specs.append(TrialSpec(seed, trial_index(scene, h, topology, kind, headings_per_scene),
+                                               scene, h, topology, kind))
+    return specs
+
+
+def start_of(spec: TrialSpec, config: TrialConfig) -> tuple[float, np.ndarray, int]:
+    """(heading [rad], foot offsets (6, 2) [m], turn direction d) of a spec's (scene, heading
+    sample): shared by its six topologies and three kinds."""
+    rng = np.random.default_rng([spec.seed, spec.scene, spec.heading_sample, 0x7A1])
+    heading = float(rng.integers(0, HEADING_SAMPLES)) * 2 * math.pi / HEADING_SAMPLES
+    offsets = rng.uniform(-config.foot_offset, config.foot_offset, (6, 2))
+    return heading, offsets, int(rng.integers(0, 2))
+
+
+def mission_target(kind: str, heading: float, direction: int) -> tuple[float, float, float]:
+    """The mission's target (x, y, yaw) from the start (0, 0) facing ``heading``."""
+    if kind == "turn":
+        return 0.0, 0.0, heading + (HEADING_STEP if direction == 0 else -HEADING_STEP)
+    d = move_distance(kind)
+    return d * math.cos(heading), d * math.sin(heading), heading
+
+
+def trial_scenario(spec: TrialSpec, config: TrialConfig, criteria=None):
+    """The walking scenario of a trial (the scene's map is passed to the station apart)."""
+    from qz_drake.config import (ControllerConfig, RobotConfig, Scenario, SimulationConfig,
+                                 SuccessCriteria, TerrainConfig, Waypoint)
+
+    heading, offsets, direction = start_of(spec, config)
+    x, y, yaw = mission_target(spec.kind, heading, direction)
+    return Scenario(
+        name=f"trial_{spec.trial_id}",
+        description="capability trial",
+        terrain=TerrainConfig(kind="flat"),
+        robot=RobotConfig(topology=spec.topology, initial_xy=[0.0, 0.0], initial_yaw=heading,
+                          initial_foot_offsets=offsets.tolist()),
+        # A mission is at most 2 tripod cycles longer than distance / speed (blc_plan).
+        simulation=SimulationConfig(duration=move_distance(spec.kind) / config.speed + 4.0),
+        controller=ControllerConfig(kind="walk", planner="blc",
+                                    route=[Waypoint(x=x, y=y, yaw=yaw, topology=spec.topology)],
+                                    mission_length=2.0, speed=config.speed,
+                                    phase_duration=config.phase_duration, kp=config.kp, kd=config.kd),
+        success=criteria or SuccessCriteria(),
+    ), direction
+
+
+# Scalar fields of a record and their numpy dtypes, in the order shards store them.
+RECORD_FIELDS: dict[str, str] = {
+    "index": "i8", "scene": "i8", "heading_sample": "i8", "scene_kind": "U16", "difficulty": "f8",
+    "scene_seed": "i8", "topology": "U16", "kind": "U16", "heading": "f8", "direction": "i1",
+    "status": "U8", "success": "?", "reason": "U16", "message": "U200", "blc_success": "?",
+    "blc_reason": "U200", "blc_iterations": "i8", "final_xy_error_m": "f8",
+    "final_yaw_error_deg": "f8", "max_tilt_deg": "f8", "max_joint_error_deg": "f8",
+    "max_foot_slip_m": "f8", "max_leg_link_force_n": "f8", "sim_time_s": "f8", "error": "U400",
+}
+# Array fields: the network inputs (paper 000 Fig. 4) and the start foot offsets.
+ARRAY_FIELDS: dict[str, tuple[tuple[int, ...], str]] = {
+    "patch": ((20, 20), "f4"), "feet": ((6, 3), "f4"), "foot_offsets": ((6, 2), "f8"),
+}
+# Measured wall times: machine measurements, not trial outcomes (left out when two datasets
+# are compared array for array).
+TIME_FIELDS: tuple[str, ...] = ("time_build_s", "time_solve_s", "time_sim_s", "time_total_s")
+
+
+def _error_record(base: dict, message: str) -> dict:
+    base.update(status="error", success=False, reason="", message="", blc_success=False,
+                blc_reason="", error=message[-400:])
+    return base
+
+
+def run_trial(spec: TrialSpec, config: TrialConfig = TrialConfig(), criteria=None) -> dict:
+    """Runs one trial; returns its record (status "executed" or, when the trial could not be
+    run, "error" with the exception). Never raises for a failed mission: that is a label."""
+    from qz_drake.capability.scenes import scene_for
+
+    clock = time.perf_counter()
+    scene = scene_for(spec.seed, spec.scene)
+    heading, offsets, direction = start_of(spec, config)
+    record = {name: np.zeros((), dtype=dt).item() for name, dt in RECORD_FIELDS.items()}
+    record.update(index=spec.index, scene=spec.scene, heading_sample=spec.heading_sample,
+                  scene_kind=scene.kind, difficulty=scene.difficulty, scene_seed=scene.seed,
+                  topology=spec.topology, kind=spec.kind, heading=heading,
+                  direction=direction if spec.kind == "turn" else -1, error="",
+                  foot_offsets=offsets, patch=np.zeros((20, 20), np.float32),
+                  feet=np.zeros((6, 3), np.float32))
+    record.update({name: 0.0 for name in TIME_FIELDS})
+    hm = scene.heightmap
+    ground = float(ground_reference(hm, 0.0, 0.0))
+    record["patch"] = sample_patches(hm, 0.0, 0.0, heading, spec.kind, ground=ground)
+    try:
+        from qz_drake.robot.topology import get_topology
+        from qz_drake.simulation import feet_in_world, walk
+        from qz_drake.station import standing_state
+
+        scenario, _ = trial_scenario(spec, config, criteria)
+        params = scenario_params(scenario)
+        x0 = standing_state(hm, get_topology(spec.topology, params), (0.0, 0.0), heading, params,
+                            foot_offsets=offsets)
+        feet = feet_in_world(x0[None], params)[0]
+        record["feet"] = feet_in_heading_frame(feet, 0.0, 0.0, heading, ground)
+        result = walk(scenario, heightmap=hm)
+    except Exception as e:  # a crash of the trial, not a label: recorded and excluded
+        record["time_total_s"] = time.perf_counter() - clock
+        return _error_record(record, f"{type(e).__name__}: {e}\n{traceback.format_exc(limit=3)}")
+    m = result.metrics
+    total = time.perf_counter() - clock
+    blc_reasons = [r for r in m.get("reasons", []) if r.startswith("blc_")]
+    record.update(
+        status="executed", success=bool(m["success"]), reason=m["reasons"][0] if m.get("reasons") else "",
+        message=str(m.get("reason", ""))[:200], blc_success=m.get("blc_solves", 0) > 0 and not blc_reasons
+        and m.get("blc_failures", 0) == 0,
+        blc_reason=str(m.get("reason", ""))[:200] if blc_reasons else "",
+        blc_iterations=int(m.get("blc_iterations", 0)),
+        final_xy_error_m=float(m.get("final_xy_error_m", math.nan)),
+        final_yaw_error_deg=float(m.get("final_yaw_error_deg", math.nan)),
+        max_tilt_deg=float(m.get("max_tilt_deg", math.nan)),
+        max_joint_error_deg=float(m.get("max_joint_error_deg", math.nan)),
+        max_foot_slip_m=float(m.get("max_foot_slip_m", math.nan)),
+        max_leg_link_force_n=float(m.get("max_leg_link_force_n", math.nan)),
+        sim_time_s=float(m.get("sim_time_s", 0.0)),
+        time_solve_s=float(m.get("blc_solve_time_s", 0.0)),
+        time_sim_s=max(float(m.get("wall_time_s", 0.0)) - float(m.get("blc_solve_time_s", 0.0)), 0.0),
+        time_total_s=total,
+    )
+    record["time_build_s"] = max(total - float(m.get("wall_time_s", total)), 0.0)
+    return record
+
+
+def scenario_params(scenario):
+    import dataclasses as dc
+
+    from qz_drake.robot.params import DEFAULT_PARAMS
+
+    return dc.replace(DEFAULT_PARAMS, payload_mass=scenario.robot.payload_kg)
