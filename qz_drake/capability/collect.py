@@ -127,6 +127,23 @@ class LocalPool:
                 w["process"].kill()
 
 
+def check_ray_address(address: str, timeout: float = 5.0) -> None:
+    """Raises QzError naming --ray-address unless a Ray head answers at host:port ("auto" and
+    "ray://" client addresses are left to Ray). ray.init itself retries for minutes."""
+    import socket
+
+    if address == "auto" or address.startswith("ray://"):
+        return
+    host, sep, port = address.rpartition(":")
+    if not sep or not host or not port.isdigit():
+        raise bad_value("--ray-address", address, "expected HOST:PORT of a Ray head node")
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout):
+            pass
+    except OSError as e:
+        raise bad_value("--ray-address", address, f"no Ray cluster reachable ({e.strerror or e})") from None
+
+
 def _crashed(spec: TrialSpec, message: str, config: TrialConfig) -> dict:
     """The error record of a trial whose worker died every time."""
     from qz_drake.capability.scenes import scene_for
@@ -156,9 +173,11 @@ class RayPool:
         except ImportError:
             raise bad_value("--ray-address", address, "Ray is not installed (pip install 'qz_drake[cluster]')") from None
         self._ray = ray
+        # The fault-injection hook reaches the cluster's workers through the job's environment.
+        env = {CRASH_ENV: os.environ[CRASH_ENV]} if os.environ.get(CRASH_ENV) else {}
         try:
             ray.init(address=address, ignore_reinit_error=True, log_to_driver=False,
-                     include_dashboard=False)
+                     runtime_env={"env_vars": env} if env else None)
         except Exception as e:  # ConnectionError, ValueError, RuntimeError, depending on the address
             raise bad_value("--ray-address", address, f"no Ray cluster reachable ({type(e).__name__}: "
                                                        f"{str(e).splitlines()[0] if str(e) else ''})") from None
@@ -212,6 +231,8 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
             raise bad_value("--kinds", k, f"unknown kind (valid: {', '.join(KINDS)})")
     if workers < 1:
         raise bad_value("--workers", workers, "must be at least 1")
+    if ray_address:
+        check_ray_address(ray_address)
     clock = time.perf_counter()
     parts = fingerprints(config)
     store = TrialStore(out, seed=seed, settings=settings_dict(config), parts=parts, command=command)

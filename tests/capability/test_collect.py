@@ -1,0 +1,127 @@
+"""The capability collection: the same dataset from 1 or 2 local workers and from a Ray
+cluster, resumable, surviving a worker killed in the middle of a trial, refusing a stale
+manifest; the CLI's bad input."""
+
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from qz_drake.capability.collect import CRASH_ENV, collect
+from qz_drake.capability.dataset import load_records, load_training_arrays
+from qz_drake.capability.trials import TIME_FIELDS, trial_index
+from qz_drake.errors import ConfigError
+
+# Seed 0's scene 0 is a stairs scene; turns in two topologies are the cheapest trials.
+SMALL = dict(seed=0, scenes=1, topologies=("nominal", "front_bend"), kinds=("turn",), progress=False)
+QZ = [sys.executable, "-m", "qz_drake.cli"]
+
+
+def _same(a: Path, b: Path) -> None:
+    ra, _ = load_records(a)
+    rb, _ = load_records(b)
+    assert set(ra) == set(rb)
+    for key in ra:
+        if key in TIME_FIELDS:
+            continue
+        assert np.array_equal(ra[key], rb[key]), key
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cap") / "one_worker"
+    summary = collect(out, workers=1, **SMALL)
+    assert summary.ran == 2 and summary.errors == 0
+    return out
+
+
+def test_a_collection_records_labels_and_network_inputs(reference):
+    arrays, manifest = load_training_arrays(reference)
+    assert len(arrays["index"]) == 2
+    assert arrays["patch"].shape == (2, 20, 20) and arrays["feet"].shape == (2, 6, 3)
+    assert set(arrays["topology"]) == {"nominal", "front_bend"}
+    assert np.all(arrays["direction"] >= 0)  # turns carry their direction d
+    assert list(arrays["index"]) == sorted(trial_index(0, 0, t, "turn", 1) for t in ("nominal", "front_bend"))
+    assert set(manifest["fingerprints"]) == {"robot", "blc", "controller", "verdict", "scenes"}
+    # Every failure has a reason code, every success none.
+    records, _ = load_records(reference)
+    assert all((r == "") == s for r, s in zip(records["reason"], records["success"]))
+
+
+def test_two_workers_resume_and_a_killed_worker_give_the_same_dataset(reference, tmp_path):
+    collect(tmp_path / "two", workers=2, **SMALL)
+    _same(reference, tmp_path / "two")
+    first = collect(tmp_path / "resumed", workers=1, limit=1, **SMALL)
+    second = collect(tmp_path / "resumed", workers=1, **SMALL)
+    assert (first.ran, second.already_done, second.ran) == (1, 1, 1)
+    _same(reference, tmp_path / "resumed")
+    victim = trial_index(0, 0, "front_bend", "turn", 1)
+    os.environ[CRASH_ENV] = f"{victim}:{tmp_path / 'crashed_once'}"
+    try:
+        crashed = collect(tmp_path / "crash", workers=2, **SMALL)
+    finally:
+        del os.environ[CRASH_ENV]
+    assert (tmp_path / "crashed_once").exists() and crashed.retries == 1 and crashed.errors == 0
+    _same(reference, tmp_path / "crash")
+
+
+def test_a_stale_manifest_is_refused_naming_the_field(reference, tmp_path):
+    copy = tmp_path / "stale"
+    shutil.copytree(reference, copy)
+    manifest = json.loads((copy / "manifest.json").read_text())
+    manifest["fingerprints"]["blc"] = "0123456789abcdef"
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ConfigError, match="fingerprints.blc"):
+        collect(copy, workers=1, **SMALL)
+    with pytest.raises(ConfigError, match="seed"):
+        collect(reference, workers=1, **{**SMALL, "seed": 1})
+
+
+@pytest.mark.parametrize("args, field", [
+    (["--topologies", "sideways"], "--topologies"),
+    (["--kinds", "jump"], "--kinds"),
+    (["--scenes", "0"], "--scenes"),
+    (["--ray-address", "127.0.0.1:9"], "--ray-address"),
+])
+def test_bad_collect_input_is_one_line_exit_2(tmp_path, args, field):
+    run = subprocess.run(QZ + ["capability", "collect", "--out", str(tmp_path / "d"), "--scenes", "1"] + args,
+                         capture_output=True, text=True, timeout=180)
+    assert run.returncode == 2, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and field in lines[0], run.stderr
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.slow
+def test_a_local_ray_cluster_gives_the_same_dataset_and_survives_a_killed_worker(reference, tmp_path):
+    ray_bin = Path(sys.executable).with_name("ray")
+    port = _free_port()
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
+    subprocess.run([str(ray_bin), "start", "--head", "--node-ip-address=127.0.0.1", f"--port={port}",
+                    "--num-cpus=2", "--include-dashboard=false", "--disable-usage-stats"],
+                   check=True, capture_output=True, env=env, timeout=180)
+    address = f"127.0.0.1:{port}"
+    try:
+        collect(tmp_path / "ray", ray_address=address, **SMALL)
+        _same(reference, tmp_path / "ray")
+        victim = trial_index(0, 0, "nominal", "turn", 1)
+        os.environ[CRASH_ENV] = f"{victim}:{tmp_path / 'ray_crashed_once'}"
+        try:
+            collect(tmp_path / "ray_crash", ray_address=address, **SMALL)
+        finally:
+            del os.environ[CRASH_ENV]
+        assert (tmp_path / "ray_crashed_once").exists()
+        _same(reference, tmp_path / "ray_crash")
+    finally:
+        subprocess.run([str(ray_bin), "stop", "--force"], capture_output=True, env=env, timeout=120)
