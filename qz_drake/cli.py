@@ -115,7 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser("bench", help="run a benchmark suite (see benchmarks/)")
-    p.add_argument("suite", help="sim, blc, astar, costmap, or all")
+    p.add_argument("suite", help="a suite of qz_drake.bench.SUITES (sim, walk, blc, astar, costmap, svm, capability, ...) or all")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.add_argument("--repeats", type=int, default=None, help="runs per case (median reported)")
     p.add_argument("--quick", action="store_true", help="a small subset of the suite")

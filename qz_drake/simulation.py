@@ -105,6 +105,7 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
     station = builder.AddSystem(station_diagram)
     _standing_controller(builder, station, info, scenario)
     state_log, contact_log, trunk_log = _log_station(builder, station)
+    leg_log = LogVectorOutput(station.GetOutputPort("leg_link_force"), builder, 1.0 / LOG_RATE)
     diagram = builder.Build()
 
     simulator = Simulator(diagram)
@@ -123,7 +124,8 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
     states = state_log.FindLog(context).data().T
     contacts = contact_log.FindLog(context).data().T
     trunk = trunk_log.FindLog(context).data()[0]
-    metrics = standing_metrics(scenario, info, times, states, trunk)
+    metrics = standing_metrics(scenario, info, times, states, trunk,
+                               leg_link_force=leg_log.FindLog(context).data().T)
     metrics.update(sim_time_s=float(duration), wall_time_s=wall,
                    realtime_factor=float(duration / wall) if wall > 0 else float("inf"),
                    terrain_contact=info.contact_representation)
@@ -139,9 +141,9 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
                             trunk_contact=trunk, files=files)
 
 
-def standing_metrics(scenario: Scenario, info, times, states, trunk) -> dict:
-    """Success of a standing run: base height within tolerance of nominal, no trunk contact,
-    small tilt. The first 0.5 s (settling into the ground) is not judged for height."""
+def standing_metrics(scenario: Scenario, info, times, states, trunk, leg_link_force=None) -> dict:
+    """Success of a standing run: base height within tolerance of nominal, no trunk or leg-link
+    contact, small tilt. The first 0.5 s (settling into the ground) is not judged for height."""
     z0 = info.initial_state[BASE_POS][2]
     settled = times >= min(0.5, times[-1])
     height_error = np.abs(states[settled, 6] - z0)
@@ -151,9 +153,13 @@ def standing_metrics(scenario: Scenario, info, times, states, trunk) -> dict:
     max_height_error = float(height_error.max())
     trunk_contacts = int(np.count_nonzero(trunk > 0.5))
     fell = bool(tilts.max() > crit.max_tilt_deg)
-    success = (max_height_error <= crit.max_base_height_error and trunk_contacts == 0 and not fell)
+    legs = np.zeros((len(times), 6)) if leg_link_force is None else np.asarray(leg_link_force)
+    leg_contacts = int(np.count_nonzero((legs > crit.leg_contact_force).any(axis=1)))
+    success = (max_height_error <= crit.max_base_height_error and trunk_contacts == 0 and not fell
+               and leg_contacts == 0)
     reason = "" if success else (
         "fell" if fell else "trunk touched the terrain" if trunk_contacts else
+        "a leg link touched the terrain" if leg_contacts else
         f"base height error {max_height_error:.3f} m > {crit.max_base_height_error} m")
     return {
         "scenario": scenario.name,
@@ -167,6 +173,8 @@ def standing_metrics(scenario: Scenario, info, times, states, trunk) -> dict:
         "final_rpy_rad": base_rpy(states[-1]).tolist(),
         "xy_drift_m": float(xy_drift),
         "trunk_terrain_contacts": trunk_contacts,
+        "leg_terrain_contacts": leg_contacts,
+        "max_leg_link_force_n": float(legs.max()) if legs.size else 0.0,
     }
 
 
@@ -197,10 +205,12 @@ def _tripod_planner(heightmap, params, control):
 
 
 def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | Path | None = None,
-         max_duration: float | None = None, heightmap=None) -> SimulationResult:
+         max_duration: float | None = None, heightmap=None, stop_on_failure: bool = False) -> SimulationResult:
     """Walks a scenario's route: missions planned from the measured state, IK + joint PD.
 
-    ``heightmap`` replaces the map of the scenario's terrain section (see make_station)."""
+    ``heightmap`` replaces the map of the scenario's terrain section (see make_station). With
+    ``stop_on_failure`` the run ends as soon as a contact or tracking check of the verdict has
+    failed (capability trials: the rest of the walk cannot change the label)."""
     from qz_drake.systems.mission_sequencer import split_route
 
     out = Path(out_dir) if out_dir is not None else None
@@ -241,11 +251,22 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     context = simulator.get_context()
     station_context = station.GetMyContextFromRoot(context)
     fell = False
+    stopped = False
+    crit = scenario.success
     while context.get_time() < limit:
         simulator.AdvanceTo(min(limit, context.get_time() + 0.5))
         x = station.GetOutputPort("state").Eval(station_context)
         if tilt_deg(x) > _FALL_TILT_DEG:
             fell = True
+            break
+        if stop_on_failure and (
+                np.any(trunk_log.FindLog(context).data() > 0.5)
+                or np.any(leg_log.FindLog(context).data() > crit.leg_contact_force)
+                or np.any(self_log.FindLog(context).data() > crit.leg_contact_force)
+                or np.degrees(np.max(np.abs(state_log.FindLog(context).data()[JOINT_Q]
+                                            - desired_log.FindLog(context).data()[:18]), initial=0.0))
+                > crit.max_joint_error_deg):
+            stopped = True
             break
         last = missions.log.plans[-1]
         if missions.done and context.get_time() >= last.end_time + 0.5:
@@ -260,7 +281,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     desired = desired_log.FindLog(context).data().T
     links = (leg_log.FindLog(context).data().T, self_log.FindLog(context).data()[0])
     metrics = walking_metrics(scenario, info, missions.log, targets, times, states, contacts, trunk, desired,
-                              fell=fell, timed_out=not missions.done or context.get_time() >= limit,
+                              fell=fell, timed_out=not stopped and (not missions.done or context.get_time() >= limit),
                               leg_link_force=links[0], self_force=links[1])
     sim_time = float(context.get_time())
     counts = missions.counts()

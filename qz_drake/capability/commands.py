@@ -77,15 +77,26 @@ def dataset_stats(path) -> dict:
                          if ex.any() else None})
     scene_rows = []
     for scene_kind in sorted(set(arrays["scene_kind"].tolist())):
-        ex = executed & (arrays["scene_kind"] == scene_kind)
-        scene_rows.append({"scene_kind": scene_kind, "executed": int(ex.sum()),
-                           "success_rate": float(arrays["success"][ex].mean()) if ex.any() else None})
+        for low, high, name in ((0.0, 1 / 3, "easy"), (1 / 3, 2 / 3, "medium"), (2 / 3, 1.01, "hard")):
+            ex = executed & (arrays["scene_kind"] == scene_kind) & (arrays["difficulty"] >= low) \
+                & (arrays["difficulty"] < high)
+            if ex.any():
+                scene_rows.append({"scene_kind": scene_kind, "difficulty": name, "executed": int(ex.sum()),
+                                   "success_rate": float(arrays["success"][ex].mean())})
+    kind_rows = []
+    for kind in sorted(set(arrays["kind"].tolist())):
+        ex = executed & (arrays["kind"] == kind)
+        if ex.any():
+            b, s = arrays["blc_success"][ex], arrays["success"][ex]
+            kind_rows.append({"kind": kind, "executed": int(ex.sum()),
+                              "blc_solved_but_robot_failed": float(np.mean(b & ~s)),
+                              "disagreement": float(np.mean(b != s))})
     reasons = {}
     for r in arrays["reason"][executed & ~arrays["success"]].tolist():
         reasons[r] = reasons.get(r, 0) + 1
     return {"dataset": str(path), "trials": int(len(arrays["index"])), "executed": int(executed.sum()),
             "errors": int((~executed).sum()), "successes": int(arrays["success"][executed].sum()),
-            "rows": rows, "scene_kinds": scene_rows, "failure_reasons": reasons,
+            "rows": rows, "scene_kinds": scene_rows, "kinds": kind_rows, "failure_reasons": reasons,
             "seed": manifest.get("seed"), "fingerprint": manifest.get("fingerprint"),
             "fingerprints": manifest.get("fingerprints")}
 

@@ -30,6 +30,8 @@ from qz_drake.capability.patches import (HEADING_STEP, KINDS, feet_in_heading_fr
                                          ground_reference, move_distance, sample_patches)
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 
+# Terrain simulated around the start and the target. [m]
+TRIAL_REGION_MARGIN = 1.6
 # Number of heading samples (paper 000: 72 = 360 / 5 per scene); a trial's heading is one of
 # them, drawn from its seed.
 HEADING_SAMPLES = 72
@@ -117,10 +119,14 @@ def trial_scenario(spec: TrialSpec, config: TrialConfig, criteria=None):
 
     heading, offsets, direction = start_of(spec, config)
     x, y, yaw = mission_target(spec.kind, heading, direction)
+    # Simulate the ground the robot can reach on the way (its feet stay within about 1 m of
+    # the base), not the whole scene: contact geometry costs grow with the area.
+    r = TRIAL_REGION_MARGIN
+    region = [min(0.0, x) - r, max(0.0, x) + r, min(0.0, y) - r, max(0.0, y) + r]
     return Scenario(
         name=f"trial_{spec.trial_id}",
         description="capability trial",
-        terrain=TerrainConfig(kind="flat"),
+        terrain=TerrainConfig(kind="flat", region=region),
         robot=RobotConfig(topology=spec.topology, initial_xy=[0.0, 0.0], initial_yaw=heading,
                           initial_foot_offsets=offsets.tolist()),
         # A mission is at most 2 tripod cycles longer than distance / speed (blc_plan).
@@ -187,7 +193,7 @@ def run_trial(spec: TrialSpec, config: TrialConfig = TrialConfig(), criteria=Non
                             foot_offsets=offsets)
         feet = feet_in_world(x0[None], params)[0]
         record["feet"] = feet_in_heading_frame(feet, 0.0, 0.0, heading, ground)
-        result = walk(scenario, heightmap=hm)
+        result = walk(scenario, heightmap=hm, stop_on_failure=True)
     except Exception as e:  # a crash of the trial, not a label: recorded and excluded
         record["time_total_s"] = time.perf_counter() - clock
         return _error_record(record, f"{type(e).__name__}: {e}\n{traceback.format_exc(limit=3)}")
