@@ -205,12 +205,14 @@ def _tripod_planner(heightmap, params, control):
 
 
 def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | Path | None = None,
-         max_duration: float | None = None, heightmap=None, stop_on_failure: bool = False) -> SimulationResult:
+         max_duration: float | None = None, heightmap=None, stop_on_failure: bool = False,
+         blc_params=None) -> SimulationResult:
     """Walks a scenario's route: missions planned from the measured state, IK + joint PD.
 
     ``heightmap`` replaces the map of the scenario's terrain section (see make_station). With
     ``stop_on_failure`` the run ends as soon as a contact or tracking check of the verdict has
-    failed (capability trials: the rest of the walk cannot change the label)."""
+    failed (capability trials: the rest of the walk cannot change the label). ``blc_params``
+    are the BLC's BlcParameters (None: the defaults)."""
     from qz_drake.systems.mission_sequencer import split_route
 
     out = Path(out_dir) if out_dir is not None else None
@@ -228,7 +230,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     # Wall time counts from the first mission's planning, so the real-time factor includes it.
     wall_start = time.perf_counter()
     if control.planner == "blc":
-        missions = _BlcMissions(builder, station, info, targets, control)
+        missions = _BlcMissions(builder, station, info, targets, control, blc_params)
     else:
         missions = _PlannerMissions(builder, station, info, targets, control, scenario.robot.initial_yaw)
         if missions.first_failure:
@@ -268,8 +270,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
                 > crit.max_joint_error_deg):
             stopped = True
             break
-        last = missions.log.plans[-1]
-        if missions.done and context.get_time() >= last.end_time + 0.5:
+        if missions.done and missions.log.plans and \
+                context.get_time() >= missions.log.plans[-1].end_time + 0.5:
             break
     wall = time.perf_counter() - wall_start
     if meshcat is not None:
@@ -331,14 +333,15 @@ class _PlannerMissions:
         return self.sequencer.done
 
     def counts(self) -> dict:
-        return {"blc_solves": 0, "blc_failures": 0, "blc_solve_time_s": 0.0, "blc_iterations": 0}
+        return {"blc_solves": 0, "blc_failures": 0, "blc_solve_time_s": 0.0, "blc_iterations": 0,
+                "topology_changes": 0}
 
 
 class _BlcMissions:
     """Missions solved by the TrajectoryOptimizationBLC system in the diagram: a
     MissionTargetSequencer hands it each local target once the previous plan has ended."""
 
-    def __init__(self, builder, station, info, targets, control):
+    def __init__(self, builder, station, info, targets, control, blc_params=None):
         from pydrake.common.value import AbstractValue
         from pydrake.systems.primitives import ConstantValueSource
 
@@ -347,7 +350,7 @@ class _BlcMissions:
 
         self.blc = builder.AddSystem(TrajectoryOptimizationBLC(
             params=info.params, timing=MissionTiming(control.speed, control.phase_duration),
-            settle_time=_SETTLE_TIME))
+            settle_time=_SETTLE_TIME, blc_params=blc_params, initial_topology=info.topology.name))
         self.blc.set_name("blc")
         self.targets = builder.AddSystem(MissionTargetSequencer(targets=targets,
                                                                plan_ahead=control.plan_ahead))
@@ -380,7 +383,8 @@ class _BlcMissions:
         log = self.blc.log
         return {"blc_solves": len(log.solves), "blc_failures": len(log.failures),
                 "blc_solve_time_s": log.solve_time_s,
-                "blc_iterations": int(sum(s[6] for s in log.solves))}
+                "blc_iterations": int(sum(s[6] for s in log.solves)),
+                "topology_changes": len(log.switches)}
 
 
 def _unplanned(scenario, out, missions) -> SimulationResult:

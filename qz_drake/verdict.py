@@ -53,10 +53,11 @@ class Verdict:
 
 
 def blc_failure_code(reason: str) -> str:
-    """blc_time_limit when the solver's reason names its time limit, else blc_infeasible."""
+    """blc_time_limit when the solver ran out of its budget (time or iterations, see
+    qz_drake.capability.trials.TrialConfig), else blc_infeasible."""
     text = reason.lower()
     return "blc_time_limit" if ("time limit" in text or "wall time exceeded" in text
-                                or "cpu time exceeded" in text) else "blc_infeasible"
+                                or "cpu time exceeded" in text or "iteration" in text) else "blc_infeasible"
 
 
 def foot_slip(times: np.ndarray, feet_W: np.ndarray, contacts: np.ndarray) -> np.ndarray:

@@ -39,6 +39,11 @@ def _maybe_crash(spec: TrialSpec) -> None:
 
 def execute(spec: TrialSpec, config: TrialConfig) -> dict:
     """What a worker runs: the trial, behind the fault-injection hook."""
+    import logging
+
+    # Ipopt's "maximum iteration limit" warning is the trials' budget doing its job; the
+    # record says so (reason blc_time_limit).
+    logging.getLogger("drake").setLevel(logging.ERROR)
     _maybe_crash(spec)
     return run_trial(spec, config)
 
@@ -58,7 +63,10 @@ class CollectionSummary:
 
 def _worker_main(conn, config):
     while True:
-        spec = conn.recv()
+        try:
+            spec = conn.recv()
+        except EOFError:  # the driver is gone
+            return
         if spec is None:
             return
         conn.send(execute(spec, config))
@@ -256,6 +264,7 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
             buffer.clear()
 
     pool = None
+    previous = _raise_on_sigterm()
     try:
         if todo:
             pool = RayPool(ray_address, config, max_retries) if ray_address else \
@@ -267,9 +276,32 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
         monitor.close()
         if pool is not None:
             pool.close()
+        _restore_sigterm(previous)
     return CollectionSummary(out=str(out), planned=len(specs), already_done=len(done), ran=counts["ran"],
                              errors=counts["errors"], retries=pool.retries if pool else 0,
                              wall_time_s=time.perf_counter() - clock)
+
+
+def _raise_on_sigterm():
+    """A SIGTERM (a session or job ending) interrupts the collection like Ctrl-C, so that the
+    finished records are written before the process ends."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    return signal.signal(signal.SIGTERM, interrupt)
+
+
+def _restore_sigterm(previous) -> None:
+    import signal
+
+    if previous is not None:
+        signal.signal(signal.SIGTERM, previous)
 
 
 class _Progress:

@@ -44,6 +44,8 @@ class BlcLog:
     Ipopt iterations)."""
 
     solves: list = dataclasses.field(default_factory=list)
+    # Topology switches made before a mission: (start time, from, to).
+    switches: list = dataclasses.field(default_factory=list)
 
     @property
     def failures(self) -> list:
@@ -94,10 +96,15 @@ class TrajectoryOptimizationBLC(LeafSystem):
         check_period: how often the inputs are compared with the last mission. [s]
         settle_time: the plan solved at initialization starts this much later (the robot
             settles onto the ground first; later plans start when they are solved). [s]
+        initial_topology: the topology the robot stands in at the start (None: the first
+            mission's). A mission in another topology than the robot's is preceded by a
+            TopologySwitchPlan (qz_drake.systems.topology_switch) from the standing robot;
+            the BLC then solves the mission from the switch's expected end.
     """
 
     def __init__(self, *, params=DEFAULT_PARAMS, timing: MissionTiming | None = None, blc_params=None,
-                 check_period: float = 0.05, settle_time: float = 0.0):
+                 check_period: float = 0.05, settle_time: float = 0.0,
+                 initial_topology: str | None = None):
         super().__init__()
         if not check_period > 0:
             raise bad_value("check_period", check_period, "must be positive", ConfigError)
@@ -118,6 +125,8 @@ class TrajectoryOptimizationBLC(LeafSystem):
         # A plan solved ahead, waiting for the current one to end (None: none).
         self._next = self.DeclareAbstractState(AbstractValue.Make(None))
         self._solution = self.DeclareAbstractState(AbstractValue.Make(None))
+        # The topology the robot is in (or will be in when the current plan ends).
+        self._robot_topology = self.DeclareAbstractState(AbstractValue.Make(initial_topology))
         # Outputs depend on the state alone (no direct feedthrough: the loop through the
         # station and the route sequencer is not algebraic).
         state_only = {self.all_state_ticket()}
@@ -173,12 +182,38 @@ class TrajectoryOptimizationBLC(LeafSystem):
             raise bad_value("target", list(target), "must be finite", ConfigError)
         t = context.get_time()
         ahead = current is not None and t < current.end_time
+        robot_topology = context.get_abstract_state(self._robot_topology).get_value() or topology
+        if topology != robot_topology and ahead:
+            # A switch starts from a standing robot: ask again once the current plan ended.
+            state.get_mutable_abstract_state(self._mission).set_value(None)
+            return
         if ahead:
             start = expected_end(current)
         else:
             start = measured_start(self._state.Eval(context), t, self._params)
             start.time = t + delay
-        planner = self._planner(self._heightmap.Eval(context))
+        heightmap = self._heightmap.Eval(context)
+        state.get_mutable_abstract_state(self._robot_topology).set_value(topology)
+        if topology != robot_topology:
+            from qz_drake.robot.topology import get_topology
+            from qz_drake.systems.topology_switch import TopologySwitchPlan
+
+            try:
+                switch = TopologySwitchPlan(heightmap=heightmap, start=start,
+                                            from_topology=get_topology(robot_topology, self._params),
+                                            to_topology=get_topology(topology, self._params),
+                                            start_time=start.time, params=self._params)
+            except ConfigError as e:
+                state.get_mutable_abstract_state(self._robot_topology).set_value(robot_topology)
+                self.log.solves.append((start.time, target, topology, False, 0.0,
+                                        f"topology switch {robot_topology} -> {topology}: {e}", 0))
+                return
+            self.log.switches.append((start.time, robot_topology, topology))
+            state.get_mutable_abstract_state(self._plan).set_value(switch)
+            state.get_mutable_abstract_state(self._next).set_value(None)
+            current, ahead = switch, True
+            start = expected_end(switch)
+        planner = self._planner(heightmap)
         plan, reason = planner(start, target, topology, start.time)
         solution = planner.last_solution
         self.log.solves.append((start.time, target, topology, plan is not None, solution.solve_time,

@@ -160,17 +160,30 @@ class InverseKinematicsTracker(LeafSystem):
             output.SetFromVector(context.get_discrete_state(self._held).get_value()[start:stop])
         return calc
 
+    def _reference(self, plan, t: float) -> np.ndarray:
+        # A plan may carry its own topology (missions can change it), per leg and time while
+        # the robot switches topology (topology_at), and joint-space references for legs it
+        # moves in joint space (joint_override, NaN elsewhere); else the tracker's topology.
+        tc = float(np.clip(t, plan.start_time, plan.end_time))
+        if hasattr(plan, "topology_at"):
+            topology = plan.topology_at(tc)
+        else:
+            topology = getattr(plan, "topology", None) or self._topology
+        q, _ = joint_reference(plan, t, topology, self._params, cache=self._touchdown_cache)
+        if hasattr(plan, "joint_override"):
+            override = plan.joint_override(tc)
+            q = np.where(np.isnan(override), q, override)
+        return q
+
     def _update(self, context, discrete_state):
         plan: BodyFeetTrajectory = self._trajectory.Eval(context)
         if plan is None:  # no plan yet (a planner still failing): keep the held references
             return
         t = context.get_time()
-        # A plan may carry its own topology (missions can change it); else the tracker's.
-        topology = getattr(plan, "topology", None) or self._topology
         if len(self._touchdown_cache) > 64:
             self._touchdown_cache.clear()
-        q0, _ = joint_reference(plan, t, topology, self._params, cache=self._touchdown_cache)
-        q1, _ = joint_reference(plan, t + self._dt, topology, self._params, cache=self._touchdown_cache)
+        q0 = self._reference(plan, t)
+        q1 = self._reference(plan, t + self._dt)
         v = (q1 - q0) / self._dt if t + self._dt <= plan.end_time else np.zeros(NUM_JOINTS)
         tc = float(np.clip(t, plan.start_time, plan.end_time))
         contact = plan.contact(tc)

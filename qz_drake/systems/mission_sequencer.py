@@ -196,7 +196,8 @@ class MissionTargetSequencer(LeafSystem):
 
     def _update(self, context, state):
         plan = self._plan.Eval(context)
-        if plan is None:
+        # Plans that are not missions (a topology switch before one) are not counted.
+        if plan is None or not getattr(plan, "is_mission", True):
             return
         if not self.log.plans or self.log.plans[-1] is not plan:
             self.log.plans.append(plan)

@@ -1,0 +1,78 @@
+"""Topology switching on the robot (paper 000 Fig. 8): tripod by tripod, knees flipped through
+high joint-space waypoints, the body standing still; then the BLC plans in the new topology."""
+
+import numpy as np
+import pytest
+
+from qz_drake.config import ControllerConfig, Scenario, SimulationConfig, Waypoint
+from qz_drake.errors import ConfigError
+from qz_drake.robot import kinematics
+from qz_drake.robot.params import DEFAULT_PARAMS
+from qz_drake.robot.topology import get_topology
+from qz_drake.simulation import simulate
+from qz_drake.station import standing_state
+from qz_drake.systems.mission_sequencer import measured_start
+from qz_drake.systems.topology_switch import TopologySwitchPlan
+from qz_drake.terrain import flat, step
+
+
+def _plan(to: str, heightmap=None, start_from: str = "nominal"):
+    heightmap = heightmap or flat()
+    x0 = standing_state(heightmap, get_topology(start_from), (0.0, 0.0), 0.0)
+    return TopologySwitchPlan(heightmap=heightmap, start=measured_start(x0, 0.0, DEFAULT_PARAMS),
+                              from_topology=get_topology(start_from), to_topology=get_topology(to),
+                              start_time=1.0), x0
+
+
+def test_a_knee_flip_moves_one_tripod_at_a_time_in_joint_space_and_lands_on_the_new_footholds():
+    plan, x0 = _plan("front_bend")
+    # front_bend flips MF, RF, LF: MF in tripod A first, then RF and LF in tripod B.
+    assert plan.start_time == 1.0 and plan.end_time > plan.start_time + 3.0
+    times = np.linspace(plan.start_time, plan.end_time, 300)
+    contacts = np.array([plan.contact(t) for t in times])
+    assert contacts.sum(axis=1).min() >= 3  # never fewer than three feet down
+    assert np.all(contacts[:, [2, 3, 4]])  # the hind legs never move
+    moving = np.array([~np.isnan(plan.joint_override(t).reshape(6, 3)[:, 0]) for t in times])
+    assert moving[:, 0].any() and moving[:, 1].any() and moving[:, 5].any()
+    assert not (moving[:, 0] & moving[:, 1]).any()  # MF (A) and RF (B) never together
+    end = plan.foot_positions(plan.end_time)
+    topology = get_topology("front_bend")
+    np.testing.assert_allclose(end[:, :2], topology.footholds_B[:, :2], atol=1e-9)
+    assert plan.topology_at(plan.end_time).bends == topology.bends
+    assert plan.topology_at(plan.start_time).bends == get_topology("nominal").bends
+    # Every moving foot stays above the ground between lift-off and touch-down.
+    feet = np.array([plan.foot_positions(t) for t in times])
+    assert feet[:, :, 2].min() >= DEFAULT_PARAMS.foot_radius - 1e-9
+
+
+def test_a_foothold_change_alone_keeps_every_knee_bent_out():
+    plan, _ = _plan("split_up")
+    times = np.linspace(plan.start_time, plan.end_time, 200)
+    moved = 0
+    for t in times:
+        q = plan.joint_override(t).reshape(6, 3)
+        for leg in np.flatnonzero(~np.isnan(q[:, 0])):
+            m = kinematics.urdf_to_motor(q[leg])
+            assert m[1] < m[2]  # thigh above the shank: bent out, never through straight
+            moved += 1
+    assert moved > 0 and not plan.is_mission
+
+
+def test_a_switch_whose_new_foothold_is_out_of_reach_is_refused():
+    wall = step(height=0.6, start_x=0.8)  # MF's split_up foothold (x = 0.83 m) is on a 0.6 m wall
+    with pytest.raises(ConfigError, match="topology switch leg 0"):
+        _plan("split_up", heightmap=wall)
+
+
+@pytest.mark.slow
+def test_the_robot_switches_through_three_topologies_standing_and_the_blc_plans_in_each():
+    scenario = Scenario(name="switch", simulation=SimulationConfig(duration=40.0),
+                        controller=ControllerConfig(kind="walk", planner="blc", route=[
+                            Waypoint(x=0.6, topology="front_bend"), Waypoint(x=1.2, topology="split_up"),
+                            Waypoint(x=1.8, topology="nominal")]))
+    result = simulate(scenario)
+    m = result.metrics
+    assert m["success"], m
+    assert m["topology_changes"] == 3 and m["missions"] == 3 and m["blc_failures"] == 0
+    assert m["max_leg_link_force_n"] == 0.0 and m["max_tilt_deg"] < 3.0
+    assert np.ptp(result.states[:, 6]) < 0.05  # the base height stays within 5 cm
