@@ -185,7 +185,7 @@ _MIN_MISSION_DURATION = 1.2
 # A tilt beyond this ends the run as a fall. [deg]
 _FALL_TILT_DEG = 60.0
 # Standing time before the first mission starts: the robot settles onto the ground. [s]
-_SETTLE_TIME = 0.5
+SETTLE_TIME = 0.5
 
 
 def _tripod_planner(heightmap, params, control):
@@ -314,8 +314,8 @@ class _PlannerMissions:
         x0 = info.initial_state
         feet0 = all_foot_positions(x0[7:25], info.params) + x0[4:7]
         # The first mission starts after 0.5 s of standing (the robot settles on the ground).
-        first, reason = self.planner(MissionStart(_SETTLE_TIME, (x0[4], x0[5], initial_yaw), feet0, float(x0[6])),
-                                     targets[0][:3], targets[0][3], _SETTLE_TIME)
+        first, reason = self.planner(MissionStart(SETTLE_TIME, (x0[4], x0[5], initial_yaw), feet0, float(x0[6])),
+                                     targets[0][:3], targets[0][3], SETTLE_TIME)
         self.first_failure = "" if first is not None else reason
         if first is None:
             return
@@ -350,7 +350,7 @@ class _BlcMissions:
 
         self.blc = builder.AddSystem(TrajectoryOptimizationBLC(
             params=info.params, timing=MissionTiming(control.speed, control.phase_duration),
-            settle_time=_SETTLE_TIME, blc_params=blc_params, initial_topology=info.topology.name))
+            settle_time=SETTLE_TIME, blc_params=blc_params, initial_topology=info.topology.name))
         self.blc.set_name("blc")
         self.targets = builder.AddSystem(MissionTargetSequencer(targets=targets,
                                                                plan_ahead=control.plan_ahead))

@@ -148,7 +148,11 @@ def judge_walk(criteria, *, goal_xy_yaw, times, states, desired_q, feet_W, conta
     if timed_out:
         fail("missed_target", "ran out of simulated time")
     reasons = [c for c in REASON_CODES if c in codes]
+    touching = (np.asarray(trunk).reshape(-1) > 0.5) | (leg_samples.any(axis=1) if leg_force.size else False) \
+        | (self_force > criteria.leg_contact_force)
     measures = {
+        # When the trunk or a leg link first touched anything (None: never). [s]
+        "first_body_contact_s": float(times[np.argmax(touching)]) if np.any(touching) else None,
         "final_xy_error_m": final_xy_error,
         "final_yaw_error_deg": final_yaw_error,
         "max_tilt_deg": max_tilt,

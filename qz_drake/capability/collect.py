@@ -57,11 +57,12 @@ class CollectionSummary:
     already_done: int
     ran: int
     errors: int
+    invalid_starts: int
     retries: int
     wall_time_s: float
 
 
-def _worker_main(conn, config):
+def _worker_main(conn, config, function):
     while True:
         try:
             spec = conn.recv()
@@ -69,22 +70,30 @@ def _worker_main(conn, config):
             return
         if spec is None:
             return
-        conn.send(execute(spec, config))
+        conn.send(function(spec, config))
 
 
 class LocalPool:
-    """Worker processes (spawned: Drake is not fork-safe) fed one trial at a time."""
+    """Worker processes (spawned: Drake is not fork-safe) fed one spec at a time.
 
-    def __init__(self, workers: int, config: TrialConfig, max_retries: int):
+    ``function(spec, config) -> record`` is what each worker runs (a module-level function);
+    ``crashed(spec, message, config) -> record`` makes the record of a spec whose worker died
+    more than ``max_retries`` times.
+    """
+
+    def __init__(self, workers: int, config, max_retries: int, function=None, crashed=None):
         self._ctx = mp.get_context("spawn")
         self._config = config
+        self._function = function or execute
+        self._crashed = crashed or _crashed
         self._max_retries = max_retries
         self._workers = [self._start() for _ in range(workers)]
         self.retries = 0
 
     def _start(self):
         parent, child = self._ctx.Pipe()
-        process = self._ctx.Process(target=_worker_main, args=(child, self._config), daemon=True)
+        process = self._ctx.Process(target=_worker_main, args=(child, self._config, self._function),
+                                    daemon=True)
         process.start()
         child.close()
         return {"process": process, "conn": parent, "spec": None, "attempt": 0}
@@ -120,8 +129,8 @@ class LocalPool:
                         self.retries += 1
                         queue.append((spec, attempt + 1))
                     else:
-                        on_record(_crashed(spec, f"worker died (exit code {code}) "
-                                                 f"{attempt + 1} times", self._config))
+                        on_record(self._crashed(spec, f"worker died (exit code {code}) "
+                                                      f"{attempt + 1} times", self._config))
 
     def close(self) -> None:
         for w in self._workers:
@@ -173,9 +182,10 @@ def _crashed(spec: TrialSpec, message: str, config: TrialConfig) -> dict:
 
 
 class RayPool:
-    """The same trials as Ray tasks on an existing cluster (``ray.init(address=...)``)."""
+    """The same specs as Ray tasks on an existing cluster (``ray.init(address=...)``)."""
 
-    def __init__(self, address: str, config: TrialConfig, max_retries: int, window: int | None = None):
+    def __init__(self, address: str, config, max_retries: int, window: int | None = None,
+                 function=None, crashed=None):
         try:
             import ray
         except ImportError:
@@ -190,7 +200,8 @@ class RayPool:
             raise bad_value("--ray-address", address, f"no Ray cluster reachable ({type(e).__name__}: "
                                                        f"{str(e).splitlines()[0] if str(e) else ''})") from None
         self._config = config
-        self._remote = ray.remote(max_retries=max_retries, num_cpus=1)(execute)
+        self._crashed = crashed or _crashed
+        self._remote = ray.remote(max_retries=max_retries, num_cpus=1)(function or execute)
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self._window = window or max(2 * cpus, 2)
         self.retries = 0
@@ -210,7 +221,7 @@ class RayPool:
                 try:
                     on_record(ray.get(ref))
                 except Exception as e:  # the task's worker died more than max_retries times
-                    on_record(_crashed(spec, f"{type(e).__name__}: {str(e).splitlines()[0]}", self._config))
+                    on_record(self._crashed(spec, f"{type(e).__name__}: {str(e).splitlines()[0]}", self._config))
 
     def close(self) -> None:
         self._ray.shutdown()
@@ -251,13 +262,14 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
     if limit is not None:
         todo = todo[:limit]
     buffer: list[dict] = []
-    counts = {"ran": 0, "errors": 0}
+    counts = {"ran": 0, "errors": 0, "invalid": 0}
     monitor = _Progress(len(todo), enabled=progress)
 
     def on_record(record):
         buffer.append(record)
         counts["ran"] += 1
         counts["errors"] += record["status"] == "error"
+        counts["invalid"] += record["status"] == "invalid"
         monitor.update(record)
         if len(buffer) >= shard_size:
             store.append(buffer)
@@ -278,7 +290,8 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
             pool.close()
         _restore_sigterm(previous)
     return CollectionSummary(out=str(out), planned=len(specs), already_done=len(done), ran=counts["ran"],
-                             errors=counts["errors"], retries=pool.retries if pool else 0,
+                             errors=counts["errors"], invalid_starts=counts["invalid"],
+                             retries=pool.retries if pool else 0,
                              wall_time_s=time.perf_counter() - clock)
 
 

@@ -71,7 +71,8 @@ def dataset_stats(path) -> dict:
             blc = ex & arrays["blc_success"]
             rows.append({"topology": topology, "kind": kind, "executed": int(ex.sum()),
                          "successes": int(ok.sum()), "blc_successes": int(blc.sum()),
-                         "errors": int((sel & ~executed).sum()),
+                         "errors": int((sel & (arrays["status"] == "error")).sum()),
+                         "invalid_starts": int((sel & (arrays["status"] == "invalid")).sum()),
                          "success_rate": float(ok.sum() / ex.sum()) if ex.any() else None,
                          "blc_disagreement": float(np.mean(arrays["blc_success"][ex] != arrays["success"][ex]))
                          if ex.any() else None})
@@ -95,7 +96,9 @@ def dataset_stats(path) -> dict:
     for r in arrays["reason"][executed & ~arrays["success"]].tolist():
         reasons[r] = reasons.get(r, 0) + 1
     return {"dataset": str(path), "trials": int(len(arrays["index"])), "executed": int(executed.sum()),
-            "errors": int((~executed).sum()), "successes": int(arrays["success"][executed].sum()),
+            "errors": int((arrays["status"] == "error").sum()),
+            "invalid_starts": int((arrays["status"] == "invalid").sum()),
+            "successes": int(arrays["success"][executed].sum()),
             "rows": rows, "scene_kinds": scene_rows, "kinds": kind_rows, "failure_reasons": reasons,
             "seed": manifest.get("seed"), "fingerprint": manifest.get("fingerprint"),
             "fingerprints": manifest.get("fingerprints")}
@@ -106,8 +109,8 @@ def run_stats(args) -> int:
     if args.json:
         print(json.dumps(stats))
         return 0
-    print(f"{stats['dataset']}: {stats['executed']} executed, {stats['errors']} errors, "
-          f"{stats['successes']} successes")
+    print(f"{stats['dataset']}: {stats['executed']} executed, {stats['invalid_starts']} invalid starts, "
+          f"{stats['errors']} errors, {stats['successes']} successes")
     for row in stats["rows"]:
         rate = "-" if row["success_rate"] is None else f"{100 * row['success_rate']:.0f} %"
         print(f"  {row['topology']:>13} {row['kind']:>10}: {row['successes']}/{row['executed']} ({rate}), "

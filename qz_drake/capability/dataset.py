@@ -138,6 +138,7 @@ class TrialStore:
             "file": name, "count": len(records),
             "executed": int(np.count_nonzero(arrays["status"] == "executed")),
             "errors": int(np.count_nonzero(arrays["status"] == "error")),
+            "invalid": int(np.count_nonzero(arrays["status"] == "invalid")),
         })
         self._write_manifest()
         return self.path / name

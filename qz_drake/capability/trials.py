@@ -166,15 +166,17 @@ ARRAY_FIELDS: dict[str, tuple[tuple[int, ...], str]] = {
 TIME_FIELDS: tuple[str, ...] = ("time_build_s", "time_solve_s", "time_sim_s", "time_total_s")
 
 
-def _error_record(base: dict, message: str) -> dict:
-    base.update(status="error", success=False, reason="", message="", blc_success=False,
+def _error_record(base: dict, message: str, status: str = "error") -> dict:
+    base.update(status=status, success=False, reason="", message="", blc_success=False,
                 blc_reason="", error=message[-400:])
     return base
 
 
 def run_trial(spec: TrialSpec, config: TrialConfig = TrialConfig(), criteria=None) -> dict:
-    """Runs one trial; returns its record (status "executed" or, when the trial could not be
-    run, "error" with the exception). Never raises for a failed mission: that is a label."""
+    """Runs one trial; returns its record: status "executed" (a label), "invalid" (the robot
+    cannot stand at the start in this topology: no foot IK, or a leg link or the trunk already
+    on the terrain) or "error" (the trial crashed; the exception is kept). Never raises for a
+    failed mission: that is a label."""
     from qz_drake.capability.scenes import scene_for
 
     clock = time.perf_counter()
@@ -193,7 +195,7 @@ def run_trial(spec: TrialSpec, config: TrialConfig = TrialConfig(), criteria=Non
     record["patch"] = sample_patches(hm, 0.0, 0.0, heading, spec.kind, ground=ground)
     try:
         from qz_drake.robot.topology import get_topology
-        from qz_drake.simulation import feet_in_world, walk
+        from qz_drake.simulation import SETTLE_TIME, feet_in_world, walk
         from qz_drake.station import standing_state
 
         scenario, _ = trial_scenario(spec, config, criteria)
@@ -203,7 +205,7 @@ def run_trial(spec: TrialSpec, config: TrialConfig = TrialConfig(), criteria=Non
                                 foot_offsets=offsets)
         except QzError as e:  # the topology cannot stand here: no mission to label
             record["time_total_s"] = time.perf_counter() - clock
-            return _error_record(record, f"start not standable: {e}")
+            return _error_record(record, f"start not standable: {e}", status="invalid")
         feet = feet_in_world(x0[None], params)[0]
         record["feet"] = feet_in_heading_frame(feet, 0.0, 0.0, heading, ground)
         result = walk(scenario, heightmap=hm, stop_on_failure=True, blc_params=trial_blc_parameters(config))
@@ -212,6 +214,12 @@ def run_trial(spec: TrialSpec, config: TrialConfig = TrialConfig(), criteria=Non
         return _error_record(record, f"{type(e).__name__}: {e}\n{traceback.format_exc(limit=3)}")
     m = result.metrics
     total = time.perf_counter() - clock
+    first_contact = m.get("first_body_contact_s")
+    if first_contact is not None and first_contact < SETTLE_TIME:
+        # Touching before the mission began: the start itself is invalid (a previous mission
+        # that ended like this would have failed), not a label of this mission.
+        record["time_total_s"] = total
+        return _error_record(record, f"start not standable: {m.get('reason', '')}", status="invalid")
     blc_reasons = [r for r in m.get("reasons", []) if r.startswith("blc_")]
     record.update(
         status="executed", success=bool(m["success"]), reason=m["reasons"][0] if m.get("reasons") else "",

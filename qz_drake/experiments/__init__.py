@@ -1,0 +1,1 @@
+"""Long runs that compare planners (paper 000 III-B, Fig. 9)."""

@@ -1,0 +1,213 @@
+"""The comparison of paper 000 Fig. 9: top-level controllers on the same BLC, executed in Drake.
+
+"They share the same BLC of CapPlanner, but different TLC." A task is walked by its planner's
+route (``PLANNERS``), in BLC missions of at most 1 m, tracked by IK and joint PD, judged by the
+strict verdict, within a simulated-time budget; the record holds success, reason, walked path
+length, straight-line distance, displacement ratio (walked / straight), missions, replans,
+topology changes and wall time. Results are appended to ``results.jsonl`` as tasks finish (one
+writer: the driver), so a run resumes where it stopped and never runs a task twice.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from qz_drake.errors import bad_value
+from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS, TASKS_PER_CELL, make_task
+
+RESULTS = "results.jsonl"
+
+
+@dataclasses.dataclass(frozen=True)
+class ExperimentConfig:
+    """Settings shared by every task of a run (part of each record)."""
+
+    # Mission length, speed and tripod phase of the BLC missions. [m], [m/s], [s]
+    mission_length: float = 1.0
+    speed: float = 0.25
+    phase_duration: float = 0.4
+    # Simulated-time budget: this many times the straight-line walking time, plus a margin. [-], [s]
+    time_factor: float = 2.5
+    time_margin: float = 20.0
+    # The BLC's budget per mission (as the capability trials: deterministic). [iterations], [s]
+    blc_max_iterations: int = 30
+    blc_time_limit: float = 30.0
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskSpec:
+    terrain: str
+    difficulty: str
+    seed: int
+    planner: str
+
+    @property
+    def key(self) -> str:
+        return f"{self.terrain}-{self.difficulty}-{self.seed}-{self.planner}"
+
+
+def _astar(task, config):
+    from qz_drake.experiments.astar_baseline import AStarBaselineConfig, astar_route
+
+    return astar_route(task.heightmap, task.start, task.goal,
+                       AStarBaselineConfig(waypoint_spacing=config.mission_length))
+
+
+# Top-level controllers: name -> route function (task, config) -> Route.
+PLANNERS = {"astar": _astar}
+
+
+def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> dict:
+    """Plans and walks one task; returns its record (never raises for a failed walk)."""
+    from qz_drake.config import (ControllerConfig, RobotConfig, Scenario, SimulationConfig,
+                                 TerrainConfig, Waypoint)
+    from qz_drake.simulation import walk
+    from qz_drake.trajopt.parameters import BlcParameters
+
+    clock = time.perf_counter()
+    task = make_task(spec.terrain, spec.difficulty, spec.seed)
+    record = {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,
+              "planner": spec.planner, "straight_m": task.distance, "success": False, "reason": "",
+              "message": "", "walked_m": 0.0, "displacement_ratio": None, "missions": 0, "replans": 0,
+              "topology_changes": 0, "planning_time_s": 0.0, "wall_time_s": 0.0, "error": ""}
+    try:
+        route = PLANNERS[spec.planner](task, config)
+        record["planning_time_s"] = route.planning_time_s
+        if not route.found:
+            record.update(reason="planner", message=route.reason)
+            return record
+        points = np.array([task.start] + [w[:2] for w in route.waypoints])
+        r = 2.0
+        region = [float(points[:, 0].min() - r), float(points[:, 0].max() + r),
+                  float(points[:, 1].min() - r), float(points[:, 1].max() + r)]
+        budget = config.time_factor * task.distance / config.speed + config.time_margin
+        scenario = Scenario(
+            name=spec.key, terrain=TerrainConfig(kind="flat", region=region),
+            robot=RobotConfig(initial_xy=list(task.start), initial_yaw=task.start_yaw),
+            simulation=SimulationConfig(duration=budget),
+            controller=ControllerConfig(kind="walk", planner="blc", mission_length=config.mission_length,
+                                        speed=config.speed, phase_duration=config.phase_duration,
+                                        route=[Waypoint(x=x, y=y, yaw=a, topology=t)
+                                               for x, y, a, t in route.waypoints]))
+        result = walk(scenario, heightmap=task.heightmap, stop_on_failure=True,
+                      blc_params=BlcParameters(max_iterations=config.blc_max_iterations,
+                                               time_limit=config.blc_time_limit))
+        m = result.metrics
+        walked = float(np.sum(np.linalg.norm(np.diff(result.states[:, 4:6], axis=0), axis=1))) \
+            if len(result.states) > 1 else 0.0
+        record.update(success=bool(m["success"]), reason=(m.get("reasons") or [""])[0],
+                      message=str(m.get("reason", ""))[:300], walked_m=walked,
+                      displacement_ratio=walked / task.distance if m["success"] else None,
+                      missions=int(m.get("missions", 0)), topology_changes=int(m.get("topology_changes", 0)))
+    except Exception as e:  # a crash of the run, not an outcome: recorded as an error
+        import traceback
+
+        record.update(reason="error", error=f"{type(e).__name__}: {e}\n{traceback.format_exc(limit=3)}"[-600:])
+    finally:
+        record["wall_time_s"] = time.perf_counter() - clock
+    return record
+
+
+def _crashed(spec: TaskSpec, message: str, config) -> dict:
+    return {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,
+            "planner": spec.planner, "success": False, "reason": "error", "error": message}
+
+
+def read_results(out) -> list[dict]:
+    path = Path(out) / RESULTS
+    if not path.is_file():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def summarise(records: list[dict]) -> list[dict]:
+    """Per terrain, difficulty and planner: tasks, successes, success rate and the mean
+    displacement ratio of the successful tasks (errors are counted apart, not as tasks)."""
+    rows = []
+    for terrain in TERRAINS:
+        for difficulty in DIFFICULTIES:
+            for planner in sorted({r["planner"] for r in records}):
+                cell = [r for r in records if (r["terrain"], r["difficulty"], r["planner"]) == (terrain, difficulty, planner)]
+                done = [r for r in cell if r["reason"] != "error"]
+                if not cell:
+                    continue
+                ok = [r for r in done if r["success"]]
+                rows.append({"terrain": terrain, "difficulty": difficulty, "planner": planner,
+                             "tasks": len(done), "successes": len(ok), "errors": len(cell) - len(done),
+                             "success_rate": len(ok) / len(done) if done else None,
+                             "displacement_ratio": float(np.mean([r["displacement_ratio"] for r in ok])) if ok else None})
+    return rows
+
+
+def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficulties=DIFFICULTIES,
+                   tasks: int = TASKS_PER_CELL, workers: int = 1, ray_address: str | None = None,
+                   config: ExperimentConfig = ExperimentConfig(), progress: bool = True) -> dict:
+    """Runs (or resumes) the comparison into ``out``; returns the summary."""
+    from qz_drake.capability.collect import LocalPool, RayPool, check_ray_address
+
+    for p in planners:
+        if p not in PLANNERS:
+            raise bad_value("--planners", p, f"expected one of {', '.join(PLANNERS)}")
+    if isinstance(tasks, bool) or tasks < 1:
+        raise bad_value("--tasks", tasks, "must be a positive whole number")
+    if workers < 1:
+        raise bad_value("--workers", workers, "must be at least 1")
+    for t in terrains:
+        make_task(t, difficulties[0] if difficulties else "simple", 0)
+    for d in difficulties:
+        make_task(terrains[0] if terrains else "stairs", d, 0)
+    if ray_address:
+        check_ray_address(ray_address)
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise bad_value("--out", str(out), "is a file, not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    settings = out / "settings.json"
+    mine = dataclasses.asdict(config)
+    if settings.is_file() and json.loads(settings.read_text()) != mine:
+        raise bad_value("--out", str(out), "holds results of other experiment settings")
+    settings.write_text(json.dumps(mine, indent=1))
+    done = {r["key"] for r in read_results(out) if r.get("reason") != "error"}
+    specs = [TaskSpec(t, d, s, p) for t in terrains for d in difficulties for s in range(tasks) for p in planners]
+    todo = [s for s in specs if s.key not in done]
+    clock = time.perf_counter()
+    from rich.progress import Progress
+
+    with Progress(disable=not progress) as bar, (out / RESULTS).open("a") as sink:
+        job = bar.add_task("tasks", total=len(todo))
+
+        def on_record(record):
+            sink.write(json.dumps(record) + "\n")
+            sink.flush()
+            bar.advance(job)
+
+        if todo:
+            pool = RayPool(ray_address, config, 1, function=run_task, crashed=_crashed) if ray_address else \
+                LocalPool(min(workers, len(todo)), config, 1, function=run_task, crashed=_crashed)
+            try:
+                pool.run(todo, on_record)
+            finally:
+                pool.close()
+    records = [r for r in read_results(out) if r["key"] in {s.key for s in specs}]
+    rows = summarise(records)
+    (out / "results.json").write_text(json.dumps({"rows": rows, "records": records}, indent=1))
+    _write_csv(out / "results.csv", records)
+    return {"rows": rows, "ran": len(todo), "already_done": len(specs) - len(todo),
+            "wall_time_s": time.perf_counter() - clock, "out": str(out)}
+
+
+def _write_csv(path: Path, records: list[dict]) -> None:
+    import csv
+
+    fields = ["key", "terrain", "difficulty", "seed", "planner", "success", "reason", "straight_m", "walked_m",
+              "displacement_ratio", "missions", "replans", "topology_changes", "planning_time_s", "wall_time_s"]
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+        writer.writeheader()
+        for r in records:
+            writer.writerow(r)

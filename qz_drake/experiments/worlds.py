@@ -1,0 +1,143 @@
+"""Worlds and tasks of the planner comparison (paper 000 III-B, Fig. 9).
+
+"Terrains with stairs, obstacles and both are created in simulation, and the complexity are
+distinguished by simple, medium and hard, which have corresponding stair width, height and
+obstacle density. Then, we give Qingzhui 20 locomotion tasks in these terrains."
+
+Each task has its own seeded world: WORLD_SIZE_X x WORLD_SIZE_Y metres centred on the origin,
+flat outside a feature band |x| < BAND_HALF_WIDTH, the start west of the band and the goal east
+of it, 8-15 m apart, so every route meets the features. The parameters per difficulty:
+
+======  ====================================  ==========================================
+level   stairs: rise [m] / hill width [m]      obstacles: heights [m] / share of the band
+======  ====================================  ==========================================
+simple  0.06 / 2-4 (easy to walk around)       0.05-0.15 / 5 %
+medium  0.12 / 4-7                             0.05-0.30 / 12 %
+hard    0.18 / 7-10 (spans most of the world)  0.10-0.45 / 20 %
+======  ====================================  ==========================================
+
+A stairs hill is a flight of two steps up (runs of 0.4 m), a 1 m landing and two steps down,
+across the band at a seeded lateral position; "both" puts one hill and half the obstacles.
+Task seeds 0-19 are the experiment's; planners are tuned on seeds from TUNING_SEED_START on,
+never on the tasks they are scored on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from qz_drake.errors import bad_value
+from qz_drake.terrain.heightmap import HeightMap
+
+TERRAINS: tuple[str, ...] = ("stairs", "obstacles", "both")
+DIFFICULTIES: tuple[str, ...] = ("simple", "medium", "hard")
+TASKS_PER_CELL = 20
+TUNING_SEED_START = 1000
+WORLD_SIZE_X = 18.0
+WORLD_SIZE_Y = 10.0
+BAND_HALF_WIDTH = 3.0
+RESOLUTION = 0.05
+
+_STAIRS = {"simple": (0.06, (2.0, 4.0)), "medium": (0.12, (4.0, 7.0)), "hard": (0.18, (7.0, 10.0))}
+_OBSTACLES = {"simple": ((0.05, 0.15), 0.05), "medium": ((0.05, 0.30), 0.12), "hard": ((0.10, 0.45), 0.20)}
+_RUN = 0.4
+_STEPS = 2
+_LANDING = 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Task:
+    """One locomotion task: a world and a start and goal on it."""
+
+    terrain: str
+    difficulty: str
+    seed: int
+    start: tuple[float, float]
+    start_yaw: float
+    goal: tuple[float, float]
+    heightmap: HeightMap
+
+    @property
+    def distance(self) -> float:
+        return math.hypot(self.goal[0] - self.start[0], self.goal[1] - self.start[1])
+
+    @property
+    def task_id(self) -> str:
+        return f"{self.terrain}-{self.difficulty}-{self.seed}"
+
+
+def _grid():
+    nx, ny = int(round(WORLD_SIZE_X / RESOLUTION)), int(round(WORLD_SIZE_Y / RESOLUTION))
+    origin = (-WORLD_SIZE_X / 2 + RESOLUTION / 2, -WORLD_SIZE_Y / 2 + RESOLUTION / 2)
+    x = origin[0] + RESOLUTION * np.arange(nx)
+    y = origin[1] + RESOLUTION * np.arange(ny)
+    gx, gy = np.meshgrid(x, y)
+    return gx, gy, origin
+
+
+def _snap(v: float) -> float:
+    return round(v / RESOLUTION) * RESOLUTION
+
+
+def _stairs_hill(heights, gx, gy, rng, rise: float, width_range) -> None:
+    width = rng.uniform(*width_range)
+    cy = rng.uniform(-WORLD_SIZE_Y / 2 + width / 2, WORLD_SIZE_Y / 2 - width / 2) \
+        if width < WORLD_SIZE_Y else 0.0
+    length = 2 * _STEPS * _RUN + _LANDING
+    x0 = _snap(rng.uniform(-BAND_HALF_WIDTH, BAND_HALF_WIDTH - length))
+    lateral = (gy >= _snap(cy - width / 2)) & (gy < _snap(cy + width / 2))
+    level = np.zeros_like(heights)
+    for k in range(_STEPS):
+        level += (gx >= x0 + k * _RUN) & (gx < x0 + length - k * _RUN)
+    heights[:] = np.maximum(heights, np.where(lateral, rise * level, 0.0))
+
+
+def _obstacles(heights, gx, gy, rng, height_range, share: float) -> None:
+    band = 2 * BAND_HALF_WIDTH * WORLD_SIZE_Y
+    covered = 0.0
+    for _ in range(2000):
+        if covered >= share * band:
+            break
+        sx, sy = rng.uniform(0.3, 1.0, 2)
+        cx = rng.uniform(-BAND_HALF_WIDTH + sx / 2, BAND_HALF_WIDTH - sx / 2)
+        cy = rng.uniform(-WORLD_SIZE_Y / 2 + sy / 2, WORLD_SIZE_Y / 2 - sy / 2)
+        mask = (gx >= _snap(cx - sx / 2)) & (gx < _snap(cx + sx / 2)) & \
+               (gy >= _snap(cy - sy / 2)) & (gy < _snap(cy + sy / 2))
+        heights[mask] = np.maximum(heights[mask], rng.uniform(*height_range))
+        covered += sx * sy
+
+
+def make_task(terrain: str, difficulty: str, seed: int) -> Task:
+    """The task (and its world) of a terrain, a difficulty and a seed."""
+    if terrain not in TERRAINS:
+        raise bad_value("--terrains", terrain, f"expected one of {', '.join(TERRAINS)}")
+    if difficulty not in DIFFICULTIES:
+        raise bad_value("--difficulties", difficulty, f"expected one of {', '.join(DIFFICULTIES)}")
+    rng = np.random.default_rng([TERRAINS.index(terrain), DIFFICULTIES.index(difficulty), int(seed), 0xF19])
+    gx, gy, origin = _grid()
+    heights = np.zeros(gx.shape)
+    rise, widths = _STAIRS[difficulty]
+    height_range, share = _OBSTACLES[difficulty]
+    if terrain in ("stairs", "both"):
+        for _ in range(2 if terrain == "stairs" else 1):
+            _stairs_hill(heights, gx, gy, rng, rise, widths)
+    if terrain in ("obstacles", "both"):
+        _obstacles(heights, gx, gy, rng, height_range, share if terrain == "obstacles" else share / 2)
+    while True:  # start and goal 8-15 m apart, on flat ground outside the band
+        start = (float(rng.uniform(-7.5, -4.0)), float(rng.uniform(-3.0, 3.0)))
+        goal = (float(rng.uniform(4.0, 7.5)), float(rng.uniform(-3.0, 3.0)))
+        if 8.0 <= math.hypot(goal[0] - start[0], goal[1] - start[1]) <= 15.0:
+            break
+    yaw = math.atan2(goal[1] - start[1], goal[0] - start[0])
+    return Task(terrain=terrain, difficulty=difficulty, seed=int(seed), start=start, start_yaw=yaw,
+                goal=goal, heightmap=HeightMap(heights, RESOLUTION, origin))
+
+
+def experiment_tasks(terrains=TERRAINS, difficulties=DIFFICULTIES, tasks: int = TASKS_PER_CELL,
+                     first_seed: int = 0) -> list[Task]:
+    """The tasks of the comparison (seeds first_seed .. first_seed + tasks - 1 per cell)."""
+    return [make_task(t, d, s) for t in terrains for d in difficulties
+            for s in range(first_seed, first_seed + tasks)]
