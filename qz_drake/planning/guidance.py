@@ -1,0 +1,111 @@
+"""From the TLC's guidance path to BLC missions (paper 000 II-E.2, III-B).
+
+"The TLC split the guidance trajectory to many local targets suitable for the ability of
+BLC-robot system." The most likely path of the capability MDP is a list of grid actions
+(forward one cell, turn 45 deg, each in a topology). Consecutive actions are merged into one
+BLC mission while
+
+* the mission stays within the BLC's reach (``max_length`` of translation, ``max_turn`` of
+  heading change),
+* its predicted success (the product of its actions') stays at least ``min_success``, and
+* its actions share one topology: a topology change starts a mission of its own (the BLC
+  system then switches the robot's topology before solving it).
+
+A mission's target is the cell centre its last action ends in, with the heading it ends in.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from qz_drake.capability.patches import CELL_SIZE, HEADING_STEP
+from qz_drake.errors import bad_value
+
+# Cell step of a forward move along heading k (k * 45 deg).
+_STEPS = ((1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1))
+
+
+@dataclasses.dataclass(frozen=True)
+class MissionSplitConfig:
+    # The BLC's reach in one mission (paper 000 Fig. 5: solve time and failures grow with the
+    # distance; 2 m is where the stairs cases start to exceed the 5 s limit). [m]
+    max_length: float = 2.0
+    # Largest heading change in one mission. [rad]
+    max_turn: float = math.pi / 2
+    # Least predicted success of a merged mission: below it the moves go one mission each, so
+    # that a risky move is planned (and fails) alone.
+    min_success: float = 0.8
+
+    def check(self) -> "MissionSplitConfig":
+        if not self.max_length >= CELL_SIZE * math.sqrt(2):
+            raise bad_value("missions.max_length", self.max_length, "must cover a diagonal move (1.42 m)")
+        if not self.max_turn >= HEADING_STEP:
+            raise bad_value("missions.max_turn", self.max_turn, "must allow one 45 deg turn")
+        if not 0.0 <= self.min_success <= 1.0:
+            raise bad_value("missions.min_success", self.min_success, "must be within [0, 1]")
+        return self
+
+
+@dataclasses.dataclass
+class GuidedMission:
+    """One BLC mission of the guidance: its target, topology and the actions it covers."""
+
+    target: tuple[float, float, float]
+    topology: str
+    steps: list
+    success: float
+
+    @property
+    def length(self) -> float:
+        return sum(CELL_SIZE * math.hypot(*_STEPS[s.heading]) for s in self.steps if s.motion == "forward")
+
+
+def _after(step) -> tuple[float, float, int]:
+    """(x, y, heading index) after a path step."""
+    if step.motion == "forward":
+        dx, dy = _STEPS[step.heading % 8]
+        return step.x + dx * CELL_SIZE, step.y + dy * CELL_SIZE, step.heading
+    turn = 1 if step.motion == "turn_left" else -1
+    return step.x, step.y, (step.heading + turn) % 8
+
+
+def split_missions(steps, config: MissionSplitConfig = MissionSplitConfig(),
+                   start_yaw: float | None = None) -> list[GuidedMission]:
+    """Merges a most likely path's steps (qz_drake.planning.capability_mdp.PathStep) into
+    BLC missions; yaws are unwrapped from ``start_yaw`` (default: the first step's heading)."""
+    config = config.check()
+    missions: list[GuidedMission] = []
+    current: list = []
+    success, turned, length = 1.0, 0.0, 0.0
+
+    def close():
+        if current:
+            x, y, k = _after(current[-1])
+            missions.append(GuidedMission((x, y, k * HEADING_STEP), current[0].action_topology,
+                                          list(current), success))
+
+    for step in steps:
+        move = CELL_SIZE * math.hypot(*_STEPS[step.heading % 8]) if step.motion == "forward" else 0.0
+        turn = 0.0 if step.motion == "forward" else HEADING_STEP
+        fits = (current and step.action_topology == current[0].action_topology
+                and length + move <= config.max_length + 1e-9 and turned + turn <= config.max_turn + 1e-9
+                and success * step.success >= config.min_success)
+        if not fits:
+            close()
+            current, success, turned, length = [], 1.0, 0.0, 0.0
+        current.append(step)
+        success *= step.success
+        turned += turn
+        length += move
+    close()
+    # Unwrap the headings along the missions, so that each target's yaw is the previous one's
+    # plus the turns in between (no 2 pi jumps for the BLC).
+    previous = start_yaw if start_yaw is not None else (steps[0].heading * HEADING_STEP if steps else None)
+    for m in missions:
+        x, y, yaw = m.target
+        if previous is not None:
+            yaw = previous + math.remainder(yaw - previous, 2 * math.pi)
+        m.target = (x, y, yaw)
+        previous = yaw
+    return missions

@@ -1,0 +1,202 @@
+"""``CapabilityVIPlanner``: the top-level controller of paper 000 (TLC, section II-E.2) as a
+Drake system.
+
+At initialization it evaluates the learned capability model over the whole heightmap in one
+batch (the success of every forward move and turn from every cell and heading, in every
+topology), builds the capability MDP for the goal and solves it by value iteration (Eq. 9-10).
+From the robot's cell, heading and topology it follows the policy's most likely path and splits
+it into BLC missions (qz_drake.planning.guidance). It hands the missions' local targets and
+topologies to TrajectoryOptimizationBLC one after the other, on the same ports as the fixed
+route's MissionTargetSequencer, and at every mission start replans from the *expected end* of
+the current mission (paper 000: "the next BLC mission is given by TLC according to current
+robot position and expected end position of current BLC mission"). When no path reaches the
+goal with a predicted success of at least ``min_route_success``, it says so (``unreachable``)
+instead of walking into an obstacle.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem
+
+from qz_drake.capability.patches import HEADING_STEP
+from qz_drake.planning.guidance import MissionSplitConfig, split_missions
+from qz_drake.systems.mission_sequencer import MissionLog
+from qz_drake.systems.state_layout import STATE_SIZE, base_rpy
+
+
+@dataclasses.dataclass
+class CapabilityPlannerLog(MissionLog):
+    """The missions handed out (MissionLog's fields) and the planner's own record."""
+
+    # (time, start (x, y, heading index, topology), missions planned, predicted success).
+    replans: list = dataclasses.field(default_factory=list)
+    planning_time_s: float = 0.0
+    value_iterations: int = 0
+    unreachable: str = ""
+
+
+class CapabilityVIPlanner(LeafSystem):
+    """Plans missions over the learned capability of the BLC-robot system (paper 000 TLC).
+
+    .. pydrake_system::
+
+        name: CapabilityVIPlanner
+        input_ports:
+        - state
+        - plan
+        output_ports:
+        - target
+        - topology
+        - guidance
+        - utility
+
+    ``state`` is the station state, ``plan`` the BLC system's current
+    plan (to see a mission end); ``target`` (x, y, yaw) and ``topology`` feed
+    TrajectoryOptimizationBLC; ``guidance`` is the current list of GuidedMissions and
+    ``utility`` the (ny, nx) utility map with its cell centres (xs, ys), for drawing.
+
+    Args:
+        model: a CapabilityModel (anything with its ``success``).
+        heightmap: the map planned over.
+        goal: goal (x, y). [m]
+        start: the robot's start (x, y, yaw): the first plan is made here, so that the BLC
+            system's first solve (at initialization) already has its target. [m, rad]
+        initial_topology: the topology the robot stands in.
+        mdp_config: CapabilityMdpConfig (rewards, discount, topologies).
+        split_config: MissionSplitConfig (the BLC's reach, the merge threshold).
+        min_route_success: least predicted success of the whole path to call the goal
+            reachable.
+        plan_ahead: hand out the next mission this long before the current plan ends. [s]
+        check_period: how often the plan is looked at. [s]
+    """
+
+    def __init__(self, *, model, heightmap, goal, start, initial_topology: str = "nominal", mdp_config=None,
+                 split_config: MissionSplitConfig = MissionSplitConfig(), min_route_success: float = 0.05,
+                 plan_ahead: float = 0.0, check_period: float = 0.05):
+        super().__init__()
+        from qz_drake.capability.model import predict_map
+        from qz_drake.planning.capability_mdp import CapabilityMdpConfig, build_capability_mdp
+        from qz_drake.planning.value_iteration import value_iteration
+
+        self.log = CapabilityPlannerLog()
+        self._last_handed = False
+        self._split = split_config
+        self._min_success = float(min_route_success)
+        self._plan_ahead = float(plan_ahead)
+        self._topology0 = initial_topology
+        clock = time.perf_counter()
+        config = (mdp_config or CapabilityMdpConfig()).check()
+        self.capability_map = predict_map(model, heightmap, config.topologies or None, cell_size=config.cell_size)
+        self.mdp = build_capability_mdp(self.capability_map, goal, config)
+        self.solution = value_iteration(self.mdp.P, self.mdp.R, config.discount, epsilon=config.epsilon,
+                                        max_iter=config.max_iter)
+        self.log.planning_time_s = time.perf_counter() - clock
+        self.log.value_iterations = int(self.solution.iterations)
+        self._goal = tuple(float(v) for v in goal)
+        self._state = self.DeclareVectorInputPort("state", STATE_SIZE)
+        self._plan = self.DeclareAbstractInputPort("plan", AbstractValue.Make(None))
+        # (missions, index of the current one); the missions of the latest replan.
+        first = self._replan(0.0, float(start[0]), float(start[1]), float(start[2]), initial_topology)
+        self._record(first, 0, 0.0)
+        self._missions = self.DeclareAbstractState(AbstractValue.Make((first, 0)))
+        state_only = {self.all_state_ticket()}
+        self.DeclareVectorOutputPort("target", 3, self._calc_target, prerequisites_of_calc=state_only)
+        self.DeclareAbstractOutputPort("topology", lambda: AbstractValue.Make("nominal"), self._calc_topology,
+                                       prerequisites_of_calc=state_only)
+        self.DeclareAbstractOutputPort("guidance", lambda: AbstractValue.Make([]), self._calc_guidance,
+                                       prerequisites_of_calc=state_only)
+        self.DeclareAbstractOutputPort("utility", lambda: AbstractValue.Make(None), self._calc_utility,
+                                       prerequisites_of_calc=set())
+        self.DeclarePeriodicUnrestrictedUpdateEvent(check_period, 0.0, self._update)
+
+    # -- planning ------------------------------------------------------------------------------
+    def _replan(self, t: float, x: float, y: float, yaw: float, topology: str) -> list:
+        from qz_drake.planning.capability_mdp import most_likely_path
+
+        clock = time.perf_counter()
+        ix, iy = self.mdp.cell_of(x, y, field="start")
+        k = int(round(yaw / HEADING_STEP)) % 8
+        start = self.mdp.state(ix, iy, k, topology)
+        steps, reaches, probability = most_likely_path(self.mdp, self.solution, start)
+        missions = split_missions(steps, self._split, start_yaw=yaw) if reaches else []
+        self.log.replans.append((t, (x, y, k, topology), len(missions), probability))
+        self.log.planning_time_s += time.perf_counter() - clock
+        if not reaches or probability < self._min_success:
+            self.log.unreachable = (f"no path reaches the goal {list(self._goal)}" if not reaches else
+                                    f"the best path's predicted success {probability:.3f} < {self._min_success:g}")
+            return []
+        return missions
+
+    def _record(self, missions, index, t) -> None:
+        if index < len(missions):
+            m = missions[index]
+            self.log.targets.append((*m.target, m.topology))
+            self.log.topologies.append(m.topology)
+            self.log.start_times.append(t)
+
+    @property
+    def done(self) -> bool:
+        """True once the last mission of the latest plan was handed out and its plan is in the
+        log, or the goal is unreachable."""
+        return bool(self.log.unreachable) or self._last_handed
+
+    def _update(self, context, state):
+        plan = self._plan.Eval(context)
+        if plan is None or not getattr(plan, "is_mission", True):
+            return
+        if not self.log.plans or self.log.plans[-1] is not plan:
+            self.log.plans.append(plan)
+        missions, index = context.get_abstract_state(self._missions).get_value()
+        if not missions or len(self.log.plans) != len(self.log.targets):
+            return
+        if context.get_time() < plan.end_time - self._plan_ahead:
+            return
+        # The mission ended (or is about to): replan from where it is expected to end.
+        if index + 1 >= len(missions):
+            self._last_handed = True
+            return
+        p = plan.base_position(plan.end_time)
+        yaw = float(plan.base_rpy(plan.end_time)[2])
+        topology = missions[index].topology
+        ix, iy = self.mdp.cell_of(float(p[0]), float(p[1]), field="expected end")
+        if (ix, iy) == self.mdp.goal_cell:
+            self._last_handed = True
+            return
+        new = self._replan(context.get_time(), float(p[0]), float(p[1]), yaw, topology)
+        if not new:
+            self._last_handed = True
+            return
+        state.get_mutable_abstract_state(self._missions).set_value((new, 0))
+        self._record(new, 0, context.get_time())
+
+    # -- outputs -----------------------------------------------------------------------------
+    def _current(self, context):
+        missions, index = context.get_abstract_state(self._missions).get_value()
+        return missions[index] if index < len(missions) else None
+
+    def _calc_target(self, context, output):
+        m = self._current(context)
+        if m is None:  # unreachable: hold the start
+            x = self._state.Eval(context)
+            output.SetFromVector([x[4], x[5], base_rpy(x)[2]])
+            return
+        output.SetFromVector(np.asarray(m.target, dtype=float))
+
+    def _calc_topology(self, context, output):
+        m = self._current(context)
+        output.set_value(self._topology0 if m is None else m.topology)
+
+    def _calc_guidance(self, context, output):
+        output.set_value(list(context.get_abstract_state(self._missions).get_value()[0]))
+
+    def _calc_utility(self, context, output):
+        V = self.solution.V[:self.mdp.goal_state].reshape(self.mdp.grid_shape).max(axis=(0, 1))
+        output.set_value((V, self.mdp.xs, self.mdp.ys))
+
+
+__all__ = ["CapabilityVIPlanner", "CapabilityPlannerLog"]
