@@ -91,17 +91,21 @@ def add_tracking_controller(builder, station, info, plan=None, *, kp: float, kd:
 
 
 def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Meshcat | None = None,
-             out_dir: str | Path | None = None) -> SimulationResult:
-    """Simulates a scenario; writes recording.html, metrics.json and plots to out_dir if given."""
+             out_dir: str | Path | None = None, station_factory=make_station) -> SimulationResult:
+    """Simulates a scenario; writes recording.html, metrics.json and plots to out_dir if given.
+
+    ``station_factory(scenario, meshcat, mesh_dir=...) -> (diagram, info)`` builds the station
+    (make_station; qz_drake.hardware.loopback.make_lcm_loopback_station: over LCM)."""
     if scenario.controller.kind == "walk":
-        return walk(scenario, meshcat=meshcat, out_dir=out_dir, max_duration=duration)
+        return walk(scenario, meshcat=meshcat, out_dir=out_dir, max_duration=duration,
+                    station_factory=station_factory)
     builder = DiagramBuilder()
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         if meshcat is None:
             meshcat = Meshcat()
-    station_diagram, info = make_station(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh")
+    station_diagram, info = station_factory(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh")
     station = builder.AddSystem(station_diagram)
     _standing_controller(builder, station, info, scenario)
     state_log, contact_log, trunk_log = _log_station(builder, station)
@@ -124,6 +128,7 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
     contacts = contact_log.FindLog(context).data().T
     trunk = trunk_log.FindLog(context).data()[0]
     metrics = standing_metrics(scenario, info, times, states, trunk)
+    metrics.update(_station_metrics(station_diagram, context))
     metrics.update(sim_time_s=float(duration), wall_time_s=wall,
                    realtime_factor=float(duration / wall) if wall > 0 else float("inf"),
                    terrain_contact=info.contact_representation)
@@ -137,6 +142,12 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
         files["metrics"] = str(out / "metrics.json")
     return SimulationResult(metrics=metrics, times=times, states=states, foot_contact=contacts,
                             trunk_contact=trunk, files=files)
+
+
+def _station_metrics(station, root_context) -> dict:
+    """A station's own counters (the LCM station's watchdogs), if it reports any."""
+    report = getattr(station, "station_metrics", None)
+    return report(root_context) if report is not None else {}
 
 
 def standing_metrics(scenario: Scenario, info, times, states, trunk) -> dict:
@@ -197,7 +208,7 @@ def _tripod_planner(heightmap, params, control):
 
 
 def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | Path | None = None,
-         max_duration: float | None = None) -> SimulationResult:
+         max_duration: float | None = None, station_factory=make_station) -> SimulationResult:
     """Walks a scenario's route: missions planned from the measured state, IK + joint PD."""
     from qz_drake.systems.mission_sequencer import split_route
 
@@ -207,7 +218,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
         meshcat = meshcat or Meshcat()
     control = scenario.controller
     builder = DiagramBuilder()
-    station_diagram, info = make_station(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh")
+    station_diagram, info = station_factory(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh")
     station = builder.AddSystem(station_diagram)
     x0 = info.initial_state
     targets = split_route(tuple(x0[4:6]), [(w.x, w.y, w.yaw, w.topology) for w in control.route],
@@ -260,6 +271,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     metrics.update(sim_time_s=sim_time, wall_time_s=wall, realtime_factor=sim_time / wall if wall > 0 else 0.0,
                    realtime_factor_excluding_planning=sim_time / max(wall - counts["blc_solve_time_s"], 1e-9),
                    terrain_contact=info.contact_representation, planner=control.planner, **counts)
+    metrics.update(_station_metrics(station_diagram, context))
     files = {}
     if out is not None:
         from qz_drake.viz.plots import plot_walk
