@@ -6,6 +6,8 @@ watchdog can count the message as rejected and say why in its latch reason.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.lcm import SerializerInterface
@@ -62,10 +64,12 @@ def _sized(values, n: int, name: str) -> str:
 
 
 def _finite(values, name: str) -> str:
-    a = np.asarray(values, dtype=float)
-    if np.all(np.isfinite(a)):
+    # A sum of floats is finite only if every term is (NaN and inf propagate); checked per
+    # value only to name the bad one. (Plain Python: these lists are short, numpy is slower.)
+    if math.isfinite(math.fsum(values)):
         return ""
-    return f"{name}[{int(np.flatnonzero(~np.isfinite(a))[0])}] = {a[~np.isfinite(a)][0]}"
+    k = next(k for k, v in enumerate(values) if not math.isfinite(v))
+    return f"{name}[{k}] = {values[k]}"
 
 
 def status_problem(m: qz_status, lower: np.ndarray, upper: np.ndarray, margin: float) -> str:
@@ -81,12 +85,12 @@ def status_problem(m: qz_status, lower: np.ndarray, upper: np.ndarray, margin: f
         problem = problem or _finite(getattr(m, name), name)
     if problem:
         return problem
-    norm = float(np.linalg.norm(m.orientation))
+    norm = math.sqrt(sum(v * v for v in m.orientation))
     if not 0.9 < norm < 1.1:
         return f"orientation has norm {norm:.3f}, expected a unit quaternion"
     q = np.asarray(m.joint_position)
     outside = (q < lower - margin) | (q > upper + margin)
-    if np.any(outside):
+    if outside.any():
         j = int(np.flatnonzero(outside)[0])
         return f"joint_position[{j}] = {q[j]:.3f} rad outside [{lower[j]:.2f}, {upper[j]:.2f}]"
     return ""

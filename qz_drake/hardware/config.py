@@ -14,8 +14,7 @@ driver's next tick: the status-to-command budget is 5h/8, and in the lockstep si
 controller sees the same measurement at the same tick as against the simulation station.
 """
 
-from __future__ import annotations
-
+# (No "from __future__ import annotations": pydrake.common.yaml reads the field types.)
 import dataclasses
 import math
 

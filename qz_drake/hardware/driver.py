@@ -337,6 +337,7 @@ class QingzhuiRobotDriver(Diagram):
         """The command link's watchdog counters and the clamp counts, for metrics."""
         s = self.command_state(root_context)
         return {**s.link.counters(), "safe_stop_latched": s.link.latched, "safe_stop_reason": s.link.reason,
+                "safe_stop_time_s": s.link.latched_time if s.link.latched else None,
                 "holding": s.holding, "clamped_commands": s.clamped_commands,
                 "clamped_torques": s.clamped_torques, "clamped_positions": s.clamped_positions}
 

@@ -275,7 +275,9 @@ class QingzhuiHardwareInterface(Diagram):
         - joint_torque_measured
         - imu
         - foot_contact
-        - driver_safe_stop
+
+    Exactly the simulation station's controller ports; the watchdog's state and counters are
+    read with ``watchdog`` and ``counters``, and ``reset_safe_stop`` unlatches.
 
     Args:
         scenario: the scenario (control mode; the expected start state before the first status).
@@ -313,7 +315,7 @@ class QingzhuiHardwareInterface(Diagram):
         builder.ExportInput(sender.GetInputPort("joint_torque"), "joint_torque")
         if position_mode:
             builder.ExportInput(sender.GetInputPort("joint_position_command"), "joint_position_command")
-        for name in ("state", "joint_torque_measured", "imu", "foot_contact", "driver_safe_stop"):
+        for name in ("state", "joint_torque_measured", "imu", "foot_contact"):
             builder.ExportOutput(self._receiver.GetOutputPort(name), name)
         builder.BuildInto(self)
         self.set_name("lcm_station")
@@ -327,7 +329,10 @@ class QingzhuiHardwareInterface(Diagram):
         context = self._receiver.GetMyContextFromRoot(root_context)
         link = self._receiver.link_state(context)
         track = self._receiver.pose_track(context)
+        driver_stop = self._receiver.GetOutputPort("driver_safe_stop").Eval(context)[0] > 0.5
         return {**link.counters(), "safe_stop_latched": link.latched, "safe_stop_reason": link.reason,
+                "driver_safe_stop": bool(driver_stop),
+                "safe_stop_time_s": link.latched_time if link.latched else None,
                 "pose_received": track.received, "pose_rejected": track.rejected}
 
     def reset_safe_stop(self, root_context) -> None:

@@ -39,6 +39,8 @@ class LinkState:
     # A safe stop is latched; ``reason`` says why (the first cause).
     latched: bool = False
     reason: str = ""
+    # When the safe stop latched (receiver time). [s]
+    latched_time: float = math.nan
     # Key (utime, sequence) of the newest message seen, valid or not.
     last_key: tuple[int, int] = (0, 0)
     # The newest accepted message: its sequence, sender time [us], receiver time [s].
@@ -60,10 +62,11 @@ def _count(state: LinkState, **increments) -> tuple[int, ...]:
     return tuple(counts)
 
 
-def _latch(state: LinkState, reason: str) -> LinkState:
+def _latch(state: LinkState, reason: str, t: float) -> LinkState:
     if state.latched:
         return state
-    return dataclasses.replace(state, latched=True, reason=reason, counts=_count(state, safe_stops=1))
+    return dataclasses.replace(state, latched=True, reason=reason, latched_time=t,
+                               counts=_count(state, safe_stops=1))
 
 
 def step_watchdog(state: LinkState, key: tuple[int, int], problem: str, t: float,
@@ -72,41 +75,43 @@ def step_watchdog(state: LinkState, key: tuple[int, int], problem: str, t: float
 
     ``key`` is (utime [us], sequence) of the newest message on the channel, (0, 0) if none has
     come; ``problem`` is empty when that message passed the receiver's content checks, else
-    what is wrong with it. A message
-    is accepted (its content may be used) when it is new and valid, even while latched: the
-    estimate stays fresh during a stop. Every fault latches; only ``reset_watchdog`` unlatches.
+    what is wrong with it. A message is accepted (its content may be used) when it is new and
+    valid, even while latched: the estimate stays fresh during a stop. Every fault latches;
+    only ``reset_watchdog`` unlatches.
     """
-    if key != state.last_key and key != (0, 0):
-        state = dataclasses.replace(state, last_key=key, counts=_count(state, received=1))
-        if problem:
-            state = dataclasses.replace(state, counts=_count(state, rejected=1))
-            return _latch(state, f"malformed message: {problem}") if state.armed else state, False
-        utime, sequence = key
-        if state.armed:
-            gap = sequence - state.sequence
-            if gap == 0:
-                state = _latch(dataclasses.replace(state, counts=_count(state, duplicates=1)),
-                               "duplicated sequence number")
-                return state, False
-            if gap < 0 or gap > 1 + limits.max_missed:
-                state = _latch(dataclasses.replace(state, counts=_count(state, sequence_jumps=1)),
-                               f"sequence jump {state.sequence} -> {sequence}")
-            elif gap > 1:
-                state = dataclasses.replace(state, counts=_count(state, missed=gap - 1))
-            sender_dt = (utime - state.utime) * 1e-6
-            receiver_dt = t - state.received_time
-            if sender_dt <= 0.0 or abs(sender_dt - receiver_dt) > limits.clock_tolerance:
-                state = _latch(dataclasses.replace(state, counts=_count(state, clock_jumps=1)),
-                               f"sender clock jumped by {sender_dt - receiver_dt:+.4f} s")
-        return dataclasses.replace(state, armed=True, sequence=sequence, utime=utime,
-                                   received_time=t, stale_now=False), True
-    if state.armed and not state.stale_now and t - state.received_time > limits.timeout:
-        state = dataclasses.replace(state, stale_now=True, counts=_count(state, stale=1))
-        state = _latch(state, f"no message for {t - state.received_time:.4f} s")
-    return state, False
+    if key == state.last_key or key == (0, 0):
+        if state.armed and not state.stale_now and t - state.received_time > limits.timeout:
+            state = dataclasses.replace(state, stale_now=True, counts=_count(state, stale=1))
+            return _latch(state, f"no message for {t - state.received_time:.4f} s", t), False
+        return state, False
+    if problem:
+        state = dataclasses.replace(state, last_key=key, counts=_count(state, received=1, rejected=1))
+        return (_latch(state, f"malformed message: {problem}", t) if state.armed else state), False
+    utime, sequence = key
+    faults = {}
+    reason = ""
+    if state.armed:
+        gap = sequence - state.sequence
+        if gap == 0:
+            state = dataclasses.replace(state, last_key=key, counts=_count(state, received=1, duplicates=1))
+            return _latch(state, "duplicated sequence number", t), False
+        if gap < 0 or gap > 1 + limits.max_missed:
+            faults["sequence_jumps"] = 1
+            reason = f"sequence jump {state.sequence} -> {sequence}"
+        elif gap > 1:
+            faults["missed"] = gap - 1
+        sender_dt = (utime - state.utime) * 1e-6
+        receiver_dt = t - state.received_time
+        if sender_dt <= 0.0 or abs(sender_dt - receiver_dt) > limits.clock_tolerance:
+            faults["clock_jumps"] = 1
+            reason = reason or f"sender clock jumped by {sender_dt - receiver_dt:+.4f} s"
+    state = dataclasses.replace(state, armed=True, last_key=key, sequence=sequence, utime=utime, received_time=t,
+                                stale_now=False, counts=_count(state, received=1, **faults))
+    return (_latch(state, reason, t) if reason else state), True
 
 
 def reset_watchdog(state: LinkState) -> LinkState:
     """Unlatches; the next valid message re-arms the watchdog (no continuity check against the
     messages before the reset). Counters are kept."""
-    return dataclasses.replace(state, armed=False, latched=False, reason="", stale_now=False)
+    return dataclasses.replace(state, armed=False, latched=False, reason="", latched_time=math.nan,
+                               stale_now=False)
