@@ -49,10 +49,11 @@ class DriverCommandState:
         return self
 
     link: LinkState = LinkState()
-    # Applied joint torques (torque mode) or feedforward (position mode). [N*m]
-    torque: tuple[float, ...] = (0.0,) * NUM_JOINTS
+    # Applied joint torques (torque mode) or feedforward (position mode), (18,) never written
+    # to after construction. [N*m]
+    torque: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_JOINTS))
     # Applied joint position command (position mode). [rad]
-    position: tuple[float, ...] = (0.0,) * NUM_JOINTS
+    position: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_JOINTS))
     # The newest accepted command asked for a safe stop.
     commanded_stop: bool = False
     # Holding the joint angles ``hold`` (safe stop, or waiting for the first command).
@@ -130,20 +131,21 @@ class CommandReceiver(LeafSystem):
         if m is not None and key != s.link.last_key:
             problem = command_problem(m, self._position_mode)
         link, accepted = step_watchdog(s.link, key, problem, context.get_time(), self._limits)
-        s = dataclasses.replace(s, link=link)
+        fields = {"link": link}
+        commanded_stop = s.commanded_stop
         if accepted:
-            s = dataclasses.replace(s, commanded_stop=m.mode == qz_command.MODE_SAFE_STOP)
-            if not s.commanded_stop:
-                s = self._accept(s, m)
-        hold = link.latched or not link.armed or s.commanded_stop
-        if hold and not s.holding:
-            q = self._state.Eval(context)[JOINT_Q]
-            s = dataclasses.replace(s, holding=True, hold=tuple(q))
-        elif not hold:
-            s = dataclasses.replace(s, holding=False, hold=None)
-        state.get_mutable_abstract_state(self._applied).set_value(s)
+            commanded_stop = fields["commanded_stop"] = m.mode == qz_command.MODE_SAFE_STOP
+            if not commanded_stop:
+                fields.update(self._accept(s, m))
+        hold = link.latched or not link.armed or commanded_stop
+        if hold and (not s.holding or s.hold is None):  # (waiting for the first command: no hold yet)
+            fields.update(holding=True, hold=tuple(self._state.Eval(context)[JOINT_Q]))
+        elif not hold and s.holding:
+            fields.update(holding=False, hold=None)
+        state.get_mutable_abstract_state(self._applied).set_value(dataclasses.replace(s, **fields))
 
-    def _accept(self, s: DriverCommandState, m: qz_command) -> DriverCommandState:
+    def _accept(self, s: DriverCommandState, m: qz_command) -> dict:
+        """The fields of an accepted command: clamped torques and positions, clamp counts."""
         tau = np.asarray(m.joint_torque, dtype=float)
         clamped_tau = np.clip(tau, -self._effort, self._effort)
         n_tau = int(np.count_nonzero(clamped_tau != tau))
@@ -153,10 +155,8 @@ class CommandReceiver(LeafSystem):
             clamped_q = np.clip(q, self._lower, self._upper)
             n_q = int(np.count_nonzero(clamped_q != q))
             q = clamped_q
-        return dataclasses.replace(s, torque=tuple(clamped_tau), position=tuple(q),
-                                   clamped_commands=s.clamped_commands + int(n_tau + n_q > 0),
-                                   clamped_torques=s.clamped_torques + n_tau,
-                                   clamped_positions=s.clamped_positions + n_q)
+        return dict(torque=clamped_tau, position=q, clamped_commands=s.clamped_commands + int(n_tau + n_q > 0),
+                    clamped_torques=s.clamped_torques + n_tau, clamped_positions=s.clamped_positions + n_q)
 
     def _hold_target(self, context, s: DriverCommandState) -> np.ndarray:
         # Before the first tick's update the hold is the current measurement.

@@ -22,13 +22,12 @@ planned in the map frame the localisation provides.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Callable
 
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.lcm import DrakeLcm
-from pydrake.math import RotationMatrix
-from pydrake.common.eigen_geometry import Quaternion
 from pydrake.systems.framework import BasicVector, Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
 
@@ -181,24 +180,29 @@ class StatusReceiver(LeafSystem):
                          rejected=track.rejected)
 
     def _decode(self, m: qz_status, track: PoseTrack, context) -> np.ndarray:
+        # Plain floats where numpy's per-call overhead would dominate 3- and 4-vectors.
         held = context.get_discrete_state(self._held).get_value().copy()
-        x = held[:STATE_SIZE]
-        quaternion = np.asarray(m.orientation, dtype=float)
-        quaternion /= np.linalg.norm(quaternion)
-        x[BASE_QUAT] = quaternion
-        R_WB = RotationMatrix(Quaternion(quaternion)).matrix()
-        x[JOINT_Q] = m.joint_position
-        x[JOINT_V] = m.joint_velocity
-        x[BASE_ANGVEL] = R_WB @ np.asarray(m.angular_velocity)
+        w, qx, qy, qz = m.orientation
+        norm = math.sqrt(w * w + qx * qx + qy * qy + qz * qz)
+        w, qx, qy, qz = w / norm, qx / norm, qy / norm, qz / norm
+        held[BASE_QUAT] = (w, qx, qy, qz)
+        # R_WB of the unit quaternion, applied to the gyro's base-frame rate: w_WB in world.
+        R_WB = np.array([[1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - w * qz), 2 * (qx * qz + w * qy)],
+                         [2 * (qx * qy + w * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - w * qx)],
+                         [2 * (qx * qz - w * qy), 2 * (qy * qz + w * qx), 1 - 2 * (qx * qx + qy * qy)]])
+        held[BASE_ANGVEL] = R_WB @ m.angular_velocity
+        held[JOINT_Q] = m.joint_position
+        held[JOINT_V] = m.joint_velocity
         if track.have_pose:
             # The pose may be older than the status (a slower localisation): carry it forward.
-            age = np.clip((m.utime - track.utime) * 1e-6, 0.0, self._config.max_pose_extrapolation)
-            x[BASE_POS] = np.asarray(track.position) + age * np.asarray(track.velocity)
-            x[BASE_VEL] = track.velocity
+            age = min(max((m.utime - track.utime) * 1e-6, 0.0), self._config.max_pose_extrapolation)
+            held[BASE_POS] = [p + age * v for p, v in zip(track.position, track.velocity)]
+            held[BASE_VEL] = track.velocity
         held[_TAU] = m.joint_torque
-        held[_IMU] = np.concatenate([quaternion, m.angular_velocity, m.linear_acceleration])
-        held[_CONTACT] = np.asarray(m.foot_contact, dtype=float)
-        held[_DRIVER_STOP] = float(m.safe_stop)
+        held[_IMU.start:_IMU.start + 4] = held[BASE_QUAT]
+        held[_IMU.start + 4:_IMU.stop] = m.angular_velocity + m.linear_acceleration
+        held[_CONTACT] = m.foot_contact
+        held[_DRIVER_STOP] = m.safe_stop
         return held
 
 
