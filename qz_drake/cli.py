@@ -53,16 +53,23 @@ def _cmd_simulate(args) -> int:
     scenario = load_scenario(args.scenario)
     if args.duration is not None and not args.duration > 0:
         raise ConfigError(f"--duration = {args.duration}: must be positive")
-    station_factory = make_station
+    station_factory, realtime_rate = make_station, 0.0
     if args.station == "lcm":
         from functools import partial
 
         from qz_drake.hardware.commands import load_hardware_file
-        from qz_drake.hardware.loopback import make_lcm_loopback_station
+        from qz_drake.hardware.loopback import make_lcm_loopback_station, make_remote_lcm_station
 
-        # The simulated robot driver in the same diagram, over an in-process LCM (memq://).
-        station_factory = partial(make_lcm_loopback_station, config=load_hardware_file(args.hardware))
-    result = simulate(scenario, duration=args.duration, out_dir=args.out, station_factory=station_factory)
+        config = load_hardware_file(args.hardware)
+        if args.lcm_url == "memq://":
+            # The simulated robot driver in the same diagram, over an in-process LCM.
+            station_factory = partial(make_lcm_loopback_station, config=config)
+        else:
+            # A driver in another process (qz robot-sim, the robot): both sides in real time.
+            station_factory = partial(make_remote_lcm_station, lcm_url=args.lcm_url, config=config)
+            realtime_rate = args.realtime_rate
+    result = simulate(scenario, duration=args.duration, out_dir=args.out, station_factory=station_factory,
+                      realtime_rate=realtime_rate)
     print(json.dumps(result.metrics))
     return 0 if result.metrics["success"] else 1
 
@@ -114,6 +121,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="sim: the simulation station; lcm: the LCM hardware interface against the "
                         "simulated robot driver, in-process over memq://")
     p.add_argument("--hardware", default=None, help="with --station lcm: protocol settings YAML")
+    p.add_argument("--lcm-url", default="memq://",
+                   help="with --station lcm: memq:// (the simulated driver in-process) or the URL of a "
+                        "driver in another process (qz robot-sim, the robot)")
+    p.add_argument("--realtime-rate", type=float, default=1.0,
+                   help="with --station lcm and a network URL: pacing, the same as the driver's")
     p.set_defaults(func=_cmd_simulate)
 
     p = sub.add_parser("terrain", help="draw a generated terrain as a PNG")

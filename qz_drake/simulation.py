@@ -91,14 +91,16 @@ def add_tracking_controller(builder, station, info, plan=None, *, kp: float, kd:
 
 
 def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Meshcat | None = None,
-             out_dir: str | Path | None = None, station_factory=make_station) -> SimulationResult:
+             out_dir: str | Path | None = None, station_factory=make_station,
+             realtime_rate: float = 0.0) -> SimulationResult:
     """Simulates a scenario; writes recording.html, metrics.json and plots to out_dir if given.
 
     ``station_factory(scenario, meshcat, mesh_dir=...) -> (diagram, info)`` builds the station
-    (make_station; qz_drake.hardware.loopback.make_lcm_loopback_station: over LCM)."""
+    (make_station; qz_drake.hardware.loopback: over LCM). ``realtime_rate`` paces the simulator
+    (0: as fast as possible; 1 against a robot driver in another process)."""
     if scenario.controller.kind == "walk":
         return walk(scenario, meshcat=meshcat, out_dir=out_dir, max_duration=duration,
-                    station_factory=station_factory)
+                    station_factory=station_factory, realtime_rate=realtime_rate)
     builder = DiagramBuilder()
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
@@ -112,6 +114,7 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
     diagram = builder.Build()
 
     simulator = Simulator(diagram)
+    simulator.set_target_realtime_rate(realtime_rate)
     simulator.Initialize()
     duration = scenario.simulation.duration if duration is None else duration
     if meshcat is not None:
@@ -208,7 +211,8 @@ def _tripod_planner(heightmap, params, control):
 
 
 def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | Path | None = None,
-         max_duration: float | None = None, station_factory=make_station) -> SimulationResult:
+         max_duration: float | None = None, station_factory=make_station,
+         realtime_rate: float = 0.0) -> SimulationResult:
     """Walks a scenario's route: missions planned from the measured state, IK + joint PD."""
     from qz_drake.systems.mission_sequencer import split_route
 
@@ -238,6 +242,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     desired_log = LogVectorOutput(tracker.GetOutputPort("desired_state"), builder, 1.0 / LOG_RATE)
     diagram = builder.Build()
     simulator = Simulator(diagram)
+    simulator.set_target_realtime_rate(realtime_rate)
     simulator.Initialize()
     if missions.first_failure:
         return _unplanned(scenario, out, missions)

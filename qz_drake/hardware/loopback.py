@@ -1,14 +1,20 @@
-"""The LCM station and the simulated robot driver in one diagram, over one LCM instance.
+"""The LCM station as ``qz simulate --station lcm`` runs it.
 
-What ``qz simulate SCENARIO --station lcm`` and the tests run: deterministic (no real-time
-pacing, in-process ``memq://`` by default), the controller on one side of the protocol and the
-simulated robot on the other, exactly as against ``qz robot-sim`` or the robot.
+LcmLoopbackStation: the interface and the simulated robot driver in one diagram over one LCM
+instance (in-process ``memq://``): deterministic, no real-time pacing, the controller on one
+side of the protocol and the simulated robot on the other, exactly as against
+``qz robot-sim`` or the robot. What the tests run.
+
+RemoteLcmStation: the interface alone, against a driver in another process (``qz robot-sim``
+or the robot) at a network URL; the simulator must then be paced to real time.
 """
 
 from __future__ import annotations
 
+import numpy as np
 from pydrake.lcm import DrakeLcm
 from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
 
 from qz_drake.config import Scenario
 from qz_drake.hardware.config import HardwareConfig
@@ -85,4 +91,50 @@ def make_lcm_loopback_station(scenario: Scenario, meshcat=None, *, mesh_dir=None
     """A make_station-compatible factory: (LcmLoopbackStation, StationInfo)."""
     station = LcmLoopbackStation(scenario=scenario, lcm=DrakeLcm(lcm_url), config=config, meshcat=meshcat,
                                  mesh_dir=mesh_dir, **filters)
+    return station, station.info
+
+
+class RemoteLcmStation(Diagram):
+    """QingzhuiHardwareInterface against a driver elsewhere, with the outputs simulate() logs.
+
+    .. pydrake_system::
+
+        name: RemoteLcmStation
+        input_ports:
+        - joint_torque
+        - joint_position_command (position mode)
+        output_ports:
+        - state
+        - joint_torque_measured
+        - imu
+        - foot_contact
+        - trunk_contact
+
+    A robot does not report trunk contact: ``trunk_contact`` is NaN (never counted as a
+    contact), and the metrics say ``trunk_contact_observed: false``.
+    """
+
+    def __init__(self, *, scenario: Scenario, lcm: DrakeLcm, config: HardwareConfig | None = None):
+        super().__init__()
+        builder = DiagramBuilder()
+        self.interface, self.info = make_hardware_interface(scenario, lcm=lcm, config=config)
+        builder.AddSystem(self.interface)
+        unknown = builder.AddSystem(ConstantVectorSource(np.array([np.nan])))
+        builder.ExportInput(self.interface.GetInputPort("joint_torque"), "joint_torque")
+        if scenario.station.control_mode == "position":
+            builder.ExportInput(self.interface.GetInputPort("joint_position_command"), "joint_position_command")
+        for name in CONTROLLER_OUTPUTS:
+            builder.ExportOutput(self.interface.GetOutputPort(name), name)
+        builder.ExportOutput(unknown.get_output_port(), "trunk_contact")
+        builder.BuildInto(self)
+        self.set_name("station")
+
+    def station_metrics(self, root_context) -> dict:
+        return {"lcm_interface": self.interface.counters(root_context), "trunk_contact_observed": False}
+
+
+def make_remote_lcm_station(scenario: Scenario, meshcat=None, *, mesh_dir=None, lcm_url: str,
+                            config: HardwareConfig | None = None):
+    """A make_station-compatible factory: (RemoteLcmStation, StationInfo) on ``lcm_url``."""
+    station = RemoteLcmStation(scenario=scenario, lcm=DrakeLcm(lcm_url), config=config)
     return station, station.info

@@ -188,3 +188,16 @@ def test_reset_resumes_after_a_status_outage():
     interface = station.station_metrics(root)["lcm_interface"]
     assert not interface["safe_stop_latched"] and interface["safe_stops"] == 1 and interface["stale"] == 1
     assert not station.station_metrics(root)["lcm_driver"]["holding"]
+
+
+def test_the_remote_station_has_the_logged_ports_and_says_trunk_contact_is_unobserved():
+    from qz_drake.hardware.loopback import make_remote_lcm_station
+
+    station, info = make_remote_lcm_station(Scenario(), lcm_url="memq://")
+    assert set(_port_names(station, "out")) == set(CONTROLLER_PORTS) | {"trunk_contact"}
+    context = station.CreateDefaultContext()
+    station.GetInputPort("joint_torque").FixValue(context, np.zeros(18))
+    assert np.isnan(station.GetOutputPort("trunk_contact").Eval(context)[0])
+    # Before the first status: the expected standing start, and safe-stop commands.
+    np.testing.assert_allclose(station.GetOutputPort("state").Eval(context), info.initial_state)
+    assert station.station_metrics(context)["trunk_contact_observed"] is False
