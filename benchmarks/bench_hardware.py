@@ -106,10 +106,11 @@ def run(repeats: int = 1, quick: bool = False, duration: float = 10.0) -> dict:
         runs.append({"latency": _percentiles(latencies), "interface_overhead": _percentiles(replay),
                      "loopback_overhead_ms": (over_lcm["wall_time_s"] - direct["wall_time_s"]) / steps * 1e3,
                      "wall_time_direct_s": direct["wall_time_s"], "wall_time_lcm_s": over_lcm["wall_time_s"],
-                     "tracking_rms_direct_m": direct["tracking_rms_m"], "tracking_rms_lcm_m": over_lcm["tracking_rms_m"],
+                     "tracking_rms_direct_m": direct["tracking_rms_m"],
+                     "tracking_rms_lcm_m": over_lcm["tracking_rms_m"],
                      "safe_stops": over_lcm["lcm_interface"]["safe_stops"] + over_lcm["lcm_driver"]["safe_stops"]})
     middle = sorted(runs, key=lambda r: r["latency"]["median_ms"])[len(runs) // 2]
-    return {"walk_flat_10s": {**middle, "sim_time_s": duration, "control_period_ms": 1e3 * HardwareConfig().control_period,
-                              "repeats": repeats,
+    return {"walk_flat_10s": {**middle, "sim_time_s": duration,
+                              "control_period_ms": 1e3 * HardwareConfig().control_period, "repeats": repeats,
                               "latency_median_ms_all": [r["latency"]["median_ms"] for r in runs],
                               "interface_overhead_median_ms_all": [r["interface_overhead"]["median_ms"] for r in runs]}}

@@ -45,9 +45,6 @@ COMMAND_PHASE = 0.875
 class DriverCommandState:
     """What CommandReceiver applies: the newest accepted command, or a hold."""
 
-    def __deepcopy__(self, memo):  # immutable: Drake's state copies may share it
-        return self
-
     link: LinkState = LinkState()
     # Applied joint torques (torque mode) or feedforward (position mode), (18,) never written
     # to after construction. [N*m]
@@ -62,6 +59,9 @@ class DriverCommandState:
     clamped_commands: int = 0
     clamped_torques: int = 0
     clamped_positions: int = 0
+
+    def __deepcopy__(self, memo):  # immutable: Drake's state copies may share it
+        return self
 
 
 class CommandReceiver(LeafSystem):

@@ -60,9 +60,6 @@ _HELD_SIZE = _DRIVER_STOP + 1
 class PoseTrack:
     """The newest accepted qz_pose and the pose topic's counters."""
 
-    def __deepcopy__(self, memo):  # immutable: Drake's state copies may share it
-        return self
-
     last_key: tuple[int, int] = (0, 0)
     have_pose: bool = False
     utime: int = 0
@@ -70,6 +67,11 @@ class PoseTrack:
     velocity: tuple[float, ...] = (0.0, 0.0, 0.0)
     received: int = 0
     rejected: int = 0
+    # Statuses decoded with no pose yet, or one older than max_pose_extrapolation.
+    stale: int = 0
+
+    def __deepcopy__(self, memo):  # immutable: Drake's state copies may share it
+        return self
 
 
 class StatusReceiver(LeafSystem):
@@ -164,6 +166,9 @@ class StatusReceiver(LeafSystem):
         state.get_mutable_abstract_state(self._link).set_value(link)
         if accepted:
             state.get_mutable_discrete_state(self._held).set_value(self._decode(m, track, context))
+            if not track.have_pose or (m.utime - track.utime) * 1e-6 > self._config.max_pose_extrapolation:
+                state.get_mutable_abstract_state(self._pose_track).set_value(
+                    dataclasses.replace(track, stale=track.stale + 1))
 
     def _update_pose(self, context, track: PoseTrack) -> PoseTrack:
         p, problem = decode(qz_pose, self._pose.Eval(context))
@@ -177,7 +182,7 @@ class StatusReceiver(LeafSystem):
                                        rejected=track.rejected + 1)
         return PoseTrack(last_key=key, have_pose=True, utime=key[0], position=tuple(p.position),
                          velocity=tuple(p.linear_velocity), received=track.received + 1,
-                         rejected=track.rejected)
+                         rejected=track.rejected, stale=track.stale)
 
     def _decode(self, m: qz_status, track: PoseTrack, context) -> np.ndarray:
         # Plain floats where numpy's per-call overhead would dominate 3- and 4-vectors.
@@ -302,7 +307,8 @@ class QingzhuiHardwareInterface(Diagram):
         position_mode = scenario.station.control_mode == "position"
         builder = DiagramBuilder()
         builder.AddSystem(LcmInterfaceSystem(lcm))
-        status = builder.AddSystem(LcmSubscriberSystem(config.channels.status, EncodedMessageSerializer(qz_status), lcm))
+        status = builder.AddSystem(LcmSubscriberSystem(config.channels.status,
+                                                       EncodedMessageSerializer(qz_status), lcm))
         pose = builder.AddSystem(LcmSubscriberSystem(config.channels.pose, EncodedMessageSerializer(qz_pose), lcm))
         self._receiver = builder.AddSystem(StatusReceiver(config=config, params=params, prior_state=prior_state))
         self._receiver.set_name("status_receiver")
@@ -337,7 +343,7 @@ class QingzhuiHardwareInterface(Diagram):
         return {**link.counters(), "safe_stop_latched": link.latched, "safe_stop_reason": link.reason,
                 "driver_safe_stop": bool(driver_stop),
                 "safe_stop_time_s": link.latched_time if link.latched else None,
-                "pose_received": track.received, "pose_rejected": track.rejected}
+                "pose_received": track.received, "pose_rejected": track.rejected, "pose_stale": track.stale}
 
     def reset_safe_stop(self, root_context) -> None:
         """Unlatches the safe stop (operator action); the next valid status re-arms."""

@@ -31,9 +31,6 @@ class WatchdogLimits:
 class LinkState:
     """What one end knows about its incoming link; immutable (kept in a Drake abstract state)."""
 
-    def __deepcopy__(self, memo):  # immutable: Drake's state copies may share it
-        return self
-
     # A valid message has been accepted since the start (or the last reset).
     armed: bool = False
     # A safe stop is latched; ``reason`` says why (the first cause).
@@ -50,6 +47,9 @@ class LinkState:
     # The link is currently stale (counted once per outage).
     stale_now: bool = False
     counts: tuple[int, ...] = (0,) * len(COUNTERS)
+
+    def __deepcopy__(self, memo):  # immutable: Drake's state copies may share it
+        return self
 
     def counters(self) -> dict[str, int]:
         return dict(zip(COUNTERS, self.counts))

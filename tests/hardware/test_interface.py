@@ -14,7 +14,6 @@ from qz_drake.config import Scenario
 from qz_drake.errors import ConfigError
 from qz_drake.hardware.config import HardwareConfig, load_hardware_config
 from qz_drake.hardware.loopback import make_lcm_loopback_station
-from qz_drake.hardware.qz_lcm import qz_command
 from qz_drake.simulation import _standing_controller
 from qz_drake.station import make_station
 from qz_drake.systems.state_layout import IMU_SIZE, STATE_SIZE, tilt_deg
@@ -52,11 +51,11 @@ def test_unknown_backend_and_bad_config_name_the_field():
     assert load_hardware_config("channels: {status: ROBOT_STATUS}").channels.status == "ROBOT_STATUS"
 
 
-def stand(duration, scenario=None, **hooks):
+def stand(duration, scenario=None, **options):
     """Qingzhui standing under joint PD through the LCM station; returns (simulator, station)."""
     scenario = scenario or Scenario()
     builder = DiagramBuilder()
-    diagram, info = make_lcm_loopback_station(scenario, **hooks)
+    diagram, info = make_lcm_loopback_station(scenario, **options)
     station = builder.AddSystem(diagram)
     _standing_controller(builder, station, info, scenario)
     simulator = Simulator(builder.Build())
@@ -201,3 +200,17 @@ def test_the_remote_station_has_the_logged_ports_and_says_trunk_contact_is_unobs
     # Before the first status: the expected standing start, and safe-stop commands.
     np.testing.assert_allclose(station.GetOutputPort("state").Eval(context), info.initial_state)
     assert station.station_metrics(context)["trunk_contact_observed"] is False
+
+
+def test_a_slow_localisation_is_extrapolated_and_a_missing_one_counted():
+    """Poses at 10 Hz: between them the base position is carried forward by the pose's velocity;
+    with the pose topic silent the statuses are counted as decoded with a stale pose."""
+    simulator, station = stand(0.3, config=HardwareConfig(pose_period=0.1))
+    counters = station.station_metrics(simulator.get_context())["lcm_interface"]
+    assert counters["pose_received"] == 3 and counters["pose_stale"] == 0 and counters["safe_stops"] == 0
+    simulator, station = stand(0.3, pose_filter=lambda m: None)
+    counters = station.station_metrics(simulator.get_context())["lcm_interface"]
+    assert counters["pose_received"] == 0 and counters["pose_stale"] == 150 and counters["safe_stops"] == 0
+    # Without a pose the base position stays the expected start.
+    context = station.GetMyContextFromRoot(simulator.get_context())
+    np.testing.assert_allclose(station.GetOutputPort("state").Eval(context)[4:7], [0.0, 0.0, 0.55], atol=1e-9)
