@@ -53,6 +53,14 @@ def decode(lcm_type, data: bytes):
         return None, f"not a {lcm_type.__name__} ({e})"
 
 
+def message_key(message, problem: str, data: bytes) -> tuple[int, int]:
+    """What tells a new message from the one seen before: (utime, sequence); (0, 0) for none;
+    for an undecodable one (-1, a hash of its bytes), so that it is counted once."""
+    if message is not None:
+        return int(message.utime), int(message.sequence)
+    return (-1, hash(data)) if problem else (0, 0)
+
+
 def joint_limits(params: QingzhuiParams) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper limits (18,) of all joints, leg-major."""
     lower, upper = params.joint_limits()

@@ -26,7 +26,7 @@ from pydrake.systems.framework import BasicVector, Diagram, DiagramBuilder, Leaf
 from pydrake.systems.lcm import LcmInterfaceSystem, LcmSubscriberSystem
 
 from qz_drake.config import Scenario
-from qz_drake.hardware.codec import EncodedMessageSerializer, command_problem, decode, joint_limits
+from qz_drake.hardware.codec import EncodedMessageSerializer, command_problem, decode, joint_limits, message_key
 from qz_drake.hardware.config import HardwareConfig, validate_hardware_config
 from qz_drake.hardware.qz_lcm import qz_command, qz_pose, qz_status
 from qz_drake.hardware.watchdog import LinkState, WatchdogLimits, reset_watchdog, step_watchdog
@@ -124,10 +124,9 @@ class CommandReceiver(LeafSystem):
 
     def _update(self, context, state):
         s: DriverCommandState = context.get_abstract_state(self._applied).get_value()
-        m, problem = decode(qz_command, self._command.Eval(context))
-        # An undecodable message gets a key of its own, so that it is counted once.
-        key = (0, 0) if m is None and not problem else (-1, s.link.last_key[1] - 1) if m is None else (
-            int(m.utime), int(m.sequence))
+        data = self._command.Eval(context)
+        m, problem = decode(qz_command, data)
+        key = message_key(m, problem, data)
         if m is not None and key != s.link.last_key:
             problem = command_problem(m, self._position_mode)
         link, accepted = step_watchdog(s.link, key, problem, context.get_time(), self._limits)

@@ -32,7 +32,8 @@ from pydrake.systems.framework import BasicVector, Diagram, DiagramBuilder, Leaf
 from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
 
 from qz_drake.config import Scenario
-from qz_drake.hardware.codec import EncodedMessageSerializer, decode, joint_limits, pose_problem, status_problem
+from qz_drake.hardware.codec import (EncodedMessageSerializer, decode, joint_limits, message_key, pose_problem,
+                                     status_problem)
 from qz_drake.hardware.config import HardwareConfig, validate_hardware_config
 from qz_drake.hardware.qz_lcm import qz_command, qz_pose, qz_status
 from qz_drake.hardware.watchdog import LinkState, WatchdogLimits, reset_watchdog, step_watchdog
@@ -156,10 +157,9 @@ class StatusReceiver(LeafSystem):
         track = self._update_pose(context, context.get_abstract_state(self._pose_track).get_value())
         state.get_mutable_abstract_state(self._pose_track).set_value(track)
         link = context.get_abstract_state(self._link).get_value()
-        m, problem = decode(qz_status, self._status.Eval(context))
-        # An undecodable message gets a key of its own, so that it is counted once.
-        key = (0, 0) if m is None and not problem else (-1, link.last_key[1] - 1) if m is None else (
-            int(m.utime), int(m.sequence))
+        data = self._status.Eval(context)
+        m, problem = decode(qz_status, data)
+        key = message_key(m, problem, data)
         if m is not None and key != link.last_key:
             problem = status_problem(m, self._lower, self._upper, self._config.joint_limit_margin)
         link, accepted = step_watchdog(link, key, problem, t, self._limits)
@@ -171,11 +171,10 @@ class StatusReceiver(LeafSystem):
                     dataclasses.replace(track, stale=track.stale + 1))
 
     def _update_pose(self, context, track: PoseTrack) -> PoseTrack:
-        p, problem = decode(qz_pose, self._pose.Eval(context))
-        if p is None and not problem:
-            return track
-        key = (int(p.utime), int(p.sequence)) if p is not None else (-1, -1)
-        if key == track.last_key:
+        data = self._pose.Eval(context)
+        p, problem = decode(qz_pose, data)
+        key = message_key(p, problem, data)
+        if key == (0, 0) or key == track.last_key:
             return track
         if problem or pose_problem(p):
             return dataclasses.replace(track, last_key=key, received=track.received + 1,

@@ -214,3 +214,12 @@ def test_a_slow_localisation_is_extrapolated_and_a_missing_one_counted():
     # Without a pose the base position stays the expected start.
     context = station.GetMyContextFromRoot(simulator.get_context())
     np.testing.assert_allclose(station.GetOutputPort("state").Eval(context)[4:7], [0.0, 0.0, 0.55], atol=1e-9)
+
+
+def test_a_message_of_the_wrong_type_on_the_status_channel_is_rejected_once():
+    from qz_drake.hardware.qz_lcm import qz_pose
+
+    simulator, station = stand(0.3, status_filter=faulty_status(100, lambda m: qz_pose()))
+    interface = station.station_metrics(simulator.get_context())["lcm_interface"]
+    assert interface["rejected"] == 1 and interface["received"] == 150 and interface["missed"] == 1
+    assert "not a qz_status" in interface["safe_stop_reason"]
