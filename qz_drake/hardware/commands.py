@@ -1,7 +1,7 @@
 """``qz robot-sim``: the simulated robot driver behind the LCM protocol (issue 16).
 
 ``qz robot-sim SCENARIO.yaml --lcm-url URL [--duration S] [--realtime-rate R]
-[--hardware CONFIG.yaml]`` runs the scenario's simulation station as a robot driver: paced to
+[--hardware CONFIG.yaml] [--meshcat]`` runs the scenario's simulation station as a robot driver: paced to
 real time, it publishes qz_status and qz_pose at the control rate and applies the newest
 qz_command (QingzhuiRobotDriver). A controller on the same LCM network reaches it through
 ``make_station(scenario, backend="lcm", lcm_url=URL)``. It prints the command link's counters
@@ -45,7 +45,13 @@ def run_robot_sim(args) -> int:
         lcm = DrakeLcm(args.lcm_url)
     except RuntimeError as e:
         raise bad_value("--lcm-url", args.lcm_url, str(e)) from None
-    driver = QingzhuiRobotDriver(scenario=scenario, lcm=lcm, config=config)
+    meshcat = None
+    if args.meshcat:
+        from pydrake.geometry import Meshcat
+
+        meshcat = Meshcat()
+        print(f"meshcat: {meshcat.web_url()}", flush=True)
+    driver = QingzhuiRobotDriver(scenario=scenario, lcm=lcm, config=config, meshcat=meshcat)
     simulator = Simulator(driver)
     simulator.set_target_realtime_rate(args.realtime_rate)
     simulator.Initialize()
@@ -70,4 +76,5 @@ def register(subparsers) -> None:
     p.add_argument("--duration", type=float, default=None, help="simulated time [s] (default: until Ctrl-C)")
     p.add_argument("--realtime-rate", type=float, default=1.0, help="pacing (1: real time; 0: unpaced)")
     p.add_argument("--hardware", default=None, help="protocol settings YAML (qz_drake.hardware.config)")
+    p.add_argument("--meshcat", action="store_true", help="draw the simulated robot in meshcat")
     p.set_defaults(func=run_robot_sim)
