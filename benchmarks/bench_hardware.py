@@ -5,7 +5,9 @@ Three measurements over the first 10 s of ``walk_flat.yaml`` (torque mode, 500 H
 * ``latency``: wall time from the simulated driver's status publish (its hook, just before
   encoding) to the interface's command for that status (its hook, just before encoding and
   publishing), with the walking controller (IK tracker, joint PD of Eq. 7) evaluated in
-  between: median and 99th percentile over every control period, in-process over memq://.
+  between: median and 99th percentile over every control period, in-process over memq://;
+  also apart for the periods whose window holds the tracker's 200 Hz IK reference update and
+  for those where the controller only evaluates the joint PD.
 * ``interface_overhead``: the interface alone (no controller: zero torques in) replaying the
   statuses and poses recorded in that walk, one AdvanceTo per control period: LCM delivery,
   subscribers, decoding, watchdog, estimator, encoding and publishing, and Drake's stepping of
@@ -13,6 +15,10 @@ Three measurements over the first 10 s of ``walk_flat.yaml`` (torque mode, 500 H
 * ``loopback_overhead``: (wall time of the walk over LCM - wall time of the same walk on the
   simulation station) / control periods. An upper bound on the interface's cost: it also holds
   the simulated driver's side (status encoding, the IMU and contact sensors it publishes).
+
+Latency and interface overhead are also given as this process's CPU time over the same
+windows (``*_cpu_time``): on a machine shared with other jobs the wall times include the time
+the process waited for a core, the CPU times do not (CLOCK_PROCESS_CPUTIME_ID, ns resolution).
 """
 
 import time
@@ -35,11 +41,16 @@ def _percentiles(values_s) -> dict:
             "p99_ms": float(np.percentile(a, 99)), "samples": int(a.size)}
 
 
+# The tracker's reference update period (InverseKinematicsTracker at 200 Hz). [us]
+_TRACKER_PERIOD_US = 5000
+
+
 def _walk_over_lcm(scenario, duration):
-    published, latencies, statuses, poses = {}, [], [], []
+    published, statuses, poses = {}, [], []
+    latencies = {"all": [], "joint_pd_only": [], "with_ik_update": [], "cpu": []}
 
     def on_status(m):
-        published[m.sequence] = time.perf_counter()
+        published[m.sequence] = (time.perf_counter(), time.process_time())
         statuses.append(m.encode())
         return m
 
@@ -49,7 +60,14 @@ def _walk_over_lcm(scenario, duration):
 
     def on_command(m):
         if m.mode != qz_command.MODE_SAFE_STOP and m.status_sequence in published:
-            latencies.append(time.perf_counter() - published.pop(m.status_sequence))
+            wall, cpu = published.pop(m.status_sequence)
+            latency = time.perf_counter() - wall
+            latencies["cpu"].append(time.process_time() - cpu)
+            # Did the tracker's IK update fall between this status and this command?
+            window_start = m.utime - round(0.5 * 1e6 * HardwareConfig().control_period)
+            ik = (m.utime // _TRACKER_PERIOD_US) * _TRACKER_PERIOD_US > window_start
+            latencies["all"].append(latency)
+            latencies["with_ik_update" if ik else "joint_pd_only"].append(latency)
         return m
 
     def factory(*args, **kwargs):
@@ -80,17 +98,18 @@ def _replay_interface(scenario, statuses, poses) -> list[float]:
     simulator = Simulator(builder.Build())
     simulator.Initialize()
     h = config.control_period
-    times = []
+    times, cpu_times = [], []
     for k, (status, pose) in enumerate(zip(statuses, poses)):
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), time.process_time()
         lcm.Publish(config.channels.status, status)
         lcm.Publish(config.channels.pose, pose)
         simulator.AdvanceTo((k + 1) * h)
         times.append(time.perf_counter() - start)
+        cpu_times.append(time.process_time() - cpu_start)
     counters = interface.counters(simulator.get_context())
     if counters["safe_stops"] or len(commands) < len(statuses) - 1:
         raise RuntimeError(f"the replay did not run cleanly: {counters}, {len(commands)} commands")
-    return times
+    return times, cpu_times
 
 
 def run(repeats: int = 1, quick: bool = False, duration: float = 10.0) -> dict:
@@ -102,8 +121,13 @@ def run(repeats: int = 1, quick: bool = False, duration: float = 10.0) -> dict:
     for _ in range(repeats):
         direct = simulate(scenario, duration=duration).metrics
         over_lcm, latencies, statuses, poses = _walk_over_lcm(scenario, duration)
-        replay = _replay_interface(scenario, statuses, poses)
-        runs.append({"latency": _percentiles(latencies), "interface_overhead": _percentiles(replay),
+        replay, replay_cpu = _replay_interface(scenario, statuses, poses)
+        runs.append({"latency": _percentiles(latencies["all"]),
+                     "latency_joint_pd_only": _percentiles(latencies["joint_pd_only"]),
+                     "latency_with_ik_update": _percentiles(latencies["with_ik_update"]),
+                     "latency_cpu_time": _percentiles(latencies["cpu"]),
+                     "interface_overhead": _percentiles(replay),
+                     "interface_overhead_cpu_time": _percentiles(replay_cpu),
                      "loopback_overhead_ms": (over_lcm["wall_time_s"] - direct["wall_time_s"]) / steps * 1e3,
                      "wall_time_direct_s": direct["wall_time_s"], "wall_time_lcm_s": over_lcm["wall_time_s"],
                      "tracking_rms_direct_m": direct["tracking_rms_m"],
