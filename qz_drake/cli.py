@@ -22,6 +22,7 @@ _COMMAND_MODULES = (
     "qz_drake.planning.commands",
     "qz_drake.classification.commands",
     "qz_drake.capability.commands",
+    "qz_drake.hardware.commands",
 )
 
 
@@ -47,11 +48,28 @@ def parse_key_values(items: list[str] | None, field: str = "--param") -> dict[st
 def _cmd_simulate(args) -> int:
     from qz_drake.config import load_scenario
     from qz_drake.simulation import simulate
+    from qz_drake.station import make_station
 
     scenario = load_scenario(args.scenario)
     if args.duration is not None and not args.duration > 0:
         raise ConfigError(f"--duration = {args.duration}: must be positive")
-    result = simulate(scenario, duration=args.duration, out_dir=args.out)
+    station_factory, realtime_rate = make_station, 0.0
+    if args.station == "lcm":
+        from functools import partial
+
+        from qz_drake.hardware.commands import load_hardware_file
+        from qz_drake.hardware.loopback import make_lcm_loopback_station, make_remote_lcm_station
+
+        config = load_hardware_file(args.hardware)
+        if args.lcm_url == "memq://":
+            # The simulated robot driver in the same diagram, over an in-process LCM.
+            station_factory = partial(make_lcm_loopback_station, config=config)
+        else:
+            # A driver in another process (qz robot-sim, the robot): both sides in real time.
+            station_factory = partial(make_remote_lcm_station, lcm_url=args.lcm_url, config=config)
+            realtime_rate = args.realtime_rate
+    result = simulate(scenario, duration=args.duration, out_dir=args.out, station_factory=station_factory,
+                      realtime_rate=realtime_rate)
     print(json.dumps(result.metrics))
     return 0 if result.metrics["success"] else 1
 
@@ -99,6 +117,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scenario", help="scenario YAML file (see scenarios/)")
     p.add_argument("--out", default="out/simulate", help="output folder")
     p.add_argument("--duration", type=float, default=None, help="override the simulated time [s]")
+    p.add_argument("--station", choices=("sim", "lcm"), default="sim",
+                   help="sim: the simulation station; lcm: the LCM hardware interface against the "
+                        "simulated robot driver, in-process over memq://")
+    p.add_argument("--hardware", default=None, help="with --station lcm: protocol settings YAML")
+    p.add_argument("--lcm-url", default="memq://",
+                   help="with --station lcm: memq:// (the simulated driver in-process) or the URL of a "
+                        "driver in another process (qz robot-sim, the robot)")
+    p.add_argument("--realtime-rate", type=float, default=1.0,
+                   help="with --station lcm and a network URL: pacing, the same as the driver's")
     p.set_defaults(func=_cmd_simulate)
 
     p = sub.add_parser("terrain", help="draw a generated terrain as a PNG")

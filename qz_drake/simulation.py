@@ -91,24 +91,31 @@ def add_tracking_controller(builder, station, info, plan=None, *, kp: float, kd:
 
 
 def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Meshcat | None = None,
-             out_dir: str | Path | None = None) -> SimulationResult:
-    """Simulates a scenario; writes recording.html, metrics.json and plots to out_dir if given."""
+             out_dir: str | Path | None = None, station_factory=make_station,
+             realtime_rate: float = 0.0) -> SimulationResult:
+    """Simulates a scenario; writes recording.html, metrics.json and plots to out_dir if given.
+
+    ``station_factory(scenario, meshcat, mesh_dir=...) -> (diagram, info)`` builds the station
+    (make_station; qz_drake.hardware.loopback: over LCM). ``realtime_rate`` paces the simulator
+    (0: as fast as possible; 1 against a robot driver in another process)."""
     if scenario.controller.kind == "walk":
-        return walk(scenario, meshcat=meshcat, out_dir=out_dir, max_duration=duration)
+        return walk(scenario, meshcat=meshcat, out_dir=out_dir, max_duration=duration,
+                    station_factory=station_factory, realtime_rate=realtime_rate)
     builder = DiagramBuilder()
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         if meshcat is None:
             meshcat = Meshcat()
-    station_diagram, info = make_station(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh")
+    station_diagram, info = station_factory(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh")
     station = builder.AddSystem(station_diagram)
     _standing_controller(builder, station, info, scenario)
     state_log, contact_log, trunk_log = _log_station(builder, station)
-    leg_log = LogVectorOutput(station.GetOutputPort("leg_link_force"), builder, 1.0 / LOG_RATE)
+    leg_log = _optional_log(builder, station, "leg_link_force")
     diagram = builder.Build()
 
     simulator = Simulator(diagram)
+    simulator.set_target_realtime_rate(realtime_rate)
     simulator.Initialize()
     duration = scenario.simulation.duration if duration is None else duration
     if meshcat is not None:
@@ -125,7 +132,8 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
     contacts = contact_log.FindLog(context).data().T
     trunk = trunk_log.FindLog(context).data()[0]
     metrics = standing_metrics(scenario, info, times, states, trunk,
-                               leg_link_force=leg_log.FindLog(context).data().T)
+                               leg_link_force=None if leg_log is None else leg_log.FindLog(context).data().T)
+    metrics.update(_station_metrics(station_diagram, context))
     metrics.update(sim_time_s=float(duration), wall_time_s=wall,
                    realtime_factor=float(duration / wall) if wall > 0 else float("inf"),
                    terrain_contact=info.contact_representation)
@@ -139,6 +147,20 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
         files["metrics"] = str(out / "metrics.json")
     return SimulationResult(metrics=metrics, times=times, states=states, foot_contact=contacts,
                             trunk_contact=trunk, files=files)
+
+
+def _station_metrics(station, root_context) -> dict:
+    """A station's own counters (the LCM station's watchdogs), if it reports any."""
+    report = getattr(station, "station_metrics", None)
+    return report(root_context) if report is not None else {}
+
+
+def _optional_log(builder, station, name: str):
+    """A logger of a simulation-only station output (leg-link forces), or None when the station
+    does not observe it (the LCM hardware interface)."""
+    if not station.HasOutputPort(name):
+        return None
+    return LogVectorOutput(station.GetOutputPort(name), builder, 1.0 / LOG_RATE)
 
 
 def standing_metrics(scenario: Scenario, info, times, states, trunk, leg_link_force=None) -> dict:
@@ -206,13 +228,14 @@ def _tripod_planner(heightmap, params, control):
 
 def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | Path | None = None,
          max_duration: float | None = None, heightmap=None, stop_on_failure: bool = False,
-         blc_params=None) -> SimulationResult:
+         blc_params=None, station_factory=make_station, realtime_rate: float = 0.0) -> SimulationResult:
     """Walks a scenario's route: missions planned from the measured state, IK + joint PD.
 
     ``heightmap`` replaces the map of the scenario's terrain section (see make_station). With
     ``stop_on_failure`` the run ends as soon as a contact or tracking check of the verdict has
     failed (capability trials: the rest of the walk cannot change the label). ``blc_params``
-    are the BLC's BlcParameters (None: the defaults)."""
+    are the BLC's BlcParameters (None: the defaults). ``station_factory`` and
+    ``realtime_rate`` as in simulate()."""
     from qz_drake.systems.mission_sequencer import split_route
 
     out = Path(out_dir) if out_dir is not None else None
@@ -221,8 +244,9 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
         meshcat = meshcat or Meshcat()
     control = scenario.controller
     builder = DiagramBuilder()
-    station_diagram, info = make_station(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh",
-                                         heightmap=heightmap)
+    extra = {} if heightmap is None else {"heightmap": heightmap}
+    station_diagram, info = station_factory(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh",
+                                            **extra)
     station = builder.AddSystem(station_diagram)
     x0 = info.initial_state
     targets = split_route(tuple(x0[4:6]), [(w.x, w.y, w.yaw, w.topology) for w in control.route],
@@ -240,10 +264,10 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
                                          position_mode=scenario.station.control_mode == "position")
     state_log, contact_log, trunk_log = _log_station(builder, station)
     desired_log = LogVectorOutput(tracker.GetOutputPort("desired_state"), builder, 1.0 / LOG_RATE)
-    leg_log, self_log = (LogVectorOutput(station.GetOutputPort(name), builder, 1.0 / LOG_RATE)
-                         for name in ("leg_link_force", "self_contact"))
+    leg_log, self_log = (_optional_log(builder, station, name) for name in ("leg_link_force", "self_contact"))
     diagram = builder.Build()
     simulator = Simulator(diagram)
+    simulator.set_target_realtime_rate(realtime_rate)
     simulator.Initialize()
     if missions.first_failure:
         return _unplanned(scenario, out, missions)
@@ -263,8 +287,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
             break
         if stop_on_failure and (
                 np.any(trunk_log.FindLog(context).data() > 0.5)
-                or np.any(leg_log.FindLog(context).data() > crit.leg_contact_force)
-                or np.any(self_log.FindLog(context).data() > crit.leg_contact_force)
+                or (leg_log is not None and np.any(leg_log.FindLog(context).data() > crit.leg_contact_force))
+                or (self_log is not None and np.any(self_log.FindLog(context).data() > crit.leg_contact_force))
                 or np.degrees(np.max(np.abs(state_log.FindLog(context).data()[JOINT_Q]
                                             - desired_log.FindLog(context).data()[:18]), initial=0.0))
                 > crit.max_joint_error_deg):
@@ -281,7 +305,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     contacts = contact_log.FindLog(context).data().T
     trunk = trunk_log.FindLog(context).data()[0]
     desired = desired_log.FindLog(context).data().T
-    links = (leg_log.FindLog(context).data().T, self_log.FindLog(context).data()[0])
+    links = (None if leg_log is None else leg_log.FindLog(context).data().T,
+             None if self_log is None else self_log.FindLog(context).data()[0])
     metrics = walking_metrics(scenario, info, missions.log, targets, times, states, contacts, trunk, desired,
                               fell=fell, timed_out=not stopped and (not missions.done or context.get_time() >= limit),
                               leg_link_force=links[0], self_force=links[1])
@@ -290,6 +315,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     metrics.update(sim_time_s=sim_time, wall_time_s=wall, realtime_factor=sim_time / wall if wall > 0 else 0.0,
                    realtime_factor_excluding_planning=sim_time / max(wall - counts["blc_solve_time_s"], 1e-9),
                    terrain_contact=info.contact_representation, planner=control.planner, **counts)
+    metrics.update(_station_metrics(station_diagram, context))
     files = {}
     if out is not None:
         from qz_drake.viz.plots import plot_walk
@@ -447,4 +473,7 @@ def walking_metrics(scenario, info, log, targets, times, states, contacts, trunk
         "joint_tracking_rms_rad": joint_rms,
         "missions": len(log.plans),
         "planner_failures": len(log.failures),
+        # False when the station cannot see leg-link contacts (the LCM hardware interface): the
+        # verdict then has not checked them.
+        "leg_contact_observed": leg_link_force is not None,
     }

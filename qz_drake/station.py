@@ -156,11 +156,25 @@ def _set_robot_contact(plant, scene_graph, instance, *, hydroelastic: bool, mate
 
 
 def make_station(scenario: Scenario, meshcat: Meshcat | None = None, *,
-                 mesh_dir: str | Path | None = None, heightmap=None) -> tuple[Diagram, StationInfo]:
-    """Builds the simulated station for a scenario; returns (diagram, info).
+                 mesh_dir: str | Path | None = None, heightmap=None, backend: str = "sim",
+                 lcm_url: str = "memq://", hardware=None) -> tuple[Diagram, StationInfo]:
+    """Builds the station for a scenario; returns (diagram, info).
 
-    ``heightmap`` replaces the scenario's terrain section's map (e.g. a capability scene held
-    in memory); the section's contact, material and region still apply."""
+    ``backend="sim"``: the MultibodyPlant station below; ``heightmap`` then replaces the
+    scenario's terrain section's map (e.g. a capability scene held in memory); the section's
+    contact, material and region still apply. ``backend="lcm"``: the
+    QingzhuiHardwareInterface (qz_drake.hardware) with the same controller ports, talking LCM
+    on ``lcm_url`` to a robot driver (the robot, or ``qz robot-sim``), with ``hardware`` (a
+    qz_drake.hardware.config.HardwareConfig) as its protocol settings.
+    """
+    if backend == "lcm":
+        from qz_drake.hardware.interface import make_hardware_interface
+
+        if heightmap is not None:
+            raise bad_value("heightmap", "a HeightMap", "replaces the simulated terrain: backend 'sim' only")
+        return make_hardware_interface(scenario, meshcat, lcm_url=lcm_url, config=hardware)
+    if backend != "sim":
+        raise bad_value("backend", backend, "expected sim or lcm")
     from qz_drake.terrain import get_material
 
     builder = DiagramBuilder()

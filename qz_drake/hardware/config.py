@@ -1,0 +1,90 @@
+"""The LCM protocol's settings, shared by the interface and the (simulated) robot driver.
+
+One typed dataclass with a YAML form (``load_hardware_config``), defaults in one place. The
+timing of one control period ``h`` (both sides use the same period, each on its own clock)::
+
+    driver:     0       physics / servo tick: applies the latched command
+                h/4     publishes qz_status (and qz_pose) measured after the tick
+    interface:  h/2     decodes the newest status, runs the watchdog and the estimator
+                3h/4    publishes qz_command computed from that status
+    driver:     7h/8    checks and latches the newest command for the next tick
+
+so a command reaches the driver half a period after the status it answers, before the
+driver's next tick: the status-to-command budget is 5h/8, and in the lockstep simulation the
+controller sees the same measurement at the same tick as against the simulation station.
+"""
+
+# (No "from __future__ import annotations": pydrake.common.yaml reads the field types.)
+import dataclasses
+import math
+
+from pydrake.common.yaml import yaml_load_typed
+
+from qz_drake.errors import ConfigError, bad_value
+
+
+@dataclasses.dataclass
+class ChannelConfig:
+    # Robot -> controller: qz_status at the control rate.
+    status: str = "QZ_STATUS"
+    # Controller -> robot: qz_command at the control rate.
+    command: str = "QZ_COMMAND"
+    # Localisation -> controller: qz_pose (base position and velocity in the map).
+    pose: str = "QZ_POSE"
+
+
+@dataclasses.dataclass
+class HardwareConfig:
+    channels: ChannelConfig = dataclasses.field(default_factory=ChannelConfig)
+    # The control period of status and command messages; the plant step of the simulated
+    # driver (500 Hz: the joint PD of Eq. 7 runs at every step, as in the simulation). [s]
+    control_period: float = 0.002
+    # Localisation (qz_pose) period of the simulated driver; LiDAR odometry runs at ~10 Hz. [s]
+    pose_period: float = 0.002
+    # A status (interface side) or command (driver side) older than this latches a safe stop:
+    # 2.5 periods, so the third missing message trips it. [s]
+    status_timeout: float = 0.005
+    command_timeout: float = 0.005
+    # Lost messages tolerated between two consecutive ones (UDP drops a datagram now and then,
+    # and Drake's subscriber keeps only the newest); a larger gap latches a safe stop.
+    max_missed_messages: int = 2
+    # The sender's clock may advance differently from the receiver's by this much between two
+    # messages before it counts as a clock jump (network jitter stays well below it). [s]
+    clock_tolerance: float = 0.02
+    # A measured joint angle this far outside the joint limits marks a malformed status. [rad]
+    joint_limit_margin: float = 0.05
+    # A pose is not extrapolated further than this (localisation drop-outs). [s]
+    max_pose_extrapolation: float = 0.2
+    # Driver safe stop in torque mode: hold the joint angles measured when the stop began with
+    # this PD (position mode: the drives' own PD holds them). [N*m/rad], [N*m*s/rad]
+    safe_stop_kp: float = 1000.0
+    safe_stop_kd: float = 20.0
+
+
+def validate_hardware_config(config: HardwareConfig) -> HardwareConfig:
+    """Checks values the YAML types cannot; returns the config."""
+    for name in ("control_period", "pose_period", "status_timeout", "command_timeout",
+                 "clock_tolerance", "max_pose_extrapolation", "safe_stop_kp", "safe_stop_kd"):
+        value = getattr(config, name)
+        if not (math.isfinite(value) and value > 0):
+            raise bad_value(f"hardware.{name}", value, "must be a finite positive number")
+    if config.status_timeout <= config.control_period or config.command_timeout <= config.control_period:
+        raise bad_value("hardware.status_timeout", config.status_timeout,
+                        f"must exceed one control period ({config.control_period} s)")
+    if config.max_missed_messages < 0:
+        raise bad_value("hardware.max_missed_messages", config.max_missed_messages, "must be >= 0")
+    if config.joint_limit_margin < 0:
+        raise bad_value("hardware.joint_limit_margin", config.joint_limit_margin, "must be >= 0")
+    for name in ("status", "command", "pose"):
+        if not getattr(config.channels, name):
+            raise bad_value(f"hardware.channels.{name}", "", "a channel needs a name")
+    return config
+
+
+def load_hardware_config(text: str) -> HardwareConfig:
+    """A HardwareConfig from YAML text (fields not given keep their defaults)."""
+    try:
+        config = yaml_load_typed(schema=HardwareConfig, data=text or "{}")
+    except (RuntimeError, ValueError, TypeError) as e:
+        raise ConfigError(f"hardware config: {e}") from None
+    return validate_hardware_config(config)
