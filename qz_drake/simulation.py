@@ -255,6 +255,12 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     wall_start = time.perf_counter()
     if control.planner == "blc":
         missions = _BlcMissions(builder, station, info, targets, control, blc_params)
+    elif control.planner == "capplanner":
+        source = _capability_planner(scenario, info)
+        if source.log.unreachable:
+            return _unplanned(scenario, out, None, reason=f"goal unreachable: {source.log.unreachable}",
+                              code="unreachable", extra=source.counts())
+        missions = _BlcMissions(builder, station, info, targets, control, blc_params, route_source=source)
     else:
         missions = _PlannerMissions(builder, station, info, targets, control, scenario.robot.initial_yaw)
         if missions.first_failure:
@@ -364,10 +370,13 @@ class _PlannerMissions:
 
 
 class _BlcMissions:
-    """Missions solved by the TrajectoryOptimizationBLC system in the diagram: a
-    MissionTargetSequencer hands it each local target once the previous plan has ended."""
+    """Missions solved by the TrajectoryOptimizationBLC system in the diagram, fed by a route
+    source: the fixed route's MissionTargetSequencer (each local target once the previous plan
+    has ended) or CapPlanner's CapabilityVIPlanner (``route_source``). Both have a ``plan``
+    input, ``target`` and ``topology`` outputs, a MissionLog ``log`` and ``done``; the wiring
+    is the same."""
 
-    def __init__(self, builder, station, info, targets, control, blc_params=None):
+    def __init__(self, builder, station, info, targets, control, blc_params=None, route_source=None):
         from pydrake.common.value import AbstractValue
         from pydrake.systems.primitives import ConstantValueSource
 
@@ -378,14 +387,16 @@ class _BlcMissions:
             params=info.params, timing=MissionTiming(control.speed, control.phase_duration),
             settle_time=SETTLE_TIME, blc_params=blc_params, initial_topology=info.topology.name))
         self.blc.set_name("blc")
-        self.targets = builder.AddSystem(MissionTargetSequencer(targets=targets,
-                                                               plan_ahead=control.plan_ahead))
+        self.targets = builder.AddSystem(route_source or MissionTargetSequencer(targets=targets,
+                                                                                plan_ahead=control.plan_ahead))
         heightmap = builder.AddSystem(ConstantValueSource(AbstractValue.Make(info.heightmap)))
         builder.Connect(station.GetOutputPort("state"), self.blc.GetInputPort("state"))
         builder.Connect(self.targets.GetOutputPort("target"), self.blc.GetInputPort("target"))
         builder.Connect(self.targets.GetOutputPort("topology"), self.blc.GetInputPort("topology"))
         builder.Connect(heightmap.get_output_port(), self.blc.GetInputPort("heightmap"))
         builder.Connect(self.blc.GetOutputPort("plan"), self.targets.GetInputPort("plan"))
+        if self.targets.HasInputPort("state"):
+            builder.Connect(station.GetOutputPort("state"), self.targets.GetInputPort("state"))
         self.plan_port = self.blc.GetOutputPort("plan")
 
     @property
@@ -403,11 +414,12 @@ class _BlcMissions:
     @property
     def done(self) -> bool:
         log = self.log
-        return bool(log.failures) or len(log.plans) >= self.targets.num_targets
+        return bool(log.failures) or self.targets.done
 
     def counts(self) -> dict:
         log = self.blc.log
-        return {"blc_solves": len(log.solves), "blc_failures": len(log.failures),
+        counts = getattr(self.targets, "counts", dict)()
+        return {**counts, "blc_solves": len(log.solves), "blc_failures": len(log.failures),
                 "blc_solve_time_s": log.solve_time_s,
                 "blc_iterations": int(sum(s[6] for s in log.solves)),
                 "topology_changes": len(log.switches)}
