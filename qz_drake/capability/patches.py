@@ -106,3 +106,17 @@ def nominal_feet_W(heightmap, x, y, yaw, topology, foot_radius: float) -> np.nda
     fx = x[..., None] + c * p_B[:, 0] - s * p_B[:, 1]
     fy = y[..., None] + s * p_B[:, 0] + c * p_B[:, 1]
     return np.stack([fx, fy, heightmap.height(fx, fy) + foot_radius], axis=-1)
+
+
+def grid_centres(heightmap, cell_size: float = CELL_SIZE) -> tuple[np.ndarray, np.ndarray]:
+    """(xs, ys) of the grid world's cell centres over a heightmap: as many whole cells of
+    ``cell_size`` as fit between the map's extreme cell centres, from its lower-left corner,
+    so that every cell and the patches of its turns lie on the map. [m]"""
+    if not (math.isfinite(float(cell_size)) and cell_size > 0):
+        raise bad_value("cell_size", cell_size, "must be a positive number of metres")
+    xmin, xmax, ymin, ymax = heightmap.bounds
+    nx = int(math.floor((xmax - xmin) / cell_size + 1e-9))
+    ny = int(math.floor((ymax - ymin) / cell_size + 1e-9))
+    if nx < 1 or ny < 1:
+        raise bad_value("heightmap.bounds", heightmap.bounds, f"smaller than one {cell_size} m grid cell")
+    return xmin + (np.arange(nx) + 0.5) * cell_size, ymin + (np.arange(ny) + 0.5) * cell_size
