@@ -306,6 +306,10 @@ def train_networks(arrays: dict, *, fingerprint: str, fingerprints: dict | None 
             missing[network_name(t, k)] = why
         else:
             plan.append((index, t, k, rows))
+    for t in TOPOLOGY_NAMES:
+        for k in KINDS:
+            if (t, k) not in wanted:
+                missing[network_name(t, k)] = "not requested (training.networks)"
     if not plan:
         raise ConfigError(f"dataset: no network has enough data to train ({'; '.join(f'{n}: {w}' for n, w in missing.items())})")
 
