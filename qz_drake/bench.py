@@ -22,6 +22,7 @@ SUITES = {
     "astar": ("bench_planning.py", "bench_astar"),
     "costmap": ("bench_planning.py", "bench_costmap"),
     "svm": ("bench_svm.py", "run"),
+    "capability-model": ("bench_capability_model.py", "run"),
 }
 
 

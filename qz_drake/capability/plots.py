@@ -85,7 +85,7 @@ def plot_capability_map(heightmap, capability_map, path, *, topology: str | None
     forward = capability_map.forward[index]  # (8, ny, nx)
     xmin, xmax, ymin, ymax = heightmap.bounds
     r = heightmap.resolution / 2
-    fig, ax = plt.subplots(figsize=(8, 8 * (ymax - ymin + 2 * r) / max(xmax - xmin + 2 * r, 1e-9) + 0.6))
+    fig, ax = plt.subplots(figsize=(8, 7 * (ymax - ymin + 2 * r) / max(xmax - xmin + 2 * r, 1e-9) + 1.5))
     im = ax.imshow(heightmap.heights, origin="lower", cmap="Greys_r",
                    extent=(xmin - r, xmax + r, ymin - r, ymax + r))
     fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02, label="height [m]")
@@ -96,7 +96,8 @@ def plot_capability_map(heightmap, capability_map, path, *, topology: str | None
         q = ax.quiver(gx, gy, np.full_like(gx, np.cos(angle) * length), np.full_like(gy, np.sin(angle) * length),
                       forward[k], cmap="RdYlGn", clim=(0.0, 1.0), angles="xy", scale_units="xy", scale=1,
                       width=0.004, headwidth=3, headlength=3)
-    fig.colorbar(q, ax=ax, fraction=0.046, pad=0.08, label="P(success) of moving forward")
+    fig.colorbar(q, ax=ax, orientation="horizontal", fraction=0.046, pad=0.08,
+                 label="P(success) of moving one cell forward (arrow: heading)")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(title or f"predicted success, {capability_map.topologies[index]}")
