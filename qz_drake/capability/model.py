@@ -291,40 +291,8 @@ class CapabilityModel:
         return patches, P.feet_in_heading_frame(feet_W, x, y, yaw, ground)
 
     def map_success(self, heightmap, topologies=None, *, cell_size: float = P.CELL_SIZE) -> "CapabilityMap":
-        """Every action's success probability from every cell and heading of the grid world.
-
-        Patches are sampled once per kind for all cells and headings (they do not depend on
-        the topology); each network then sees all its queries in one batched call.
-        """
-        from qz_drake.robot.params import DEFAULT_PARAMS
-        from qz_drake.robot.topology import TOPOLOGY_NAMES, get_topology
-
-        topologies = tuple(topologies or TOPOLOGY_NAMES)
-        for t in topologies:
-            for kind in P.KINDS:
-                self.network(t, kind)  # a missing network fails before any work
-        xs, ys = P.grid_centres(heightmap, cell_size)
-        # Grid arrays (8, ny, nx): heading index first, as the planner's states.
-        k, gy, gx = np.meshgrid(np.arange(8), ys, xs, indexing="ij")
-        yaw = P.heading_yaw(k)
-        ground = np.broadcast_to(P.ground_reference(heightmap, gx[0], gy[0]), k.shape)
-        even = k % 2 == 0
-        move_patches = np.empty(k.shape + (P.PATCH_SIZE, P.PATCH_SIZE), np.float32)
-        for kind, mask in (("orthogonal", even), ("diagonal", ~even)):
-            move_patches[mask] = P.sample_patches(heightmap, gx[mask], gy[mask], yaw[mask], kind, ground[mask])
-        turn_patches = P.sample_patches(heightmap, gx, gy, yaw, "turn", ground)
-        shape = (len(topologies),) + k.shape
-        forward, left, right = np.empty(shape), np.empty(shape), np.empty(shape)
-        for i, t in enumerate(topologies):
-            feet_W = P.nominal_feet_W(heightmap, gx, gy, yaw, get_topology(t), DEFAULT_PARAMS.foot_radius)
-            feet = P.feet_in_heading_frame(feet_W, gx, gy, yaw, ground)
-            forward[i][even] = self.success(move_patches[even], feet[even], "orthogonal", t)
-            forward[i][~even] = self.success(move_patches[~even], feet[~even], "diagonal", t)
-            both = self.success(np.stack([turn_patches] * 2), np.stack([feet] * 2), "turn", t,
-                                direction=np.array([P.TURN_LEFT, P.TURN_RIGHT])[:, None, None, None])
-            left[i], right[i] = both
-        return CapabilityMap(xs=xs, ys=ys, topologies=topologies, forward=forward, turn_left=left,
-                             turn_right=right, cell_size=float(cell_size))
+        """Every action's success probability from every cell and heading (see predict_map)."""
+        return predict_map(self, heightmap, topologies, cell_size=cell_size)
 
 
 @dataclasses.dataclass
@@ -348,6 +316,46 @@ class CapabilityMap:
     def queries(self) -> int:
         """Network evaluations behind the map."""
         return int(self.forward.size + self.turn_left.size + self.turn_right.size)
+
+
+def predict_map(model, heightmap, topologies=None, *, cell_size: float = P.CELL_SIZE) -> CapabilityMap:
+    """Every action's success probability from every cell and heading of the grid world.
+
+    ``model`` is anything with CapabilityModel's ``success`` (a stub in tests). Patches are
+    sampled once per kind for all cells and headings (they do not depend on the topology);
+    each network then sees all its queries in one batched call. The robot is assumed to
+    stand on the topology's nominal footholds (patches.nominal_feet_W).
+    """
+    from qz_drake.robot.params import DEFAULT_PARAMS
+    from qz_drake.robot.topology import TOPOLOGY_NAMES, get_topology
+
+    topologies = tuple(topologies or TOPOLOGY_NAMES)
+    if hasattr(model, "network"):
+        for t in topologies:
+            for kind in P.KINDS:
+                model.network(t, kind)  # a missing network fails before any work
+    xs, ys = P.grid_centres(heightmap, cell_size)
+    # Grid arrays (8, ny, nx): heading index first, as the planner's states.
+    k, gy, gx = np.meshgrid(np.arange(8), ys, xs, indexing="ij")
+    yaw = P.heading_yaw(k)
+    ground = np.broadcast_to(P.ground_reference(heightmap, gx[0], gy[0]), k.shape)
+    even = k % 2 == 0
+    move_patches = np.empty(k.shape + (P.PATCH_SIZE, P.PATCH_SIZE), np.float32)
+    for kind, mask in (("orthogonal", even), ("diagonal", ~even)):
+        move_patches[mask] = P.sample_patches(heightmap, gx[mask], gy[mask], yaw[mask], kind, ground[mask])
+    turn_patches = P.sample_patches(heightmap, gx, gy, yaw, "turn", ground)
+    turn_both = np.stack([turn_patches] * 2)
+    directions = np.array([P.TURN_LEFT, P.TURN_RIGHT])[:, None, None, None]
+    shape = (len(topologies),) + k.shape
+    forward, left, right = np.empty(shape), np.empty(shape), np.empty(shape)
+    for i, t in enumerate(topologies):
+        feet_W = P.nominal_feet_W(heightmap, gx, gy, yaw, get_topology(t), DEFAULT_PARAMS.foot_radius)
+        feet = P.feet_in_heading_frame(feet_W, gx, gy, yaw, ground)
+        forward[i][even] = model.success(move_patches[even], feet[even], "orthogonal", t)
+        forward[i][~even] = model.success(move_patches[~even], feet[~even], "diagonal", t)
+        left[i], right[i] = model.success(turn_both, np.stack([feet] * 2), "turn", t, direction=directions)
+    return CapabilityMap(xs=xs, ys=ys, topologies=topologies, forward=forward, turn_left=left,
+                         turn_right=right, cell_size=float(cell_size))
 
 
 def heading_offsets() -> np.ndarray:
