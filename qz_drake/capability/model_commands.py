@@ -47,13 +47,16 @@ def _print_table(rows: list[dict], title: str, extra: tuple[tuple[str, str], ...
     from rich.table import Table
 
     table = Table(title=title)
-    for column in ("network", "n", "pos", "AUC", "Brier", "ECE", "acc") + tuple(name for name, _ in extra):
-        table.add_column(column, justify="left" if column == "network" else "right")
+    table.add_column("network", no_wrap=True, min_width=21)
+    for column in ("n", "pos", "AUC", "Brier", "ECE", "acc") + tuple(name for name, _ in extra):
+        table.add_column(column, justify="right", no_wrap=True)
     for row in rows:
         table.add_row(f"{row['topology']}/{row['kind']}", str(row["n"]), str(row["positives"]), _fmt(row["auc"]),
                       _fmt(row["brier"]), _fmt(row["ece"]), _fmt(row["accuracy"]),
                       *(str(row.get(key, "-")) for _, key in extra))
-    Console().print(table)
+    console = Console()
+    # Piped output (a log file) gets the table's natural width instead of 80 columns.
+    Console(width=max(console.width, 120) if not console.is_terminal else None).print(table)
 
 
 def _figures(entries: list[dict], out: Path, what: str) -> list[str]:
@@ -66,7 +69,7 @@ def _figures(entries: list[dict], out: Path, what: str) -> list[str]:
 
 def run_train(args) -> int:
     from qz_drake.capability.model import save_model
-    from qz_drake.capability.training import TrainingConfig, train_networks
+    from qz_drake.capability.training import ALL_NETWORKS, TrainingConfig, train_networks
 
     arrays, manifest = load_dataset(args.dataset)
     config = TrainingConfig(seed=args.seed)
@@ -78,7 +81,7 @@ def run_train(args) -> int:
                             config=config, progress=not args.json)
     out = save_model(result, args.out)
     rows = []
-    for (topology, kind), network in sorted(result.networks.items()):
+    for (topology, kind), network in sorted(result.networks.items(), key=lambda item: ALL_NETWORKS.index(item[0])):
         card = network.card
         logistic = card["baselines"]["logistic"]
         rows.append({"topology": topology, "kind": kind, **{k: card["test"][k] for k in SUMMARY_KEYS[2:]},
@@ -94,11 +97,19 @@ def run_train(args) -> int:
         print(json.dumps(summary))
     else:
         for row in rows:
-            row["logistic"] = f"{_fmt(row['logistic_auc'])} / {_fmt(row['logistic_brier'])}"
+            row["lr_auc"], row["lr_brier"] = _fmt(row["logistic_auc"]), _fmt(row["logistic_brier"])
+            row["rate_brier"] = _fmt(row["base_rate_brier"])
         _print_table(rows, f"Test scenes ({len(result.split['test'])}), model {out}",
-                     extra=(("loss", "loss"), ("logistic AUC / Brier", "logistic"), ("beats baselines", "beats_baselines")))
+                     extra=(("loss", "loss"), ("LR AUC", "lr_auc"), ("LR Brier", "lr_brier"),
+                            ("rate Brier", "rate_brier"), ("beats", "beats_baselines")))
+        print("LR: logistic regression on patch features; rate: the training base rate; beats: higher AUC "
+              "and lower Brier than LR, lower Brier than the rate")
+        not_requested = [n for n, why in result.missing.items() if why.startswith("not requested")]
         for name, why in result.missing.items():
-            print(f"no network {name}: {why}")
+            if name not in not_requested:
+                print(f"no network {name}: {why}")
+        if not_requested:
+            print(f"not requested: {', '.join(not_requested)}")
         print("figures: " + ", ".join(figures))
     return 0
 

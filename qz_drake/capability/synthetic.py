@@ -81,7 +81,3 @@ def synthetic_arrays(*, scenes: int = 40, headings: int = 12, topologies=("nomin
                 "synthetic": True, "topologies": list(topologies), "kinds": list(kinds)}
     return arrays, manifest
 
-
-def all_networks() -> list[tuple[str, str]]:
-    """(topology, kind) of the 18 networks, in TOPOLOGY_NAMES x KINDS order."""
-    return [(t, k) for t in TOPOLOGY_NAMES for k in KINDS]

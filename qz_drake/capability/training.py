@@ -34,6 +34,8 @@ from qz_drake.robot.topology import TOPOLOGY_NAMES
 # Keys of the dataset contract (qz_drake.capability.dataset.load_training_arrays) used here.
 REQUIRED_KEYS = ("patch", "feet", "direction", "success", "scene", "topology", "kind")
 LOSSES = ("mse", "bce")
+# The 18 networks (topology, kind), in TOPOLOGY_NAMES x KINDS order.
+ALL_NETWORKS: tuple[tuple[str, str], ...] = tuple((t, k) for t in TOPOLOGY_NAMES for k in KINDS)
 
 
 @dataclasses.dataclass
@@ -292,13 +294,14 @@ def train_networks(arrays: dict, *, fingerprint: str, fingerprints: dict | None 
     scene = np.asarray(arrays["scene"], dtype=np.int64)
     in_split = {name: np.isin(scene, ids) for name, ids in split.items()}
     topology, kind = np.asarray(arrays["topology"]).astype(str), np.asarray(arrays["kind"]).astype(str)
-    wanted = [tuple(n.split("/")) for n in config.networks] or [(t, k) for t in TOPOLOGY_NAMES for k in KINDS]
+    wanted = [tuple(n.split("/")) for n in config.networks] or list(ALL_NETWORKS)
     unknown = sorted(set(np.unique(topology)) - set(TOPOLOGY_NAMES)) + sorted(set(np.unique(kind)) - set(KINDS))
     if unknown:
         raise bad_value("dataset.topology/kind", unknown, "not a topology or network kind of qz_drake")
     networks, missing, plan = {}, {}, []
-    for index, (t, k) in enumerate(wanted):
-        check_kind(k)
+    for t, k in wanted:
+        # Seeded by its place among all 18, so a network trained alone is the one of a full run.
+        index = ALL_NETWORKS.index((t, k))
         mask = (topology == t) & (kind == k)
         rows = {name: np.nonzero(mask & m)[0] for name, m in in_split.items()}
         why = _why_missing(np.asarray(arrays["success"][rows["train"]], dtype=bool), config, len(rows["validation"]))
@@ -306,33 +309,28 @@ def train_networks(arrays: dict, *, fingerprint: str, fingerprints: dict | None 
             missing[network_name(t, k)] = why
         else:
             plan.append((index, t, k, rows))
-    for t in TOPOLOGY_NAMES:
-        for k in KINDS:
-            if (t, k) not in wanted:
-                missing[network_name(t, k)] = "not requested (training.networks)"
+    for t, k in ALL_NETWORKS:
+        if (t, k) not in wanted:
+            missing[network_name(t, k)] = "not requested (training.networks)"
     if not plan:
-        raise ConfigError(f"dataset: no network has enough data to train ({'; '.join(f'{n}: {w}' for n, w in missing.items())})")
-
-    def run(advance_for):
-        for index, t, k, rows in plan:
-            networks[(t, k)] = train_one(arrays, rows, t, k, config, config.seed + index, advance_for(t, k))
+        reasons = "; ".join(f"{network_name(t, k)}: {missing[network_name(t, k)]}" for t, k in wanted)
+        raise ConfigError(f"dataset: no network has enough data to train ({reasons})")
 
     epochs = config.max_epochs * len(config.losses)
     if progress:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         with Progress(TextColumn("{task.description:<24}"), BarColumn(), MofNCompleteColumn(),
-                      TextColumn("epochs"), TimeElapsedColumn()) as bar:
+                      TextColumn("epochs (max)"), TimeElapsedColumn()) as bar:
             tasks = {(t, k): bar.add_task(network_name(t, k), total=epochs) for _, t, k, _ in plan}
-
-            def advance_for(t, k):
-                return lambda step: bar.advance(tasks[(t, k)], step)
-
-            run(advance_for)
-            for task in tasks.values():
-                bar.update(task, completed=epochs)
+            for index, t, k, rows in plan:
+                networks[(t, k)] = train_one(arrays, rows, t, k, config, config.seed + index,
+                                             lambda step, task=tasks[(t, k)]: bar.advance(task, step))
+                # Early stopping ends a run before max_epochs: the bar says the network is done.
+                bar.update(tasks[(t, k)], completed=epochs)
     else:
-        run(lambda t, k: None)
+        for index, t, k, rows in plan:
+            networks[(t, k)] = train_one(arrays, rows, t, k, config, config.seed + index)
     return TrainingResult(networks=networks, missing=missing,
                           split={name: ids.tolist() for name, ids in split.items()},
                           fingerprint=fingerprint, fingerprints=dict(fingerprints or {}), config=config)

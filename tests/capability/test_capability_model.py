@@ -170,6 +170,12 @@ def test_commands_train_evaluate_map(data, tmp_path, monkeypatch, capsys):
     assert [(r["topology"], r["kind"]) for r in summary["networks"]] == [("nominal", "orthogonal"), ("nominal", "turn")]
     assert all((tmp_path / "m" / name).is_file() for name in ("reliability.png", "confusion.png", "model.json"))
 
+    # Without --json: progress bars and the table.
+    args = parser.parse_args(["train", "--dataset", "ds", "--out", str(tmp_path / "m2"), "--network", "nominal/turn"])
+    assert args.func(args) == 0
+    printed = capsys.readouterr().out
+    assert "nominal/turn" in printed and "not requested: nominal/orthogonal" in printed
+
     args = parser.parse_args(["evaluate", "--model", str(tmp_path / "m"), "--dataset", "ds", "--json"])
     assert args.func(args) == 0
     result = json.loads(capsys.readouterr().out)
