@@ -8,7 +8,8 @@ Cases, medians of ``repeats`` timings, torch on two threads:
 * latency: one query alone;
 * whole map: ``CapabilityModel.map_success`` on the 20 m x 20 m long_range terrain, all six
   topologies: 20 x 20 cells x 8 headings, forward (orthogonal or diagonal) and both turns,
-  patch and feet sampling included; the sampling alone is timed too.
+  patch and feet sampling included; the sampling alone (sample_map_inputs) is timed too.
+  The turn network's patch head runs once for both directions (CapabilityModel.turn_success).
 
 The networks have seeded random weights (``CapabilityModel.random``): the time does not
 depend on the weights, and the real model is trained by the lead on the trial dataset.
@@ -34,10 +35,8 @@ def _median(fn, repeats: int, inner: int = 1) -> float:
 def run(repeats: int = 5, quick: bool = False, batch: int = 16384, threads: int = 2) -> dict:
     import torch
 
-    from qz_drake.capability import patches as P
-    from qz_drake.capability.model import CapabilityModel
-    from qz_drake.robot.params import DEFAULT_PARAMS
-    from qz_drake.robot.topology import TOPOLOGY_NAMES, get_topology
+    from qz_drake.capability.model import CapabilityModel, sample_map_inputs
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
     from qz_drake.terrain import make_terrain
 
     if quick:
@@ -54,17 +53,8 @@ def run(repeats: int = 5, quick: bool = False, batch: int = 16384, threads: int 
     per_prediction = _median(lambda: model.success(patches, feet, "orthogonal", "nominal"), repeats) / batch
     latency = _median(lambda: model.success(patches[:1], feet[:1], "orthogonal", "nominal"), repeats, 50)
 
-    xs, ys = P.grid_centres(heightmap)
-    kk, gy, gx = np.meshgrid(np.arange(8), ys, xs, indexing="ij")
-    yaw = P.heading_yaw(kk)
-
     def sampling():
-        ground = P.ground_reference(heightmap, gx, gy)
-        for kind in P.KINDS:
-            P.sample_patches(heightmap, gx, gy, yaw, kind, ground)
-        for name in TOPOLOGY_NAMES:
-            P.feet_in_heading_frame(P.nominal_feet_W(heightmap, gx, gy, yaw, get_topology(name),
-                                                     DEFAULT_PARAMS.foot_radius), gx, gy, yaw, ground)
+        return sample_map_inputs(heightmap, TOPOLOGY_NAMES)
 
     whole = model.map_success(heightmap)
     map_s = _median(lambda: model.map_success(heightmap), repeats)
@@ -77,7 +67,7 @@ def run(repeats: int = 5, quick: bool = False, batch: int = 16384, threads: int 
         "single_query_latency_ms": latency * 1e3,
         "map": {"terrain": "long_range", "size_m": [xmax - xmin + heightmap.resolution,
                                                     ymax - ymin + heightmap.resolution],
-                "cells": [len(ys), len(xs)], "headings": 8, "topologies": len(TOPOLOGY_NAMES),
+                "cells": list(whole.forward.shape[2:]), "headings": 8, "topologies": len(TOPOLOGY_NAMES),
                 "predictions": whole.queries, "seconds": map_s, "sampling_seconds": sampling_s,
                 "per_prediction_ms": map_s / whole.queries * 1e3},
     }

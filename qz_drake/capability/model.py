@@ -274,6 +274,28 @@ class CapabilityModel:
                 out[start:stop] = net.probability(x[start:stop], e[start:stop]).numpy()
         return out.reshape(batch)
 
+    def turn_success(self, patches, feet, topology: str) -> tuple[np.ndarray, np.ndarray]:
+        """(left, right) success of turning from the same queries: the same as ``success``
+        with d = 0 and d = 1, but the patch head runs once for both directions."""
+        import torch
+
+        net = self.network(topology, "turn")
+        patches = np.asarray(patches, dtype=np.float32)
+        batch = patches.shape[:-2]
+        self.success(patches[:0], np.asarray(feet)[:0], "turn", topology, direction=0)  # checks shapes
+        n = int(np.prod(batch, dtype=np.int64))
+        x = torch.from_numpy(np.ascontiguousarray(patches.reshape(n, P.PATCH_SIZE, P.PATCH_SIZE)))
+        e = torch.from_numpy(np.ascontiguousarray(np.asarray(feet, dtype=np.float32).reshape(n, 18)))
+        out = np.empty((2, n))
+        with torch.inference_mode():
+            for start in range(0, n, INFERENCE_BATCH):
+                stop = min(start + INFERENCE_BATCH, n)
+                features = net.encode_patch(x[start:stop])
+                for d in (P.TURN_LEFT, P.TURN_RIGHT):
+                    extra = torch.cat([e[start:stop], torch.full((stop - start, 1), float(d))], dim=1)
+                    out[d, start:stop] = torch.sigmoid(net.head(features, extra)).numpy()
+        return out[0].reshape(batch), out[1].reshape(batch)
+
     @staticmethod
     def query_inputs(heightmap, x, y, heading_index, kind: str, topology: str, *, ground=None):
         """(patches, feet) for robots at (x, y) with heading index k (yaw = k * 45 deg),
@@ -318,22 +340,28 @@ class CapabilityMap:
         return int(self.forward.size + self.turn_left.size + self.turn_right.size)
 
 
-def predict_map(model, heightmap, topologies=None, *, cell_size: float = P.CELL_SIZE) -> CapabilityMap:
-    """Every action's success probability from every cell and heading of the grid world.
+@dataclasses.dataclass
+class MapInputs:
+    """The networks' inputs for every cell and heading of a grid world (sample_map_inputs)."""
 
-    ``model`` is anything with CapabilityModel's ``success`` (a stub in tests). Patches are
-    sampled once per kind for all cells and headings (they do not depend on the topology);
-    each network then sees all its queries in one batched call. The robot is assumed to
-    stand on the topology's nominal footholds (patches.nominal_feet_W).
-    """
+    # (nx,) and (ny,) cell centres. [m]
+    xs: np.ndarray
+    ys: np.ndarray
+    cell_size: float
+    # (8, ny, nx, 20, 20) forward-move patches (orthogonal for even k, diagonal for odd k). [m]
+    move_patches: np.ndarray
+    # (8, ny, nx, 20, 20) turn patches. [m]
+    turn_patches: np.ndarray
+    # topology -> (8, ny, nx, 6, 3) nominal feet in the heading frame. [m]
+    feet: dict
+
+
+def sample_map_inputs(heightmap, topologies, *, cell_size: float = P.CELL_SIZE) -> MapInputs:
+    """Patches (once per kind: they do not depend on the topology) and each topology's nominal
+    feet for every cell and heading, vectorised over all of them (built on patches.py)."""
     from qz_drake.robot.params import DEFAULT_PARAMS
-    from qz_drake.robot.topology import TOPOLOGY_NAMES, get_topology
+    from qz_drake.robot.topology import get_topology
 
-    topologies = tuple(topologies or TOPOLOGY_NAMES)
-    if hasattr(model, "network"):
-        for t in topologies:
-            for kind in P.KINDS:
-                model.network(t, kind)  # a missing network fails before any work
     xs, ys = P.grid_centres(heightmap, cell_size)
     # Grid arrays (8, ny, nx): heading index first, as the planner's states.
     k, gy, gx = np.meshgrid(np.arange(8), ys, xs, indexing="ij")
@@ -344,19 +372,48 @@ def predict_map(model, heightmap, topologies=None, *, cell_size: float = P.CELL_
     for kind, mask in (("orthogonal", even), ("diagonal", ~even)):
         move_patches[mask] = P.sample_patches(heightmap, gx[mask], gy[mask], yaw[mask], kind, ground[mask])
     turn_patches = P.sample_patches(heightmap, gx, gy, yaw, "turn", ground)
-    turn_both = np.stack([turn_patches] * 2)
-    directions = np.array([P.TURN_LEFT, P.TURN_RIGHT])[:, None, None, None]
-    shape = (len(topologies),) + k.shape
+    feet = {t: P.feet_in_heading_frame(P.nominal_feet_W(heightmap, gx, gy, yaw, get_topology(t),
+                                                        DEFAULT_PARAMS.foot_radius), gx, gy, yaw, ground)
+            for t in topologies}
+    return MapInputs(xs=xs, ys=ys, cell_size=float(cell_size), move_patches=move_patches,
+                     turn_patches=turn_patches, feet=feet)
+
+
+def predict_map(model, heightmap, topologies=None, *, cell_size: float = P.CELL_SIZE) -> CapabilityMap:
+    """Every action's success probability from every cell and heading of the grid world.
+
+    ``model`` is anything with CapabilityModel's ``success`` (a stub in tests). The inputs come
+    from :func:`sample_map_inputs`; each network then sees all its queries in one batched
+    call. The robot is assumed to stand on the topology's nominal footholds.
+    """
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+    topologies = tuple(topologies or TOPOLOGY_NAMES)
+    if hasattr(model, "network"):
+        for t in topologies:
+            for kind in P.KINDS:
+                model.network(t, kind)  # a missing network fails before any work
+    return evaluate_map(model, sample_map_inputs(heightmap, topologies, cell_size=cell_size))
+
+
+def evaluate_map(model, inputs: MapInputs) -> CapabilityMap:
+    """The networks on a MapInputs: forward, turn left and turn right for each topology."""
+    topologies = tuple(inputs.feet)
+    shape = (len(topologies),) + inputs.move_patches.shape[:3]
+    even = (np.arange(8) % 2 == 0)
     forward, left, right = np.empty(shape), np.empty(shape), np.empty(shape)
     for i, t in enumerate(topologies):
-        feet_W = P.nominal_feet_W(heightmap, gx, gy, yaw, get_topology(t), DEFAULT_PARAMS.foot_radius)
-        feet = P.feet_in_heading_frame(feet_W, gx, gy, yaw, ground)
-        forward[i][even] = model.success(move_patches[even], feet[even], "orthogonal", t)
-        forward[i][~even] = model.success(move_patches[~even], feet[~even], "diagonal", t)
-        left[i], right[i] = model.success(turn_both, np.stack([feet] * 2), "turn", t, direction=directions)
-    return CapabilityMap(xs=xs, ys=ys, topologies=topologies, forward=forward, turn_left=left,
-                         turn_right=right, cell_size=float(cell_size))
-
+        feet = inputs.feet[t]
+        forward[i][even] = model.success(inputs.move_patches[even], feet[even], "orthogonal", t)
+        forward[i][~even] = model.success(inputs.move_patches[~even], feet[~even], "diagonal", t)
+        if hasattr(model, "turn_success"):
+            left[i], right[i] = model.turn_success(inputs.turn_patches, feet, t)
+        else:
+            both = model.success(np.stack([inputs.turn_patches] * 2), np.stack([feet] * 2), "turn", t,
+                                 direction=np.array([P.TURN_LEFT, P.TURN_RIGHT])[:, None, None, None])
+            left[i], right[i] = both
+    return CapabilityMap(xs=inputs.xs, ys=inputs.ys, topologies=topologies, forward=forward, turn_left=left,
+                         turn_right=right, cell_size=inputs.cell_size)
 
 def heading_offsets() -> np.ndarray:
     """(8, 2) cell steps (dx, dy) of a forward move along heading k (yaw k * 45 deg)."""

@@ -89,14 +89,21 @@ class CapabilityNet(nn.Module):
             # d is 0 or 1 and some feet coordinates barely vary: keep a floor on the scale.
             self.extra_scale.copy_(extra.std(dim=0).nan_to_num(1.0).clamp_min(1e-2))
 
-    def forward(self, patch: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
+    def encode_patch(self, patch: torch.Tensor) -> torch.Tensor:
+        """The patch head: (B, 20, 20) heights [m] -> (B, patch_features)."""
         x = ((patch - self.patch_mean) / self.patch_scale).unsqueeze(1)
         x = torch.relu(_max_pool_2x2(self.conv1(x)))
         x = torch.relu(_max_pool_2x2(self.conv2(x)))
-        x = torch.relu(self.patch_dense(x.flatten(1)))
+        return torch.relu(self.patch_dense(x.flatten(1)))
+
+    def head(self, features: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
+        """The two dense layers after the concatenation; logits (B,)."""
         e = (extra - self.extra_mean) / self.extra_scale
-        x = torch.relu(self.dense1(torch.cat([x, e], dim=1)))
+        x = torch.relu(self.dense1(torch.cat([features, e], dim=1)))
         return self.dense2(x).squeeze(1)
+
+    def forward(self, patch: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
+        return self.head(self.encode_patch(patch), extra)
 
     def probability(self, patch: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
         return torch.sigmoid(self.forward(patch, extra))

@@ -69,6 +69,11 @@ def test_queries_batch_over_any_shape(trained, data):
     assert shaped.shape == (2, 3) and np.allclose(shaped.ravel(), flat, atol=1e-7)
     with pytest.raises(QzError, match="direction"):
         model.success(arrays["patch"][rows], arrays["feet"][rows], "turn", "nominal")
+    # Both turn directions from one pass of the patch head.
+    left, right = model.turn_success(arrays["patch"][rows], arrays["feet"][rows], "nominal")
+    for d, p in ((0, left), (1, right)):
+        assert np.allclose(p, model.success(arrays["patch"][rows], arrays["feet"][rows], "turn", "nominal", d),
+                           atol=1e-7)
     with pytest.raises(QzError, match="feet"):
         model.success(arrays["patch"][rows], arrays["feet"][rows][:2], "orthogonal", "nominal")
 
