@@ -16,7 +16,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -160,7 +159,8 @@ class CapabilityModel:
             raise _error("model", str(folder), hint)
         top = _read_json(folder / MODEL_CARD, "model")
         if top.get("format") != MODEL_FORMAT:
-            raise _error("model.format", top.get("format"), f"{folder / MODEL_CARD} is not a qz_drake capability model card")
+            raise _error("model.format", top.get("format"),
+                         f"{folder / MODEL_CARD} is not a qz_drake capability model card")
         if top.get("version") != FORMAT_VERSION:
             raise _error("model.version", top.get("version"), f"this code reads version {FORMAT_VERSION}")
         if fingerprint is not None and top.get("fingerprint") != fingerprint:
@@ -250,7 +250,8 @@ class CapabilityModel:
         patches = np.asarray(patches, dtype=np.float32)
         feet = np.asarray(feet, dtype=np.float32)
         if patches.shape[-2:] != (P.PATCH_SIZE, P.PATCH_SIZE):
-            raise _error("patches", f"array of shape {patches.shape}", f"expected (..., {P.PATCH_SIZE}, {P.PATCH_SIZE})")
+            raise _error("patches", f"array of shape {patches.shape}",
+                         f"expected (..., {P.PATCH_SIZE}, {P.PATCH_SIZE})")
         batch = patches.shape[:-2]
         if feet.shape != batch + (6, 3):
             raise _error("feet", f"array of shape {feet.shape}", f"expected {batch + (6, 3)} to match the patches")
@@ -414,8 +415,3 @@ def evaluate_map(model, inputs: MapInputs) -> CapabilityMap:
             left[i], right[i] = both
     return CapabilityMap(xs=inputs.xs, ys=inputs.ys, topologies=topologies, forward=forward, turn_left=left,
                          turn_right=right, cell_size=inputs.cell_size)
-
-def heading_offsets() -> np.ndarray:
-    """(8, 2) cell steps (dx, dy) of a forward move along heading k (yaw k * 45 deg)."""
-    angles = np.arange(8) * P.HEADING_STEP
-    return np.rint(np.stack([np.cos(angles), np.sin(angles)], axis=1)).astype(int)

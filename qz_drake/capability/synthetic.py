@@ -14,7 +14,6 @@ from __future__ import annotations
 import numpy as np
 
 from qz_drake.capability.patches import KINDS, MOVE_PATCH_SPACING, PATCH_SIZE, TURN_PATCH_SPACING
-from qz_drake.robot.topology import TOPOLOGY_NAMES
 
 # Largest step the synthetic robot climbs. [m]
 SYNTHETIC_MAX_STEP = 0.15

@@ -27,7 +27,7 @@ import numpy as np
 
 from qz_drake.capability.evaluation import (EvaluationConfig, baseline_inputs, baseline_metrics, beats_baselines,
                                             binary_metrics)
-from qz_drake.capability.patches import KINDS, PATCH_SIZE, check_kind
+from qz_drake.capability.patches import KINDS, PATCH_SIZE
 from qz_drake.errors import ConfigError, bad_value
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 

@@ -17,7 +17,7 @@ from qz_drake.capability.model import CapabilityModel, save_model  # noqa: E402
 from qz_drake.capability.synthetic import synthetic_arrays  # noqa: E402
 from qz_drake.capability.training import TrainingConfig, train_networks  # noqa: E402
 from qz_drake.errors import QzError  # noqa: E402
-from qz_drake.terrain import HeightMap, make_terrain  # noqa: E402
+from qz_drake.terrain import make_terrain  # noqa: E402
 
 torch.set_num_threads(1)
 TINY = dict(max_epochs=3, patience=2, losses=["bce"], min_train_trials=10, min_train_per_class=1)
