@@ -23,6 +23,8 @@ from qz_drake.capability.patches import MOVE_PATCH_SPACING, TURN_PATCH_SPACING
 
 # Names of the baseline's patch features, in column order.
 FEATURE_NAMES = ("max_step_height", "max_slope", "max_roughness", "height_range")
+# Patches per body_features mosaic.
+FEATURE_CHUNK = 2048
 
 
 @dataclasses.dataclass
@@ -101,6 +103,10 @@ def patch_features(patches, kind: str, config: EvaluationConfig | None = None) -
     n, size = len(patches), patches.shape[-1]
     if n == 0:
         return np.zeros((0, len(FEATURE_NAMES)))
+    if n > FEATURE_CHUNK:
+        # Mosaics of a few thousand patches keep the FFTs' memory in the tens of megabytes.
+        return np.concatenate([patch_features(patches[i:i + FEATURE_CHUNK], kind, config)
+                               for i in range(0, n, FEATURE_CHUNK)])
     spacing = TURN_PATCH_SPACING if kind == "turn" else MOVE_PATCH_SPACING
     body = BodyFeatureConfig(radius=max(config.feature_radius, spacing))
     pad = int(np.ceil(body.radius / spacing)) + max(1, int(round(body.step_window / spacing))) + 1

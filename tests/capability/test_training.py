@@ -116,7 +116,7 @@ def test_expected_calibration_error_by_hand():
     assert ev.expected_calibration_error([1, 0, 1, 0], [0.5] * 4) == pytest.approx(0.0)
 
 
-def test_patch_features_see_each_patch_alone():
+def test_patch_features_see_each_patch_alone(monkeypatch):
     flat = np.zeros((20, 20))
     step = flat.copy()
     step[12:] = 0.2
@@ -128,5 +128,10 @@ def test_patch_features_see_each_patch_alone():
     assert features[1, names.index("max_step_height")] == pytest.approx(0.2, abs=0.02)
     assert features[1, names.index("height_range")] == pytest.approx(0.2)
     assert features[1, names.index("max_slope")] > 0.1
+    # Chunked mosaics give the same features.
+    many = np.stack([flat, step, flat] * 3)
+    whole = ev.patch_features(many, "turn")
+    monkeypatch.setattr(ev, "FEATURE_CHUNK", 2)
+    assert np.allclose(ev.patch_features(many, "turn"), whole, atol=1e-6)
     X = ev.baseline_inputs(np.stack([flat, step]), np.array([0, 1]), "turn")
     assert X.shape == (2, 5) and list(X[:, -1]) == [0, 1]
