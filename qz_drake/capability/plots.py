@@ -103,3 +103,40 @@ def plot_capability_map(heightmap, capability_map, path, *, topology: str | None
     ax.set_title(title or f"predicted success, {capability_map.topologies[index]}")
     ax.set_aspect("equal")
     return _save(fig, path)
+
+
+def plot_plan(heightmap, plan, path, *, title: str = "") -> Path:
+    """Paper 000 Fig. 6(a): the utility of every cell (best over headings and topologies,
+    warmer is higher) over the heightmap, and the most likely path from the start to the goal
+    (markers where the topology changes)."""
+    mdp = plan.mdp
+    xmin, xmax, ymin, ymax = heightmap.bounds
+    r = heightmap.resolution / 2
+    fig, ax = plt.subplots(figsize=(8, 7 * (ymax - ymin + 2 * r) / max(xmax - xmin + 2 * r, 1e-9) + 1.0))
+    ax.imshow(heightmap.heights, origin="lower", cmap="Greys_r", extent=(xmin - r, xmax + r, ymin - r, ymax + r))
+    half = mdp.config.cell_size / 2
+    utility = plan.utility_map()
+    # The goal cell's states have arrived (V = 0 there): left transparent, the star marks it.
+    utility[mdp.goal_cell[1], mdp.goal_cell[0]] = np.nan
+    im = ax.imshow(utility, origin="lower", cmap="jet", alpha=0.55,
+                   extent=(mdp.xs[0] - half, mdp.xs[-1] + half, mdp.ys[0] - half, mdp.ys[-1] + half))
+    fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02, label="utility V (best heading and topology)")
+    cells = plan.cells
+    if len(cells):
+        ax.plot(cells[:, 0], cells[:, 1], "w-", lw=2.5)
+        ax.plot(cells[:, 0], cells[:, 1], "k-", lw=1)
+        ax.plot(*cells[0], "wo", ms=9, mec="k", label="start")
+    gx, gy = mdp.goal_cell
+    ax.plot(mdp.xs[gx], mdp.ys[gy], "w*", ms=16, mec="k", label="goal")
+    changes = [(s.x, s.y, s.action_topology) for s in plan.steps if s.topology != s.action_topology]
+    for x, y, name in changes:
+        ax.plot(x, y, "ms", ms=7, mec="k")
+        ax.annotate(name, (x, y), textcoords="offset points", xytext=(5, 5), fontsize=8, color="m")
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    outcome = f"P(success) {plan.success_probability:.2f}" if plan.reaches_goal else "goal not reached"
+    ax.set_title(title or f"value iteration: {plan.solution.iterations} iterations, {len(plan.steps)} actions, "
+                          f"{outcome}")
+    ax.set_aspect("equal")
+    return _save(fig, path)

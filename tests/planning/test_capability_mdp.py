@@ -74,7 +74,7 @@ def test_path_takes_the_short_corridor_when_the_model_allows_it(corridors):
     assert [s.motion for s in result.steps] == ["forward"] * 11
 
 
-def test_topology_change_where_it_pays(corridors):
+def test_topology_change_where_it_pays(corridors, tmp_path):
     model = StubModel(thresholds={"front_bend": 0.1})  # only front_bend climbs the ridge
     capability_map = predict_map(model, corridors, ["nominal", "front_bend"])
     cheap = plan_on_map(capability_map, START, 0, GOAL, config=CapabilityMdpConfig(topology_change_cost=2.0))
@@ -83,6 +83,8 @@ def test_topology_change_where_it_pays(corridors):
     assert np.all((ys > 4) & (ys < 7))
     ridge_steps = [s for s in cheap.steps if s.motion == "forward" and 5.0 < s.x < 7.0]
     assert ridge_steps and all(s.action_topology == "front_bend" for s in ridge_steps)
+    from qz_drake.capability.plots import plot_plan
+    assert plot_plan(corridors, cheap, tmp_path / "plan.png").stat().st_size > 1000
     # A change dearer than the detour: the robot stays nominal and goes round through B.
     dear = plan_on_map(capability_map, START, 0, GOAL, config=CapabilityMdpConfig(topology_change_cost=60.0))
     assert dear.reaches_goal and dear.topology_changes == 0 and np.all(crossing(dear) > 9)
