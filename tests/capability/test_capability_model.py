@@ -190,6 +190,12 @@ def test_commands_train_evaluate_map(data, tmp_path, monkeypatch, capsys):
                                                                    & (arrays["topology"] == "nominal")))
     assert entries[("nominal", "diagonal")].get("missing") is True
 
+    # Other scenes are fine (the same metrics on any dataset of this BLC-robot system) ...
+    scenes = dict(manifest, fingerprint="other", fingerprints=dict(manifest["fingerprints"], scenes="other-scenes"))
+    monkeypatch.setattr(model_commands, "load_dataset", lambda path: (arrays, scenes))
+    assert args.func(args) == 0
+    capsys.readouterr()
+    # ... another BLC is not.
     other = dict(manifest, fingerprints=dict(manifest["fingerprints"], blc="another-blc"))
     monkeypatch.setattr(model_commands, "load_dataset", lambda path: (arrays, other))
     with pytest.raises(QzError, match=r"dataset.manifest.fingerprints.blc = 'another-blc'"):
