@@ -83,9 +83,10 @@ def run_train(args) -> int:
     rows = []
     for (topology, kind), network in sorted(result.networks.items(), key=lambda item: ALL_NETWORKS.index(item[0])):
         card = network.card
-        logistic = card["baselines"]["logistic"]
+        logistic, boosting = card["baselines"]["logistic"], card["baselines"]["gradient_boosting"]
         rows.append({"topology": topology, "kind": kind, **{k: card["test"][k] for k in SUMMARY_KEYS[2:]},
                      "loss": card["loss"], "logistic_auc": logistic["auc"], "logistic_brier": logistic["brier"],
+                     "boosting_auc": boosting["auc"], "boosting_brier": boosting["brier"],
                      "base_rate_brier": card["baselines"]["base_rate"]["brier"],
                      "beats_baselines": card["beats_baselines"]})
     figures = _figures([dict(r, **result.networks[(r["topology"], r["kind"])].card["test"]) for r in rows],
@@ -98,12 +99,13 @@ def run_train(args) -> int:
     else:
         for row in rows:
             row["lr_auc"], row["lr_brier"] = _fmt(row["logistic_auc"]), _fmt(row["logistic_brier"])
+            row["gb_auc"], row["gb_brier"] = _fmt(row["boosting_auc"]), _fmt(row["boosting_brier"])
             row["rate_brier"] = _fmt(row["base_rate_brier"])
         _print_table(rows, f"Test scenes ({len(result.split['test'])}), model {out}",
-                     extra=(("loss", "loss"), ("LR AUC", "lr_auc"), ("LR Brier", "lr_brier"),
-                            ("rate Brier", "rate_brier"), ("beats", "beats_baselines")))
-        print("LR: logistic regression on patch features; rate: the training base rate; beats: higher AUC "
-              "and lower Brier than LR, lower Brier than the rate")
+                     extra=(("loss", "loss"), ("LR AUC", "lr_auc"), ("LR Brier", "lr_brier"), ("GB AUC", "gb_auc"),
+                            ("GB Brier", "gb_brier"), ("rate Brier", "rate_brier"), ("beats", "beats_baselines")))
+        print("LR / GB: logistic regression / gradient boosting on patch features; rate: the training base rate; "
+              "beats: higher AUC and lower Brier than LR and GB, lower Brier than the rate")
         not_requested = [n for n, why in result.missing.items() if why.startswith("not requested")]
         for name, why in result.missing.items():
             if name not in not_requested:

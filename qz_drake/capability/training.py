@@ -10,8 +10,8 @@ Protocol:
   loss on the sigmoid output and with binary cross-entropy; each run stops early on its own
   validation loss (the best epoch's weights are kept), and the run with the lower
   validation Brier score is kept (``select_by``), see :class:`TrainingConfig`;
-* the kept network and the two baselines of qz_drake.capability.evaluation are scored on the
-  test scenes.
+* the kept network and the baselines of qz_drake.capability.evaluation (base rate, logistic
+  regression, gradient boosting) are scored on the test scenes.
 
 A (topology, kind) with too few training trials, or with one class only, gets no network: it
 is listed in ``TrainingResult.missing`` with the reason, and the model refuses queries for it.

@@ -62,6 +62,7 @@ def test_learns_a_known_rule_on_held_out_scenes(learned):
     assert card["baselines"]["base_rate"]["n"] == card["test"]["n"]
     assert card["baselines"]["base_rate"]["auc"] is None or card["baselines"]["base_rate"]["auc"] == 0.5
     assert card["baselines"]["logistic"]["auc"] > 0.9  # the rule is a threshold on a hand-made feature
+    assert card["baselines"]["gradient_boosting"]["n"] == card["test"]["n"]
     assert card["beats_baselines"] in (True, False)
 
 
@@ -97,6 +98,14 @@ def test_bad_config_and_arrays_name_the_field():
         train_networks(broken, fingerprint="f")
     with pytest.raises(QzError, match="fingerprint"):
         train_networks(arrays, fingerprint="")
+
+
+def test_beats_baselines_needs_every_baseline_beaten():
+    base = {"base_rate": {"brier": 0.25}, "logistic": {"auc": 0.8, "brier": 0.15},
+            "gradient_boosting": {"auc": 0.85, "brier": 0.12}}
+    assert ev.beats_baselines({"n": 10, "auc": 0.9, "brier": 0.1}, base) is True
+    assert ev.beats_baselines({"n": 10, "auc": 0.83, "brier": 0.1}, base) is False
+    assert ev.beats_baselines({"n": 10, "auc": None, "brier": 0.1}, base) is None
 
 
 def test_metrics_with_one_class_report_no_auc():
