@@ -19,6 +19,7 @@ SUITES = {
     "sim": ("bench_sim.py", "run"),
     "walk": ("bench_walk.py", "run"),
     "blc": ("bench_blc.py", "run"),
+    "capability-model": ("bench_capability_model.py", "run"),
     "astar": ("bench_planning.py", "bench_astar"),
     "costmap": ("bench_planning.py", "bench_costmap"),
     "svm": ("bench_svm.py", "run"),

@@ -1,0 +1,417 @@
+"""CapabilityModel: the 18 learned transition probabilities of paper 000 (section II-E.1).
+
+A model directory holds, per network ``<topology>_<kind>``, the weights as safetensors (no
+pickle; the header's metadata names the format, topology and kind) and a JSON card (dataset
+fingerprint, training config, loss choice, validation and test metrics, baselines, the
+weights' SHA-256); ``model.json`` is the top-level card (fingerprints, split, the networks and
+the missing ones with why). Loading checks every card against the top card and every weights
+file against its card: a file that is not ours, or a fingerprint that differs, is refused
+with one QzError line.
+
+Importing this module does not import torch; loading or building a model does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+
+from qz_drake.capability import patches as P
+from qz_drake.errors import QzError, bad_value
+
+MODEL_FORMAT = "qz_drake.capability_model"
+NETWORK_FORMAT = "qz_drake.capability_network"
+FORMAT_VERSION = 1
+MODEL_CARD = "model.json"
+# Where the shipped model lives (trained by `qz capability train` on the real trial dataset).
+DEFAULT_MODEL_DIR = Path(__file__).resolve().parents[1] / "data" / "capability_model"
+# Queries per forward pass: bounds the memory of a whole-map call (about 5 MB of activations).
+INFERENCE_BATCH = 8192
+
+
+class CapabilityModelError(QzError, ValueError):
+    """A capability model directory, weights file or card is missing, foreign or inconsistent."""
+
+
+def _error(field: str, value, why: str) -> CapabilityModelError:
+    return bad_value(field, value, why, CapabilityModelError)
+
+
+def file_stem(topology: str, kind: str) -> str:
+    return f"{topology}_{kind}"
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _jsonable(value):
+    if dataclasses.is_dataclass(value):
+        return dataclasses.asdict(value)
+    raise TypeError(type(value).__name__)
+
+
+def save_model(result, out_dir) -> Path:
+    """Writes a TrainingResult (qz_drake.capability.training) as a model directory; returns it."""
+    from safetensors.torch import save_file
+
+    from qz_drake.capability.training import network_name
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    config = dataclasses.asdict(result.config)
+    entries = {}
+    for (topology, kind), network in sorted(result.networks.items()):
+        stem = file_stem(topology, kind)
+        weights = out / f"{stem}.safetensors"
+        state = {k: v.detach().contiguous() for k, v in network.net.state_dict().items()}
+        save_file(state, str(weights), metadata={
+            "format": NETWORK_FORMAT, "version": str(FORMAT_VERSION), "topology": topology, "kind": kind,
+            "network_config": json.dumps(dataclasses.asdict(network.net.config)),
+            "fingerprint": result.fingerprint})
+        card = {"format": NETWORK_FORMAT, "version": FORMAT_VERSION, "name": network_name(topology, kind),
+                "fingerprint": result.fingerprint, "fingerprints": result.fingerprints,
+                "weights": weights.name, "weights_sha256": _sha256(weights),
+                "network_config": dataclasses.asdict(network.net.config), "training_config": config,
+                **network.card}
+        (out / f"{stem}.json").write_text(json.dumps(card, indent=2, default=_jsonable))
+        entries[network_name(topology, kind)] = {"weights": weights.name, "card": f"{stem}.json"}
+    top = {"format": MODEL_FORMAT, "version": FORMAT_VERSION, "fingerprint": result.fingerprint,
+           "fingerprints": result.fingerprints, "networks": entries, "missing": result.missing,
+           "split": result.split, "training_config": config}
+    (out / MODEL_CARD).write_text(json.dumps(top, indent=2, default=_jsonable))
+    return out
+
+
+def _read_json(path: Path, field: str) -> dict:
+    if not path.is_file():
+        raise _error(field, str(path), "no such file")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise _error(field, str(path), f"not a JSON card ({e.__class__.__name__})") from None
+    if not isinstance(data, dict):
+        raise _error(field, str(path), "not a JSON card")
+    return data
+
+
+def load_network(weights: Path, card: dict, name: str):
+    """One CapabilityNet from its safetensors file, checked against its card."""
+    from safetensors import SafetensorError, safe_open
+
+    from qz_drake.capability.networks import CapabilityNet, NetworkConfig
+
+    field = f"model.networks.{name}.weights"
+    if not weights.is_file():
+        raise _error(field, str(weights), "no such file")
+    try:
+        with safe_open(str(weights), framework="pt") as f:
+            metadata = f.metadata() or {}
+            state = {k: f.get_tensor(k) for k in f.keys()}
+    except (SafetensorError, OSError, ValueError) as e:
+        raise _error(field, str(weights), f"not a safetensors file ({str(e).splitlines()[0][:80]})") from None
+    topology, _, kind = name.partition("/")
+    if metadata.get("format") != NETWORK_FORMAT or (metadata.get("topology"), metadata.get("kind")) != (topology, kind):
+        raise _error(field, str(weights), f"not a qz_drake capability network for {name} "
+                                          f"(header format {metadata.get('format')!r})")
+    if card.get("weights_sha256") != _sha256(weights):
+        raise _error(field, str(weights), "its SHA-256 differs from the card's weights_sha256 (file replaced?)")
+    config = NetworkConfig(**card.get("network_config", {}))
+    net = CapabilityNet(kind, config)
+    try:
+        net.load_state_dict(state, strict=True)
+    except RuntimeError as e:
+        raise _error(field, str(weights), f"tensors do not fit the network ({str(e).splitlines()[0][:80]})") from None
+    return net.eval()
+
+
+class CapabilityModel:
+    """The success probabilities of forward moves and 45 deg turns in each topology.
+
+    ``success(patches, feet, kind, topology, direction=None)`` evaluates one network on any
+    number of queries in one call; :meth:`query_inputs` samples the inputs for (x, y,
+    heading) queries straight from a HeightMap and :meth:`map_success` evaluates every cell
+    and heading of a map for the planner (qz_drake.planning.capability_mdp).
+    """
+
+    def __init__(self, networks: dict, card: dict):
+        # (topology, kind) -> CapabilityNet, in eval mode.
+        self._networks = dict(networks)
+        self.card = card
+
+    # -- construction -------------------------------------------------------------------------
+    @classmethod
+    def load(cls, path=None, *, fingerprint: str | None = None) -> "CapabilityModel":
+        """Loads every network of a model directory (default: the shipped model).
+
+        Args:
+            path: a directory written by :func:`save_model` / ``qz capability train``.
+            fingerprint: when given, the dataset fingerprint the model must have been trained on.
+        """
+        folder = Path(DEFAULT_MODEL_DIR if path is None else path)
+        if not (folder / MODEL_CARD).is_file():
+            hint = ("no model has been shipped yet: train one with `qz capability train --dataset DIR --out DIR` "
+                    "and pass --model DIR" if path is None else f"no {MODEL_CARD} there (not a model directory)")
+            raise _error("model", str(folder), hint)
+        top = _read_json(folder / MODEL_CARD, "model")
+        if top.get("format") != MODEL_FORMAT:
+            raise _error("model.format", top.get("format"),
+                         f"{folder / MODEL_CARD} is not a qz_drake capability model card")
+        if top.get("version") != FORMAT_VERSION:
+            raise _error("model.version", top.get("version"), f"this code reads version {FORMAT_VERSION}")
+        if fingerprint is not None and top.get("fingerprint") != fingerprint:
+            raise _error("model.fingerprint", top.get("fingerprint"), f"expected the dataset's {fingerprint!r}")
+        networks = {}
+        for name, entry in top.get("networks", {}).items():
+            card = _read_json(folder / entry["card"], f"model.networks.{name}.card")
+            if card.get("format") != NETWORK_FORMAT or card.get("name") != name:
+                raise _error(f"model.networks.{name}.card", str(folder / entry["card"]),
+                             f"not the card of the {name} network")
+            if card.get("fingerprint") != top.get("fingerprint"):
+                raise _error(f"model.networks.{name}.fingerprint", card.get("fingerprint"),
+                             f"differs from the model's {top.get('fingerprint')!r}: trained on other data")
+            topology, _, kind = name.partition("/")
+            networks[(topology, kind)] = load_network(folder / entry["weights"], card, name)
+            top.setdefault("cards", {})[name] = card
+        return cls(networks, top)
+
+    @classmethod
+    def from_training(cls, result) -> "CapabilityModel":
+        """The model of a TrainingResult, without writing it."""
+        from qz_drake.capability.training import network_name
+
+        card = {"format": MODEL_FORMAT, "version": FORMAT_VERSION, "fingerprint": result.fingerprint,
+                "fingerprints": result.fingerprints, "missing": dict(result.missing), "split": result.split,
+                "networks": {network_name(*key): {} for key in result.networks},
+                "cards": {network_name(*key): n.card for key, n in result.networks.items()}}
+        return cls({key: n.net.eval() for key, n in result.networks.items()}, card)
+
+    @classmethod
+    def random(cls, *, seed: int = 0, topologies=None, kinds=P.KINDS) -> "CapabilityModel":
+        """Untrained networks with seeded random weights: for timing and plumbing only."""
+        import torch
+
+        from qz_drake.capability.networks import CapabilityNet
+        from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+        torch.manual_seed(seed)
+        keys = [(t, k) for t in (topologies or TOPOLOGY_NAMES) for k in kinds]
+        card = {"format": MODEL_FORMAT, "version": FORMAT_VERSION, "fingerprint": f"random-{seed}",
+                "fingerprints": {}, "missing": {}, "random": True}
+        return cls({key: CapabilityNet(key[1]).eval() for key in keys}, card)
+
+    # -- properties ---------------------------------------------------------------------------
+    @property
+    def fingerprint(self) -> str:
+        return self.card.get("fingerprint", "")
+
+    @property
+    def fingerprints(self) -> dict:
+        return dict(self.card.get("fingerprints", {}))
+
+    @property
+    def networks(self) -> list[tuple[str, str]]:
+        """(topology, kind) of the networks this model has."""
+        return sorted(self._networks)
+
+    def has_network(self, topology: str, kind: str) -> bool:
+        return (topology, kind) in self._networks
+
+    def network(self, topology: str, kind: str):
+        """The torch module of one network; an explicit error naming it when the model lacks it."""
+        P.check_kind(kind)
+        key = (topology, kind)
+        if key not in self._networks:
+            name = f"{topology}/{kind}"
+            why = self.card.get("missing", {}).get(name)
+            raise _error("model.networks", name, "this model has no such network"
+                         + (f" (not trained: {why})" if why else ""))
+        return self._networks[key]
+
+    # -- inference ----------------------------------------------------------------------------
+    def success(self, patches, feet, kind: str, topology: str, direction=None) -> np.ndarray:
+        """Success probabilities of one network for any number of queries, as float64.
+
+        Args:
+            patches: (..., 20, 20) height patches relative to the standing ground [m]
+                (patches.sample_patches of this kind).
+            feet: (..., 6, 3) start feet in the heading frame [m] (patches.feet_in_heading_frame).
+            kind: orthogonal, diagonal or turn.
+            topology: one of TOPOLOGY_NAMES.
+            direction: for turns, d (0 left, 1 right), broadcast to the queries; None for moves.
+        """
+        import torch
+
+        net = self.network(topology, kind)
+        patches = np.asarray(patches, dtype=np.float32)
+        feet = np.asarray(feet, dtype=np.float32)
+        if patches.shape[-2:] != (P.PATCH_SIZE, P.PATCH_SIZE):
+            raise _error("patches", f"array of shape {patches.shape}",
+                         f"expected (..., {P.PATCH_SIZE}, {P.PATCH_SIZE})")
+        batch = patches.shape[:-2]
+        if feet.shape != batch + (6, 3):
+            raise _error("feet", f"array of shape {feet.shape}", f"expected {batch + (6, 3)} to match the patches")
+        n = int(np.prod(batch, dtype=np.int64))
+        extra = feet.reshape(n, 18)
+        if kind == "turn":
+            if direction is None:
+                raise _error("direction", None, "the turn network needs d (0 left, 1 right)")
+            d = np.broadcast_to(np.asarray(direction), batch).reshape(n)
+            if not np.isin(d, (P.TURN_LEFT, P.TURN_RIGHT)).all():
+                raise _error("direction", np.unique(d).tolist(), "expected 0 (left) or 1 (right)")
+            extra = np.column_stack([extra, d.astype(np.float32)])
+        elif direction is not None:
+            raise _error("direction", direction, f"only the turn network takes a direction, not {kind}")
+        out = np.empty(n, dtype=np.float64)
+        x = torch.from_numpy(np.ascontiguousarray(patches.reshape(n, P.PATCH_SIZE, P.PATCH_SIZE)))
+        e = torch.from_numpy(np.ascontiguousarray(extra))
+        with torch.inference_mode():
+            for start in range(0, n, INFERENCE_BATCH):
+                stop = start + INFERENCE_BATCH
+                out[start:stop] = net.probability(x[start:stop], e[start:stop]).numpy()
+        return out.reshape(batch)
+
+    def turn_success(self, patches, feet, topology: str) -> tuple[np.ndarray, np.ndarray]:
+        """(left, right) success of turning from the same queries: the same as ``success``
+        with d = 0 and d = 1, but the patch head runs once for both directions."""
+        import torch
+
+        net = self.network(topology, "turn")
+        patches = np.asarray(patches, dtype=np.float32)
+        batch = patches.shape[:-2]
+        self.success(patches[:0], np.asarray(feet)[:0], "turn", topology, direction=0)  # checks shapes
+        n = int(np.prod(batch, dtype=np.int64))
+        x = torch.from_numpy(np.ascontiguousarray(patches.reshape(n, P.PATCH_SIZE, P.PATCH_SIZE)))
+        e = torch.from_numpy(np.ascontiguousarray(np.asarray(feet, dtype=np.float32).reshape(n, 18)))
+        out = np.empty((2, n))
+        with torch.inference_mode():
+            for start in range(0, n, INFERENCE_BATCH):
+                stop = min(start + INFERENCE_BATCH, n)
+                features = net.encode_patch(x[start:stop])
+                for d in (P.TURN_LEFT, P.TURN_RIGHT):
+                    extra = torch.cat([e[start:stop], torch.full((stop - start, 1), float(d))], dim=1)
+                    out[d, start:stop] = torch.sigmoid(net.head(features, extra)).numpy()
+        return out[0].reshape(batch), out[1].reshape(batch)
+
+    @staticmethod
+    def query_inputs(heightmap, x, y, heading_index, kind: str, topology: str, *, ground=None):
+        """(patches, feet) for robots at (x, y) with heading index k (yaw = k * 45 deg),
+        standing on the topology's nominal footholds; x, y and k broadcast. Vectorised over
+        every query (built on qz_drake.capability.patches)."""
+        from qz_drake.robot.params import DEFAULT_PARAMS
+        from qz_drake.robot.topology import get_topology
+
+        x, y, k = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float),
+                                      np.asarray(heading_index))
+        yaw = P.heading_yaw(k)
+        ground = P.ground_reference(heightmap, x, y) if ground is None else ground
+        patches = P.sample_patches(heightmap, x, y, yaw, kind, ground)
+        feet_W = P.nominal_feet_W(heightmap, x, y, yaw, get_topology(topology), DEFAULT_PARAMS.foot_radius)
+        return patches, P.feet_in_heading_frame(feet_W, x, y, yaw, ground)
+
+    def map_success(self, heightmap, topologies=None, *, cell_size: float = P.CELL_SIZE) -> "CapabilityMap":
+        """Every action's success probability from every cell and heading (see predict_map)."""
+        return predict_map(self, heightmap, topologies, cell_size=cell_size)
+
+
+@dataclasses.dataclass
+class CapabilityMap:
+    """Success probabilities of every action from every (cell, heading) of a grid world."""
+
+    # (nx,) and (ny,) cell centres. [m]
+    xs: np.ndarray
+    ys: np.ndarray
+    # The topologies of the first axis.
+    topologies: tuple[str, ...]
+    # (T, 8, ny, nx): moving one cell forward along heading k (orthogonal or diagonal network).
+    forward: np.ndarray
+    # (T, 8, ny, nx): turning 45 deg left (d = 0) / right (d = 1) in place from heading k.
+    turn_left: np.ndarray
+    turn_right: np.ndarray
+    # Grid cell. [m]
+    cell_size: float = P.CELL_SIZE
+
+    @property
+    def queries(self) -> int:
+        """Network evaluations behind the map."""
+        return int(self.forward.size + self.turn_left.size + self.turn_right.size)
+
+
+@dataclasses.dataclass
+class MapInputs:
+    """The networks' inputs for every cell and heading of a grid world (sample_map_inputs)."""
+
+    # (nx,) and (ny,) cell centres. [m]
+    xs: np.ndarray
+    ys: np.ndarray
+    cell_size: float
+    # (8, ny, nx, 20, 20) forward-move patches (orthogonal for even k, diagonal for odd k). [m]
+    move_patches: np.ndarray
+    # (8, ny, nx, 20, 20) turn patches. [m]
+    turn_patches: np.ndarray
+    # topology -> (8, ny, nx, 6, 3) nominal feet in the heading frame. [m]
+    feet: dict
+
+
+def sample_map_inputs(heightmap, topologies, *, cell_size: float = P.CELL_SIZE) -> MapInputs:
+    """Patches (once per kind: they do not depend on the topology) and each topology's nominal
+    feet for every cell and heading, vectorised over all of them (built on patches.py)."""
+    from qz_drake.robot.params import DEFAULT_PARAMS
+    from qz_drake.robot.topology import get_topology
+
+    xs, ys = P.grid_centres(heightmap, cell_size)
+    # Grid arrays (8, ny, nx): heading index first, as the planner's states.
+    k, gy, gx = np.meshgrid(np.arange(8), ys, xs, indexing="ij")
+    yaw = P.heading_yaw(k)
+    ground = np.broadcast_to(P.ground_reference(heightmap, gx[0], gy[0]), k.shape)
+    even = k % 2 == 0
+    move_patches = np.empty(k.shape + (P.PATCH_SIZE, P.PATCH_SIZE), np.float32)
+    for kind, mask in (("orthogonal", even), ("diagonal", ~even)):
+        move_patches[mask] = P.sample_patches(heightmap, gx[mask], gy[mask], yaw[mask], kind, ground[mask])
+    turn_patches = P.sample_patches(heightmap, gx, gy, yaw, "turn", ground)
+    feet = {t: P.feet_in_heading_frame(P.nominal_feet_W(heightmap, gx, gy, yaw, get_topology(t),
+                                                        DEFAULT_PARAMS.foot_radius), gx, gy, yaw, ground)
+            for t in topologies}
+    return MapInputs(xs=xs, ys=ys, cell_size=float(cell_size), move_patches=move_patches,
+                     turn_patches=turn_patches, feet=feet)
+
+
+def predict_map(model, heightmap, topologies=None, *, cell_size: float = P.CELL_SIZE) -> CapabilityMap:
+    """Every action's success probability from every cell and heading of the grid world.
+
+    ``model`` is anything with CapabilityModel's ``success`` (a stub in tests). The inputs come
+    from :func:`sample_map_inputs`; each network then sees all its queries in one batched
+    call. The robot is assumed to stand on the topology's nominal footholds.
+    """
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+    topologies = tuple(topologies or TOPOLOGY_NAMES)
+    if hasattr(model, "network"):
+        for t in topologies:
+            for kind in P.KINDS:
+                model.network(t, kind)  # a missing network fails before any work
+    return evaluate_map(model, sample_map_inputs(heightmap, topologies, cell_size=cell_size))
+
+
+def evaluate_map(model, inputs: MapInputs) -> CapabilityMap:
+    """The networks on a MapInputs: forward, turn left and turn right for each topology."""
+    topologies = tuple(inputs.feet)
+    shape = (len(topologies),) + inputs.move_patches.shape[:3]
+    even = (np.arange(8) % 2 == 0)
+    forward, left, right = np.empty(shape), np.empty(shape), np.empty(shape)
+    for i, t in enumerate(topologies):
+        feet = inputs.feet[t]
+        forward[i][even] = model.success(inputs.move_patches[even], feet[even], "orthogonal", t)
+        forward[i][~even] = model.success(inputs.move_patches[~even], feet[~even], "diagonal", t)
+        if hasattr(model, "turn_success"):
+            left[i], right[i] = model.turn_success(inputs.turn_patches, feet, t)
+        else:
+            both = model.success(np.stack([inputs.turn_patches] * 2), np.stack([feet] * 2), "turn", t,
+                                 direction=np.array([P.TURN_LEFT, P.TURN_RIGHT])[:, None, None, None])
+            left[i], right[i] = both
+    return CapabilityMap(xs=inputs.xs, ys=inputs.ys, topologies=topologies, forward=forward, turn_left=left,
+                         turn_right=right, cell_size=inputs.cell_size)

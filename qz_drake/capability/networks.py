@@ -1,0 +1,109 @@
+"""The capability CNN of paper 000 (section II-E.1, Fig. 4) as a torch module.
+
+Two heads: the 20 x 20 height patch goes through two convolution layers of four 5 x 5 kernels
+with zero padding, each followed by 2 x 2 max pooling and a ReLU, then a dense layer; the
+second head is the start feet in the heading frame (18 numbers) and, for the turn network,
+the direction d. The two are concatenated and go through two dense layers; a sigmoid gives
+the success probability.
+
+Inputs are standardised inside the module (fixed buffers set from the training set and saved
+with the weights), so that callers pass heights and feet in metres as qz_drake.capability.patches
+makes them and a saved network is self-contained.
+
+Importing this module imports torch; qz_drake.capability.model imports it only when a model
+is loaded or trained.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+from torch import nn
+
+from qz_drake.capability.patches import PATCH_SIZE, check_kind
+
+# Start feet in the heading frame, (6, 3) flattened.
+FEET_INPUTS = 18
+
+
+@dataclasses.dataclass
+class NetworkConfig:
+    """Layer sizes of one capability network; the paper fixes the convolutions only."""
+
+    # Kernels per convolution layer (paper 000: four).
+    conv_channels: int = 4
+    # Side of the square convolution kernels (paper 000: 5 x 5); odd, zero padding keeps the size.
+    kernel_size: int = 5
+    # Width of the dense layer after the flattened convolution features (not given by the paper).
+    patch_features: int = 32
+    # Width of the first of the two dense layers after the concatenation (not given by the paper).
+    hidden: int = 64
+
+
+def extra_inputs(kind: str) -> int:
+    """Width of the second head: the feet, plus d for the turn network."""
+    return FEET_INPUTS + (1 if check_kind(kind) == "turn" else 0)
+
+
+def _max_pool_2x2(x: torch.Tensor) -> torch.Tensor:
+    # The same as nn.MaxPool2d(2) on an even-sized map, written as the maximum of four strided
+    # views: four times faster on the CPU for four channels, where pooling dominated inference.
+    return torch.maximum(torch.maximum(x[:, :, 0::2, 0::2], x[:, :, 0::2, 1::2]),
+                         torch.maximum(x[:, :, 1::2, 0::2], x[:, :, 1::2, 1::2]))
+
+
+class CapabilityNet(nn.Module):
+    """O(M_O, p), D(M_D, p) or S(M_S, d) of paper 000 Fig. 4: success probability of one action.
+
+    ``forward(patch, extra)`` returns logits (B,) for patches (B, 20, 20) [m] and the second
+    head (B, 18) or (B, 19) [m, and d in {0, 1}]; :meth:`probability` applies the sigmoid.
+    """
+
+    def __init__(self, kind: str, config: NetworkConfig | None = None):
+        super().__init__()
+        config = config or NetworkConfig()
+        self.kind = check_kind(kind)
+        self.config = config
+        c, k = int(config.conv_channels), int(config.kernel_size)
+        self.conv1 = nn.Conv2d(1, c, k, padding=k // 2)
+        self.conv2 = nn.Conv2d(c, c, k, padding=k // 2)
+        pooled = PATCH_SIZE // 4
+        self.patch_dense = nn.Linear(c * pooled * pooled, int(config.patch_features))
+        n_extra = extra_inputs(kind)
+        self.dense1 = nn.Linear(int(config.patch_features) + n_extra, int(config.hidden))
+        self.dense2 = nn.Linear(int(config.hidden), 1)
+        # Input standardisation, set by set_input_scaling from the training set.
+        self.register_buffer("patch_mean", torch.zeros(()))
+        self.register_buffer("patch_scale", torch.ones(()))
+        self.register_buffer("extra_mean", torch.zeros(n_extra))
+        self.register_buffer("extra_scale", torch.ones(n_extra))
+
+    def set_input_scaling(self, patches: torch.Tensor, extra: torch.Tensor) -> None:
+        """Standardises inputs with the training set's statistics (one scalar for the heights,
+        so that the patch keeps its shape; one per entry of the second head)."""
+        with torch.no_grad():
+            self.patch_mean.copy_(patches.mean())
+            self.patch_scale.copy_(patches.std().clamp_min(1e-3))
+            self.extra_mean.copy_(extra.mean(dim=0))
+            # d is 0 or 1 and some feet coordinates barely vary: keep a floor on the scale.
+            self.extra_scale.copy_(extra.std(dim=0).nan_to_num(1.0).clamp_min(1e-2))
+
+    def encode_patch(self, patch: torch.Tensor) -> torch.Tensor:
+        """The patch head: (B, 20, 20) heights [m] -> (B, patch_features)."""
+        x = ((patch - self.patch_mean) / self.patch_scale).unsqueeze(1)
+        x = torch.relu(_max_pool_2x2(self.conv1(x)))
+        x = torch.relu(_max_pool_2x2(self.conv2(x)))
+        return torch.relu(self.patch_dense(x.flatten(1)))
+
+    def head(self, features: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
+        """The two dense layers after the concatenation; logits (B,)."""
+        e = (extra - self.extra_mean) / self.extra_scale
+        x = torch.relu(self.dense1(torch.cat([features, e], dim=1)))
+        return self.dense2(x).squeeze(1)
+
+    def forward(self, patch: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
+        return self.head(self.encode_patch(patch), extra)
+
+    def probability(self, patch: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
+        return torch.sigmoid(self.forward(patch, extra))

@@ -1,0 +1,336 @@
+"""Training the 18 capability networks (paper 000 section II-E.1 and III-B; issue #13).
+
+Protocol:
+
+* rows are split by scene, never by trial: the scene ids are shuffled with the seed and cut
+  70 / 15 / 15 into train / validation / test scenes, one split shared by all 18 networks, so
+  no heading of a test scene was seen by any network (the paper's 72 headings per scene are
+  near-duplicates of each other: a split by trial would score memory, not generalisation);
+* each network is trained twice from the same seeded initialisation, with the paper's MSE
+  loss on the sigmoid output and with binary cross-entropy; each run stops early on its own
+  validation loss (the best epoch's weights are kept), and the run with the lower
+  validation Brier score is kept (``select_by``), see :class:`TrainingConfig`;
+* the kept network and the baselines of qz_drake.capability.evaluation (base rate, logistic
+  regression, gradient boosting) are scored on the test scenes.
+
+A (topology, kind) with too few training trials, or with one class only, gets no network: it
+is listed in ``TrainingResult.missing`` with the reason, and the model refuses queries for it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from qz_drake.capability.evaluation import (EvaluationConfig, baseline_inputs, baseline_metrics, beats_baselines,
+                                            binary_metrics)
+from qz_drake.capability.patches import KINDS, PATCH_SIZE
+from qz_drake.errors import ConfigError, bad_value
+from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+# Keys of the dataset contract (qz_drake.capability.dataset.load_training_arrays) used here.
+REQUIRED_KEYS = ("patch", "feet", "direction", "success", "scene", "topology", "kind")
+LOSSES = ("mse", "bce")
+# The 18 networks (topology, kind), in TOPOLOGY_NAMES x KINDS order.
+ALL_NETWORKS: tuple[tuple[str, str], ...] = tuple((t, k) for t in TOPOLOGY_NAMES for k in KINDS)
+
+
+@dataclasses.dataclass
+class TrainingConfig:
+    """How the networks are trained and evaluated; saved in every network card."""
+
+    # Seed of the scene split, the initialisations and the batch order.
+    seed: int = 0
+    # Fractions of the scenes for train / validation / test (issue #13: about 70 / 15 / 15).
+    split: list[float] = dataclasses.field(default_factory=lambda: [0.70, 0.15, 0.15])
+    # Losses to train with; the one better calibrated on validation is kept. "mse" is the
+    # paper's (on the sigmoid output), "bce" binary cross-entropy.
+    losses: list[str] = dataclasses.field(default_factory=lambda: ["mse", "bce"])
+    # Validation metric that picks the loss: "brier" (a proper score: calibration plus
+    # sharpness; a constant base-rate predictor has ECE near 0 but a poor Brier score) or "ece".
+    select_by: str = "brier"
+    # Most epochs per run; early stopping usually ends a run well before.
+    max_epochs: int = 200
+    # Epochs without a better validation loss before a run stops.
+    patience: int = 15
+    # Trials per gradient step.
+    batch_size: int = 128
+    # Adam step size.
+    learning_rate: float = 2e-3
+    # Adam's L2 weight decay: a little, the networks are small but the data per scene correlated.
+    weight_decay: float = 1e-4
+    # Fewest training trials (and fewest of each class) for a network to be trained at all.
+    min_train_trials: int = 40
+    min_train_per_class: int = 5
+    # Networks to train, "topology/kind" names; empty: every (topology, kind) with data.
+    networks: list[str] = dataclasses.field(default_factory=list)
+    # Calibration bins and baseline features.
+    evaluation: EvaluationConfig = dataclasses.field(default_factory=EvaluationConfig)
+
+    def check(self) -> "TrainingConfig":
+        if len(self.split) != 3 or any(not (f >= 0) for f in self.split) or not math.isclose(sum(self.split), 1.0):
+            raise bad_value("training.split", self.split, "expected three fractions >= 0 summing to 1")
+        if min(self.split[:2]) <= 0:
+            raise bad_value("training.split", self.split, "train and validation fractions must be positive")
+        for loss in self.losses:
+            if loss not in LOSSES:
+                raise bad_value("training.losses", self.losses, f"expected a list of {', '.join(LOSSES)}")
+        if not self.losses:
+            raise bad_value("training.losses", self.losses, "give at least one loss")
+        if self.select_by not in ("brier", "ece"):
+            raise bad_value("training.select_by", self.select_by, "expected brier or ece")
+        for name in ("max_epochs", "patience", "batch_size", "min_train_trials", "min_train_per_class"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise bad_value(f"training.{name}", value, "must be a positive whole number")
+        if not (self.learning_rate > 0 and self.weight_decay >= 0):
+            raise bad_value("training.learning_rate", self.learning_rate, "must be positive (weight_decay >= 0)")
+        if int(self.evaluation.ece_bins) < 2:
+            raise bad_value("training.evaluation.ece_bins", self.evaluation.ece_bins, "must be at least 2")
+        for name in self.networks:
+            topology, _, kind = name.partition("/")
+            if topology not in TOPOLOGY_NAMES or kind not in KINDS:
+                raise bad_value("training.networks", name, "expected topology/kind, e.g. nominal/orthogonal")
+        return self
+
+
+def network_name(topology: str, kind: str) -> str:
+    """``topology/kind``, the name of one network in cards and errors."""
+    return f"{topology}/{kind}"
+
+
+@dataclasses.dataclass
+class NetworkResult:
+    """One trained network and its card (config, loss choice, validation and test metrics)."""
+
+    topology: str
+    kind: str
+    # The trained CapabilityNet (a torch module).
+    net: object
+    card: dict
+
+
+@dataclasses.dataclass
+class TrainingResult:
+    """The networks of one training run and what it was trained on."""
+
+    # (topology, kind) -> NetworkResult
+    networks: dict
+    # "topology/kind" -> why there is no network
+    missing: dict[str, str]
+    # "train" / "validation" / "test" -> scene ids
+    split: dict[str, list[int]]
+    fingerprint: str
+    fingerprints: dict[str, str]
+    config: TrainingConfig
+
+
+def check_arrays(arrays: dict) -> int:
+    """Checks the keys and shapes of the dataset contract; returns the number of rows."""
+    for key in REQUIRED_KEYS:
+        if key not in arrays:
+            raise bad_value("dataset.arrays", sorted(arrays), f"missing the {key!r} array")
+    n = len(arrays["success"])
+    shapes = {"patch": (n, PATCH_SIZE, PATCH_SIZE), "feet": (n, 6, 3)}
+    for key in REQUIRED_KEYS:
+        expected = shapes.get(key, (n,))
+        if np.shape(arrays[key]) != expected:
+            raise bad_value(f"dataset.{key}", f"array of shape {np.shape(arrays[key])}", f"expected {expected}")
+    for key in ("patch", "feet"):
+        if not np.isfinite(arrays[key]).all():
+            raise bad_value(f"dataset.{key}", "non-finite values", "every trial's inputs must be finite")
+    return n
+
+
+def split_scenes(scene_ids, fractions=(0.70, 0.15, 0.15), seed: int = 0) -> dict[str, np.ndarray]:
+    """Shuffles the distinct scene ids with the seed and cuts them by the fractions.
+
+    Every split with a positive fraction gets at least one scene where there are enough;
+    fewer than three scenes is an error (no honest test set).
+    """
+    scenes = np.unique(np.asarray(scene_ids, dtype=np.int64))
+    if len(scenes) < 3:
+        raise bad_value("dataset.scene", scenes.tolist(), "a split by scene needs at least three scenes")
+    order = np.random.default_rng(seed).permutation(scenes)
+    counts = np.floor(np.asarray(fractions, dtype=float) * len(scenes)).astype(int)
+    counts = np.where((np.asarray(fractions) > 0) & (counts == 0), 1, counts)
+    counts[0] = len(scenes) - counts[1:].sum()
+    cuts = np.cumsum(counts)[:-1]
+    train, val, test = np.split(order, cuts)
+    return {"train": np.sort(train), "validation": np.sort(val), "test": np.sort(test)}
+
+
+def _tensors(arrays: dict, rows: np.ndarray, kind: str):
+    import torch
+
+    patch = torch.as_tensor(np.asarray(arrays["patch"][rows], dtype=np.float32))
+    extra = np.asarray(arrays["feet"][rows], dtype=np.float32).reshape(len(rows), -1)
+    if kind == "turn":
+        extra = np.column_stack([extra, np.asarray(arrays["direction"][rows], dtype=np.float32)])
+    label = torch.as_tensor(np.asarray(arrays["success"][rows], dtype=np.float32))
+    return patch, torch.as_tensor(extra), label
+
+
+def _loss(name: str, logits, labels):
+    import torch
+
+    if name == "mse":
+        return torch.mean((torch.sigmoid(logits) - labels) ** 2)
+    return torch.nn.functional.binary_cross_entropy_with_logits(logits, labels)
+
+
+def _fit(kind: str, train, val, loss: str, config: TrainingConfig, seed: int, advance=None):
+    """One training run; returns (net with the best validation epoch's weights, best epoch,
+    epochs run)."""
+    import torch
+
+    from qz_drake.capability.networks import CapabilityNet
+
+    torch.manual_seed(seed)
+    net = CapabilityNet(kind)
+    net.set_input_scaling(train[0], train[1])
+    optimiser = torch.optim.Adam(net.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+    generator = torch.Generator().manual_seed(seed)
+    n = len(train[2])
+    best, best_epoch, best_state, epoch = math.inf, 0, None, 0
+    for epoch in range(1, config.max_epochs + 1):
+        net.train()
+        for batch in torch.randperm(n, generator=generator).split(config.batch_size):
+            optimiser.zero_grad()
+            _loss(loss, net(train[0][batch], train[1][batch]), train[2][batch]).backward()
+            optimiser.step()
+        net.eval()
+        with torch.no_grad():
+            value = float(_loss(loss, net(val[0], val[1]), val[2]))
+        if advance is not None:
+            advance(1)
+        if value < best - 1e-6:
+            best, best_epoch = value, epoch
+            best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
+        elif epoch - best_epoch >= config.patience:
+            break
+    net.load_state_dict(best_state)
+    net.eval()
+    return net, best_epoch, epoch
+
+
+def _predict(net, data) -> np.ndarray:
+    import torch
+
+    with torch.no_grad():
+        return net.probability(data[0], data[1]).numpy().astype(float)
+
+
+def _why_missing(labels: np.ndarray, config: TrainingConfig, n_val: int) -> str | None:
+    positives = int(labels.sum())
+    if len(labels) < config.min_train_trials:
+        return f"{len(labels)} training trials (need {config.min_train_trials})"
+    if min(positives, len(labels) - positives) < config.min_train_per_class:
+        return (f"{positives} successes and {len(labels) - positives} failures in training "
+                f"(need {config.min_train_per_class} of each)")
+    if n_val == 0:
+        return "no validation trials"
+    return None
+
+
+def train_one(arrays: dict, rows: dict[str, np.ndarray], topology: str, kind: str, config: TrainingConfig,
+              seed: int, advance=None) -> NetworkResult:
+    """Trains one network on its train rows with each loss, keeps the better calibrated on
+    validation and scores it and the baselines on its test rows."""
+    bins = int(config.evaluation.ece_bins)
+    data = {split: _tensors(arrays, r, kind) for split, r in rows.items()}
+    runs = {}
+    for loss in config.losses:
+        start = time.perf_counter()
+        net, best_epoch, epochs = _fit(kind, data["train"], data["validation"], loss, config, seed, advance)
+        val = binary_metrics(data["validation"][2].numpy(), _predict(net, data["validation"]), bins=bins)
+        runs[loss] = (net, {"best_epoch": best_epoch, "epochs": epochs, "train_seconds": time.perf_counter() - start,
+                            "validation": val})
+    chosen = min(runs, key=lambda loss: (runs[loss][1]["validation"][config.select_by], config.losses.index(loss)))
+    net = runs[chosen][0]
+    test_labels = np.asarray(arrays["success"][rows["test"]], dtype=bool)
+    test = binary_metrics(test_labels, _predict(net, data["test"]), bins=bins)
+    features = {split: baseline_inputs(arrays["patch"][r], arrays["direction"][r], kind, config.evaluation)
+                for split, r in rows.items() if split in ("train", "test")}
+    baselines = baseline_metrics(features["train"], arrays["success"][rows["train"]], features["test"],
+                                 test_labels, bins=bins, seed=seed)
+    others = [loss for loss in runs if loss != chosen]
+    reason = (f"validation {config.select_by} {runs[chosen][1]['validation'][config.select_by]:.4f} against "
+              + ", ".join(f"{o} {runs[o][1]['validation'][config.select_by]:.4f}" for o in others)
+              if others else "the only loss trained")
+    card = {
+        "topology": topology, "kind": kind, "loss": chosen, "loss_reason": reason,
+        "runs": {loss: info for loss, (_, info) in runs.items()},
+        "n": {split: int(len(r)) for split, r in rows.items()},
+        "positives": {split: int(np.sum(arrays["success"][r])) for split, r in rows.items()},
+        "test": test, "baselines": baselines,
+        "beats_baselines": beats_baselines(test, baselines),
+        "seed": seed,
+    }
+    return NetworkResult(topology, kind, net, card)
+
+
+def train_networks(arrays: dict, *, fingerprint: str, fingerprints: dict | None = None,
+                   config: TrainingConfig | None = None, progress: bool = False) -> TrainingResult:
+    """Trains every (topology, kind) network the arrays have data for.
+
+    Args:
+        arrays: the dataset contract's arrays (one row per executed trial).
+        fingerprint: the dataset manifest's fingerprint of what produced the labels; it goes
+            into every card and a loaded model is checked against it.
+        fingerprints: the manifest's per-component fingerprints (robot, blc, controller,
+            verdict), kept so that ``evaluate`` can name the component that differs.
+        config: training protocol; defaults in :class:`TrainingConfig`.
+        progress: a rich progress bar per network.
+    """
+    config = (config or TrainingConfig()).check()
+    if not isinstance(fingerprint, str) or not fingerprint:
+        raise bad_value("dataset.manifest.fingerprint", fingerprint, "expected a non-empty string")
+    check_arrays(arrays)
+    split = split_scenes(arrays["scene"], config.split, config.seed)
+    scene = np.asarray(arrays["scene"], dtype=np.int64)
+    in_split = {name: np.isin(scene, ids) for name, ids in split.items()}
+    topology, kind = np.asarray(arrays["topology"]).astype(str), np.asarray(arrays["kind"]).astype(str)
+    wanted = [tuple(n.split("/")) for n in config.networks] or list(ALL_NETWORKS)
+    unknown = sorted(set(np.unique(topology)) - set(TOPOLOGY_NAMES)) + sorted(set(np.unique(kind)) - set(KINDS))
+    if unknown:
+        raise bad_value("dataset.topology/kind", unknown, "not a topology or network kind of qz_drake")
+    networks, missing, plan = {}, {}, []
+    for t, k in wanted:
+        # Seeded by its place among all 18, so a network trained alone is the one of a full run.
+        index = ALL_NETWORKS.index((t, k))
+        mask = (topology == t) & (kind == k)
+        rows = {name: np.nonzero(mask & m)[0] for name, m in in_split.items()}
+        why = _why_missing(np.asarray(arrays["success"][rows["train"]], dtype=bool), config, len(rows["validation"]))
+        if why:
+            missing[network_name(t, k)] = why
+        else:
+            plan.append((index, t, k, rows))
+    for t, k in ALL_NETWORKS:
+        if (t, k) not in wanted:
+            missing[network_name(t, k)] = "not requested (training.networks)"
+    if not plan:
+        reasons = "; ".join(f"{network_name(t, k)}: {missing[network_name(t, k)]}" for t, k in wanted)
+        raise ConfigError(f"dataset: no network has enough data to train ({reasons})")
+
+    epochs = config.max_epochs * len(config.losses)
+    if progress:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        with Progress(TextColumn("{task.description:<24}"), BarColumn(), MofNCompleteColumn(),
+                      TextColumn("epochs (max)"), TimeElapsedColumn()) as bar:
+            tasks = {(t, k): bar.add_task(network_name(t, k), total=epochs) for _, t, k, _ in plan}
+            for index, t, k, rows in plan:
+                networks[(t, k)] = train_one(arrays, rows, t, k, config, config.seed + index,
+                                             lambda step, task=tasks[(t, k)]: bar.advance(task, step))
+                # Early stopping ends a run before max_epochs: the bar says the network is done.
+                bar.update(tasks[(t, k)], completed=epochs)
+    else:
+        for index, t, k, rows in plan:
+            networks[(t, k)] = train_one(arrays, rows, t, k, config, config.seed + index)
+    return TrainingResult(networks=networks, missing=missing,
+                          split={name: ids.tolist() for name, ids in split.items()},
+                          fingerprint=fingerprint, fingerprints=dict(fingerprints or {}), config=config)

@@ -1,0 +1,299 @@
+"""The capability MDP of paper 000 section II-E.2: grid-world planning with learned success
+probabilities, solved by value iteration (Eq. 9-10).
+
+States: (cell, heading, topology) of a grid of 1 m cells over the heightmap, with 8 headings
+(yaw k * 45 deg) and the robot's current topology, plus two absorbing states, goal and
+failure. Actions: (topology, motion) with motion forward (one cell along the heading: the
+orthogonal network for even k, the diagonal one for odd k), turn left or turn right (45 deg
+in place, the turn network with d = 0 / 1): 3 x 6 = 18 actions. The success probability of an
+action is the CapabilityModel's for the action's topology from the current cell and heading,
+the robot standing on that topology's nominal footholds; all of them come from one batched
+evaluation of the map (qz_drake.capability.model.predict_map). With probability p the robot
+reaches the next (cell, heading) in the new topology (the goal state when that cell is the
+goal's); otherwise it falls into the failure state. A forward move off the grid fails.
+
+Why the topology is in the state: the paper's Fig. 8 robot changes topology "to better adapt
+to tough terrain", which is only worth it where it pays; a cost for *changing* topology needs
+the current topology to be known, and in a Markov state that means in the state (a cost on
+actions alone could only tax using a topology, not switching to it). The state count grows
+six-fold (20 m x 20 m: 19 202 states), which sparse transitions absorb easily: each action
+has two next states. The change itself is assumed to succeed; its risk is the following
+action's, evaluated in the new topology.
+
+Rewards (expected, per state and action): ``-action_cost`` for any action, ``-topology_change_cost``
+when the action's topology differs from the state's, ``goal_reward`` on reaching the goal,
+``failure_reward`` on failing; zero in the absorbing states. The policy is Eq. 10's greedy
+one; :func:`most_likely_path` follows it from a start, taking each action's successful outcome.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from qz_drake.capability import patches as P
+from qz_drake.errors import bad_value
+from qz_drake.planning.value_iteration import ValueIterationResult, value_iteration
+from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+MOTIONS = ("forward", "turn_left", "turn_right")
+# Cell step (dx, dy) of a forward move along heading k.
+HEADING_STEPS = np.array([(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1)])
+
+
+@dataclasses.dataclass
+class CapabilityMdpConfig:
+    """Rewards and solver settings of the capability MDP; each default with its reason."""
+
+    # Reward on reaching the goal: large against the per-action cost, so that the goal is
+    # worth a detour of tens of actions (the paper: "a large positive reward").
+    goal_reward: float = 100.0
+    # Reward on a failed action (the paper: "a negative reward"). As large as the goal's: an
+    # action with success p then loses about (1 - p) * 200 against a safe one, so a 5 % risk
+    # is worth avoiding at a detour of up to ~10 actions. A fall ends the mission either way.
+    failure_reward: float = -100.0
+    # Cost of every action (forward one cell or a 45 deg turn): prefers short routes with few
+    # turns; small against the goal so that risk, not length, decides between corridors.
+    action_cost: float = 1.0
+    # Extra cost of switching to another topology: a reconfiguration is a BLC mission of its
+    # own on the robot (feet moved one by one), worth about two ordinary actions; the robot
+    # changes topology only where the new one is clearly more capable.
+    topology_change_cost: float = 2.0
+    # Discount gamma: close to 1 so that a goal 60 actions away (across a 20 m map with
+    # turns) still counts (0.99^60 = 0.55); the paper's reason for gamma is to rank cells by
+    # their distance to the goal, which the discount and the action cost both do.
+    discount: float = 0.99
+    # Value accuracy of value iteration's stop (in reward units, against a goal of 100).
+    epsilon: float = 0.01
+    # Most value iterations (the paper's 20 m map converged in about 60).
+    max_iter: int = 5000
+    # Grid cell. [m]
+    cell_size: float = P.CELL_SIZE
+    # Topologies the robot may use; empty: all six.
+    topologies: list[str] = dataclasses.field(default_factory=list)
+
+    def check(self) -> "CapabilityMdpConfig":
+        for name in ("goal_reward", "action_cost", "topology_change_cost"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise bad_value(f"capability_mdp.{name}", getattr(self, name), "must be finite and >= 0")
+        if not (np.isfinite(self.failure_reward) and self.failure_reward <= 0):
+            raise bad_value("capability_mdp.failure_reward", self.failure_reward, "must be finite and <= 0")
+        if not (0.0 < self.discount < 1.0):
+            raise bad_value("capability_mdp.discount", self.discount, "must be in (0, 1)")
+        for t in self.topologies:
+            if t not in TOPOLOGY_NAMES:
+                raise bad_value("capability_mdp.topologies", t, f"expected some of {', '.join(TOPOLOGY_NAMES)}")
+        return self
+
+
+@dataclasses.dataclass
+class CapabilityMdp:
+    """The MDP's arrays and its state / action numbering.
+
+    State s = ((t * 8 + k) * ny + iy) * nx + ix for topology index t, heading k, cell (ix, iy);
+    then ``goal_state`` and ``failure_state``. Action a = t * 3 + m, m indexing MOTIONS.
+    """
+
+    # A sparse (S, S) CSR matrices.
+    P: list
+    # (S, A) expected immediate rewards.
+    R: np.ndarray
+    # (A, S) success probability of each action from each state (0 in the absorbing states).
+    success: np.ndarray
+    # (A, S) the state reached on success.
+    next_state: np.ndarray
+    xs: np.ndarray
+    ys: np.ndarray
+    topologies: tuple[str, ...]
+    # Goal cell (ix, iy).
+    goal_cell: tuple[int, int]
+    config: CapabilityMdpConfig
+
+    @property
+    def grid_shape(self) -> tuple[int, int, int, int]:
+        """(T, 8, ny, nx)."""
+        return (len(self.topologies), 8, len(self.ys), len(self.xs))
+
+    @property
+    def goal_state(self) -> int:
+        return int(np.prod(self.grid_shape))
+
+    @property
+    def failure_state(self) -> int:
+        return self.goal_state + 1
+
+    def state(self, ix: int, iy: int, heading: int, topology: str) -> int:
+        return int(np.ravel_multi_index((self.topologies.index(topology), int(heading) % 8, iy, ix), self.grid_shape))
+
+    def unravel(self, s: int) -> tuple[int, int, int, str]:
+        """(ix, iy, heading, topology) of a grid state."""
+        t, k, iy, ix = np.unravel_index(int(s), self.grid_shape)
+        return int(ix), int(iy), int(k), self.topologies[t]
+
+    def action(self, a: int) -> tuple[str, str]:
+        """(topology, motion) of action a."""
+        return self.topologies[a // 3], MOTIONS[a % 3]
+
+    def cell_of(self, x: float, y: float, field: str = "position") -> tuple[int, int]:
+        """(ix, iy) of the grid cell containing world (x, y); an error off the grid."""
+        half = 0.5 * self.config.cell_size
+        ix = int(np.floor((x - (self.xs[0] - half)) / self.config.cell_size))
+        iy = int(np.floor((y - (self.ys[0] - half)) / self.config.cell_size))
+        if not (0 <= ix < len(self.xs) and 0 <= iy < len(self.ys)):
+            raise bad_value(field, [float(x), float(y)], f"off the planning grid x {self.xs[0] - half:.2f}.."
+                            f"{self.xs[-1] + half:.2f}, y {self.ys[0] - half:.2f}..{self.ys[-1] + half:.2f} m")
+        return ix, iy
+
+
+def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | None = None) -> CapabilityMdp:
+    """The MDP of a CapabilityMap (qz_drake.capability.model.predict_map) and a goal position."""
+    import scipy.sparse as sp
+
+    config = (config or CapabilityMdpConfig()).check()
+    T, K, ny, nx = capability_map.forward.shape
+    topologies = tuple(capability_map.topologies)
+    mdp = CapabilityMdp(P=[], R=np.empty(0), success=np.empty(0), next_state=np.empty(0),
+                        xs=np.asarray(capability_map.xs), ys=np.asarray(capability_map.ys), topologies=topologies,
+                        goal_cell=(0, 0), config=config)
+    mdp.goal_cell = mdp.cell_of(*goal_xy, field="goal")
+    grid = T * K * ny * nx
+    S, A = grid + 2, 3 * T
+    goal, failure = grid, grid + 1
+    t0, k, iy, ix = np.unravel_index(np.arange(grid), (T, K, ny, nx))
+    at_goal = (ix == mdp.goal_cell[0]) & (iy == mdp.goal_cell[1])
+    success = np.zeros((A, S))
+    next_state = np.tile(np.arange(S), (A, 1))
+    R = np.zeros((S, A))
+    for t in range(T):
+        # Grid state of the same cell and heading in topology t (the action's).
+        same = np.ravel_multi_index((np.full(grid, t), k, iy, ix), (T, K, ny, nx))
+        fx, fy = ix + HEADING_STEPS[k, 0], iy + HEADING_STEPS[k, 1]
+        on_grid = (fx >= 0) & (fx < nx) & (fy >= 0) & (fy < ny)
+        forward_next = np.where(on_grid, np.ravel_multi_index((np.full(grid, t), k, np.clip(fy, 0, ny - 1),
+                                                               np.clip(fx, 0, nx - 1)), (T, K, ny, nx)), failure)
+        forward_goal = on_grid & (fx == mdp.goal_cell[0]) & (fy == mdp.goal_cell[1])
+        motions = (
+            (capability_map.forward[t, k, iy, ix] * on_grid, np.where(forward_goal, goal, forward_next)),
+            (capability_map.turn_left[t, k, iy, ix], same + (((k + 1) % K) - k) * ny * nx),
+            (capability_map.turn_right[t, k, iy, ix], same + (((k - 1) % K) - k) * ny * nx),
+        )
+        for m, (p, nxt) in enumerate(motions):
+            a = 3 * t + m
+            p = np.clip(np.asarray(p, dtype=float), 0.0, 1.0)
+            reward = (-config.action_cost - config.topology_change_cost * (t0 != t)
+                      + p * config.goal_reward * (nxt == goal) + (1.0 - p) * config.failure_reward)
+            # A robot already in the goal cell (a start there) has arrived: any action ends it.
+            success[a, :grid] = np.where(at_goal, 1.0, p)
+            next_state[a, :grid] = np.where(at_goal, goal, nxt)
+            R[:grid, a] = np.where(at_goal, 0.0, reward)
+    rows = np.arange(S)
+    matrices = []
+    for a in range(A):
+        p = success[a]
+        absorbing = rows >= grid
+        data = np.concatenate([np.where(absorbing, 1.0, p), (1.0 - p)[~absorbing]])
+        cols = np.concatenate([np.where(absorbing, rows, next_state[a]), np.full(grid, failure)])
+        matrices.append(sp.csr_matrix((data, (np.concatenate([rows, rows[~absorbing]]), cols)), shape=(S, S)))
+    mdp.P, mdp.R, mdp.success, mdp.next_state = matrices, R, success, next_state
+    return mdp
+
+
+@dataclasses.dataclass
+class PathStep:
+    """One action of a planned path, from the state it starts in."""
+
+    # Cell centre the action starts from. [m]
+    x: float
+    y: float
+    # Heading index k (yaw = k * 45 deg) before the action.
+    heading: int
+    # Topology before the action and the action's topology.
+    topology: str
+    action_topology: str
+    # forward, turn_left or turn_right.
+    motion: str
+    # Predicted success probability of the action.
+    success: float
+
+
+@dataclasses.dataclass
+class CapabilityPlan:
+    """A solved capability MDP and the most likely path from a start to the goal."""
+
+    mdp: CapabilityMdp
+    solution: ValueIterationResult
+    steps: list[PathStep]
+    # Whether following the policy's successful outcomes reaches the goal.
+    reaches_goal: bool
+    # Product of the steps' success probabilities.
+    success_probability: float
+
+    def utility_map(self, topology: str | None = None) -> np.ndarray:
+        """(ny, nx) best V over headings (and topologies, or of one topology)."""
+        V = self.solution.V[:self.mdp.goal_state].reshape(self.mdp.grid_shape)
+        if topology is not None:
+            return V[self.mdp.topologies.index(topology)].max(axis=0)
+        return V.max(axis=(0, 1))
+
+    @property
+    def cells(self) -> np.ndarray:
+        """(n, 2) cell centres the path visits, start and goal included, without repeats. [m]"""
+        points = [(s.x, s.y) for s in self.steps]
+        if self.reaches_goal:
+            gx, gy = self.mdp.goal_cell
+            points.append((float(self.mdp.xs[gx]), float(self.mdp.ys[gy])))
+        out = [p for i, p in enumerate(points) if i == 0 or p != points[i - 1]]
+        return np.array(out, dtype=float).reshape(-1, 2)
+
+    @property
+    def topology_changes(self) -> int:
+        return sum(s.topology != s.action_topology for s in self.steps)
+
+
+def most_likely_path(mdp: CapabilityMdp, solution: ValueIterationResult, start_state: int,
+                     max_steps: int | None = None) -> tuple[list[PathStep], bool, float]:
+    """Follows the greedy policy from ``start_state``, taking each action's successful outcome,
+    until the goal, a revisited state (the policy loops) or ``max_steps`` (default: the number
+    of grid states). Returns (steps, reaches_goal, product of success probabilities)."""
+    max_steps = mdp.goal_state if max_steps is None else int(max_steps)
+    steps, seen, s, probability = [], set(), int(start_state), 1.0
+    if s < mdp.goal_state and mdp.unravel(s)[:2] == mdp.goal_cell:
+        return steps, True, probability
+    while s < mdp.goal_state and s not in seen and len(steps) < max_steps:
+        seen.add(s)
+        a = int(solution.policy[s])
+        ix, iy, k, t = mdp.unravel(s)
+        action_topology, motion = mdp.action(a)
+        p = float(mdp.success[a, s])
+        steps.append(PathStep(float(mdp.xs[ix]), float(mdp.ys[iy]), k, t, action_topology, motion, p))
+        probability *= p
+        s = int(mdp.next_state[a, s])
+    return steps, s == mdp.goal_state, probability
+
+
+def plan_on_map(capability_map, start_xy, start_heading: int, goal_xy, *, start_topology: str = "nominal",
+                config: CapabilityMdpConfig | None = None) -> CapabilityPlan:
+    """Builds the MDP of a CapabilityMap, solves it by value iteration and extracts the most
+    likely path from the start (x, y, heading index, topology) to the goal."""
+    mdp = build_capability_mdp(capability_map, goal_xy, config)
+    if start_topology not in mdp.topologies:
+        raise bad_value("start_topology", start_topology, f"expected one of {', '.join(mdp.topologies)}")
+    ix, iy = mdp.cell_of(*start_xy, field="start")
+    solution = value_iteration(mdp.P, mdp.R, mdp.config.discount, epsilon=mdp.config.epsilon,
+                               max_iter=mdp.config.max_iter)
+    steps, reaches, probability = most_likely_path(mdp, solution, mdp.state(ix, iy, start_heading, start_topology))
+    return CapabilityPlan(mdp, solution, steps, reaches, probability)
+
+
+def plan(model, heightmap, start_xy, start_heading: int, goal_xy, *, start_topology: str = "nominal",
+         config: CapabilityMdpConfig | None = None) -> CapabilityPlan:
+    """Plans with a capability model (anything with CapabilityModel's ``success``) on a
+    heightmap: the whole map's success probabilities in one batched evaluation, then
+    :func:`plan_on_map`."""
+    from qz_drake.capability.model import predict_map
+
+    config = (config or CapabilityMdpConfig()).check()
+    capability_map = predict_map(model, heightmap, config.topologies or None, cell_size=config.cell_size)
+    return plan_on_map(capability_map, start_xy, start_heading, goal_xy, start_topology=start_topology,
+                       config=config)

@@ -1,0 +1,228 @@
+"""CapabilityModel: save / load round trip, refusals, batched queries from a HeightMap, and the
+train / evaluate / map commands (on synthetic data, the lead's dataset reader stubbed)."""
+
+import argparse
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from qz_drake.capability import model_commands  # noqa: E402
+from qz_drake.capability import patches as P  # noqa: E402
+from qz_drake.capability.model import CapabilityModel, save_model  # noqa: E402
+from qz_drake.capability.synthetic import synthetic_arrays  # noqa: E402
+from qz_drake.capability.training import TrainingConfig, train_networks  # noqa: E402
+from qz_drake.errors import QzError  # noqa: E402
+from qz_drake.terrain import make_terrain  # noqa: E402
+
+torch.set_num_threads(1)
+TINY = dict(max_epochs=3, patience=2, losses=["bce"], min_train_trials=10, min_train_per_class=1)
+
+
+@pytest.fixture(scope="module")
+def data():
+    return synthetic_arrays(scenes=12, headings=5, seed=4)
+
+
+@pytest.fixture(scope="module")
+def trained(data):
+    arrays, manifest = data
+    config = TrainingConfig(networks=["nominal/orthogonal", "nominal/diagonal", "nominal/turn"], **TINY)
+    return train_networks(arrays, fingerprint=manifest["fingerprint"], fingerprints=manifest["fingerprints"],
+                          config=config)
+
+
+@pytest.fixture
+def saved(trained, tmp_path):
+    return save_model(trained, tmp_path / "model")
+
+
+def test_round_trip_is_bit_for_bit(trained, saved, data):
+    arrays, manifest = data
+    loaded = CapabilityModel.load(saved, fingerprint=manifest["fingerprint"])
+    memory = CapabilityModel.from_training(trained)
+    assert loaded.networks == memory.networks == [("nominal", k) for k in ("diagonal", "orthogonal", "turn")]
+    for kind in P.KINDS:
+        rows = arrays["kind"] == kind
+        direction = arrays["direction"][rows] if kind == "turn" else None
+        a = loaded.success(arrays["patch"][rows], arrays["feet"][rows], kind, "nominal", direction=direction)
+        b = memory.success(arrays["patch"][rows], arrays["feet"][rows], kind, "nominal", direction=direction)
+        assert a.dtype == np.float64 and np.array_equal(a, b)
+    card = json.loads((saved / "nominal_turn.json").read_text())
+    assert card["fingerprint"] == manifest["fingerprint"] and card["training_config"]["losses"] == ["bce"]
+    assert set(card["test"]) >= {"auc", "brier", "ece", "accuracy"}
+    top = json.loads((saved / "model.json").read_text())
+    assert "split_up/turn" in top["missing"] and top["fingerprints"] == manifest["fingerprints"]
+
+
+def test_queries_batch_over_any_shape(trained, data):
+    arrays, _ = data
+    model = CapabilityModel.from_training(trained)
+    rows = np.nonzero(arrays["kind"] == "orthogonal")[0][:6]
+    flat = model.success(arrays["patch"][rows], arrays["feet"][rows], "orthogonal", "nominal")
+    shaped = model.success(arrays["patch"][rows].reshape(2, 3, 20, 20), arrays["feet"][rows].reshape(2, 3, 6, 3),
+                           "orthogonal", "nominal")
+    assert shaped.shape == (2, 3) and np.allclose(shaped.ravel(), flat, atol=1e-7)
+    with pytest.raises(QzError, match="direction"):
+        model.success(arrays["patch"][rows], arrays["feet"][rows], "turn", "nominal")
+    # Both turn directions from one pass of the patch head.
+    left, right = model.turn_success(arrays["patch"][rows], arrays["feet"][rows], "nominal")
+    for d, p in ((0, left), (1, right)):
+        assert np.allclose(p, model.success(arrays["patch"][rows], arrays["feet"][rows], "turn", "nominal", d),
+                           atol=1e-7)
+    with pytest.raises(QzError, match="feet"):
+        model.success(arrays["patch"][rows], arrays["feet"][rows][:2], "orthogonal", "nominal")
+
+
+def test_missing_network_is_an_explicit_error(trained):
+    model = CapabilityModel.from_training(trained)
+    with pytest.raises(QzError, match=r"model.networks = 'split_up/diagonal'.*not trained: not requested"):
+        model.success(np.zeros((1, 20, 20)), np.zeros((1, 6, 3)), "diagonal", "split_up")
+    with pytest.raises(QzError, match="split_up/orthogonal"):
+        model.map_success(make_terrain("flat"), ["nominal", "split_up"])
+
+
+def test_foreign_weights_are_refused(saved, tmp_path):
+    from safetensors.torch import save_file
+
+    weights = saved / "nominal_orthogonal.safetensors"
+    save_file({"w": torch.zeros(3)}, str(weights))  # a valid safetensors file, not ours
+    with pytest.raises(QzError) as error:
+        CapabilityModel.load(saved)
+    assert "model.networks.nominal/orthogonal.weights" in str(error.value) and "\n" not in str(error.value)
+    weights.write_bytes(b"not a safetensors file at all")
+    with pytest.raises(QzError, match="not a safetensors file"):
+        CapabilityModel.load(saved)
+
+
+def test_replaced_weights_are_refused(saved):
+    # Our format, right network, but not the file the card describes.
+    (saved / "nominal_orthogonal.safetensors").write_bytes((saved / "nominal_orthogonal.safetensors").read_bytes())
+    card_path = saved / "nominal_orthogonal.json"
+    card = json.loads(card_path.read_text())
+    card["weights_sha256"] = "0" * 64
+    card_path.write_text(json.dumps(card))
+    with pytest.raises(QzError, match="SHA-256"):
+        CapabilityModel.load(saved)
+
+
+def test_card_with_another_fingerprint_is_refused(saved):
+    card_path = saved / "nominal_diagonal.json"
+    card = json.loads(card_path.read_text())
+    card["fingerprint"] = "someone-else"
+    card_path.write_text(json.dumps(card))
+    with pytest.raises(QzError, match=r"model.networks.nominal/diagonal.fingerprint = 'someone-else'"):
+        CapabilityModel.load(saved)
+
+
+def test_expected_fingerprint_and_missing_directory(saved, tmp_path, monkeypatch):
+    with pytest.raises(QzError, match="model.fingerprint"):
+        CapabilityModel.load(saved, fingerprint="another-dataset")
+    with pytest.raises(QzError, match="not a model directory"):
+        CapabilityModel.load(tmp_path / "nowhere")
+    from qz_drake.capability import model as model_module
+    monkeypatch.setattr(model_module, "DEFAULT_MODEL_DIR", tmp_path / "not-shipped")
+    with pytest.raises(QzError, match="no model has been shipped yet"):
+        CapabilityModel.load()
+
+
+def test_importing_the_model_does_not_import_torch():
+    code = "import sys, qz_drake.capability.model, qz_drake.capability.model_commands; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_query_inputs_and_map_success_agree_with_patches(trained):
+    model = CapabilityModel.from_training(trained)
+    heightmap = make_terrain("stairs", rise=0.1, count=2)
+    patches, feet = model.query_inputs(heightmap, [0.5, 1.5], [0.5, -0.5], [0, 3], "diagonal", "nominal")
+    assert patches.shape == (2, 20, 20) and feet.shape == (2, 6, 3)
+    yaw = P.heading_yaw(np.array([0, 3]))
+    assert np.array_equal(patches, P.sample_patches(heightmap, np.array([0.5, 1.5]), np.array([0.5, -0.5]), yaw,
+                                                    "diagonal"))
+    cmap = model.map_success(heightmap, ["nominal"])
+    xs, ys = P.grid_centres(heightmap)
+    assert cmap.forward.shape == (1, 8, len(ys), len(xs)) and cmap.queries == 3 * 8 * len(xs) * len(ys)
+    # One cell and heading, recomputed on its own.
+    i, j, k = 1, 2, 3
+    p, f = model.query_inputs(heightmap, xs[j], ys[i], k, "diagonal", "nominal")
+    assert cmap.forward[0, k, i, j] == pytest.approx(float(model.success(p, f, "diagonal", "nominal")), abs=1e-6)
+    p, f = model.query_inputs(heightmap, xs[j], ys[i], k, "turn", "nominal")
+    assert cmap.turn_right[0, k, i, j] == pytest.approx(float(model.success(p, f, "turn", "nominal", 1)), abs=1e-6)
+
+
+# -- commands ---------------------------------------------------------------------------------
+def _parser():
+    parser = argparse.ArgumentParser(prog="qz capability")
+    model_commands.register_model_commands(parser.add_subparsers(dest="command", required=True))
+    return parser
+
+
+def test_commands_train_evaluate_map(data, tmp_path, monkeypatch, capsys):
+    arrays, manifest = data
+    monkeypatch.setattr(model_commands, "load_dataset", lambda path: (arrays, manifest))
+    from qz_drake.capability import training
+    monkeypatch.setattr(training, "TrainingConfig", lambda seed: TrainingConfig(seed=seed, **TINY))
+    parser = _parser()
+    args = parser.parse_args(["train", "--dataset", "ds", "--out", str(tmp_path / "m"), "--json",
+                              "--network", "nominal/orthogonal", "--network", "nominal/turn"])
+    assert args.func(args) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert [(r["topology"], r["kind"]) for r in summary["networks"]] == [("nominal", "orthogonal"), ("nominal", "turn")]
+    assert all((tmp_path / "m" / name).is_file() for name in ("reliability.png", "confusion.png", "model.json"))
+
+    # Without --json: progress bars and the table.
+    args = parser.parse_args(["train", "--dataset", "ds", "--out", str(tmp_path / "m2"), "--network", "nominal/turn"])
+    assert args.func(args) == 0
+    printed = capsys.readouterr().out
+    assert "nominal/turn" in printed and "not requested: nominal/orthogonal" in printed
+
+    args = parser.parse_args(["evaluate", "--model", str(tmp_path / "m"), "--dataset", "ds", "--json"])
+    assert args.func(args) == 0
+    result = json.loads(capsys.readouterr().out)
+    entries = {(e["topology"], e["kind"]): e for e in result["networks"]}
+    assert set(entries[("nominal", "orthogonal")]) == set(model_commands.SUMMARY_KEYS)
+    assert entries[("nominal", "orthogonal")]["n"] == int(np.sum((arrays["kind"] == "orthogonal")
+                                                                   & (arrays["topology"] == "nominal")))
+    assert entries[("nominal", "diagonal")].get("missing") is True
+
+    # Other scenes are fine (the same metrics on any dataset of this BLC-robot system) ...
+    scenes = dict(manifest, fingerprint="other", fingerprints=dict(manifest["fingerprints"], scenes="other-scenes"))
+    monkeypatch.setattr(model_commands, "load_dataset", lambda path: (arrays, scenes))
+    assert args.func(args) == 0
+    capsys.readouterr()
+    # ... another BLC is not.
+    other = dict(manifest, fingerprints=dict(manifest["fingerprints"], blc="another-blc"))
+    monkeypatch.setattr(model_commands, "load_dataset", lambda path: (arrays, other))
+    with pytest.raises(QzError, match=r"dataset.manifest.fingerprints.blc = 'another-blc'"):
+        args.func(args)
+
+    heightmap_file = make_terrain("step", height=0.3, size_x=4.0, size_y=3.0).save_npz(tmp_path / "step.npz")
+    args = parser.parse_args(["map", "--model", str(tmp_path / "m"), "--terrain", str(heightmap_file),
+                              "--topology", "nominal", "--out", str(tmp_path / "map.png")])
+    with pytest.raises(QzError, match="nominal/diagonal"):  # the model lacks it: no silent fallback
+        args.func(args)
+
+
+def test_map_command_draws_a_png(saved, tmp_path, capsys):
+    args = _parser().parse_args(["map", "--model", str(saved), "--terrain", "stairs", "--terrain-param", "rise=0.1",
+                                 "--topology", "nominal", "--out", str(tmp_path / "map.png")])
+    assert args.func(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert (tmp_path / "map.png").stat().st_size > 1000 and 0.0 <= out["min_forward_success"] <= 1.0
+    bad = _parser().parse_args(["map", "--model", str(saved), "--terrain", "flat", "--topology", "upside_down",
+                                "--out", str(tmp_path / "x.png")])
+    with pytest.raises(QzError, match="--topology"):
+        bad.func(bad)
+
+
+def test_default_model_missing_is_a_clear_error(tmp_path, monkeypatch):
+    from qz_drake.capability import model as model_module
+    monkeypatch.setattr(model_module, "DEFAULT_MODEL_DIR", tmp_path / "capability_model")
+    args = _parser().parse_args(["evaluate", "--dataset", "ds", "--json"])
+    with pytest.raises(QzError, match="no model has been shipped yet"):
+        args.func(args)

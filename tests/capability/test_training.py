@@ -1,0 +1,146 @@
+"""Training protocol, metrics and baselines of the capability networks, on synthetic data
+whose label is a known function of the patch (qz_drake.capability.synthetic)."""
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from qz_drake.capability import evaluation as ev  # noqa: E402
+from qz_drake.capability.synthetic import synthetic_arrays, synthetic_rule  # noqa: E402
+from qz_drake.capability.training import TrainingConfig, split_scenes, train_networks  # noqa: E402
+from qz_drake.errors import QzError  # noqa: E402
+
+torch.set_num_threads(1)
+
+
+def small_config(**kw):
+    kw.setdefault("max_epochs", 60)
+    kw.setdefault("patience", 10)
+    kw.setdefault("networks", ["nominal/orthogonal"])
+    return TrainingConfig(**kw)
+
+
+@pytest.fixture(scope="module")
+def learned():
+    arrays, manifest = synthetic_arrays(scenes=60, headings=8, kinds=("orthogonal",), label_noise=0.02, seed=1)
+    result = train_networks(arrays, fingerprint=manifest["fingerprint"], config=small_config(batch_size=64))
+    return arrays, result
+
+
+def test_split_is_by_scene_disjoint_and_reproducible():
+    scenes = np.repeat(np.arange(40), 5)
+    a, b = split_scenes(scenes, seed=3), split_scenes(scenes, seed=3)
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+    assert [len(a[k]) for k in ("train", "validation", "test")] == [28, 6, 6]
+    assert set(np.concatenate(list(a.values()))) == set(range(40))
+    assert not set(a["train"]) & set(a["test"]) and not set(a["validation"]) & set(a["test"])
+    assert not np.array_equal(split_scenes(scenes, seed=4)["test"], a["test"])
+    with pytest.raises(QzError, match="dataset.scene"):
+        split_scenes([0, 0, 1])
+
+
+def test_learns_a_known_rule_on_held_out_scenes(learned):
+    arrays, result = learned
+    net = result.networks[("nominal", "orthogonal")]
+    card = net.card
+    # Against the noisy labels (2 % flipped, a few of 72 test trials) and the noiseless rule.
+    assert card["test"]["auc"] > 0.9
+    assert card["loss"] in ("mse", "bce") and set(card["runs"]) == {"mse", "bce"}
+    # Early stopping kept the best validation epoch, before the cap.
+    assert all(run["best_epoch"] <= run["epochs"] <= 60 for run in card["runs"].values())
+    # Not one test scene was seen in training.
+    assert not set(result.split["test"]) & set(result.split["train"])
+    # The noiseless rule on the test scenes is ranked as well.
+    rows = np.isin(arrays["scene"], result.split["test"])
+    with torch.no_grad():
+        p = net.net.probability(torch.as_tensor(arrays["patch"][rows]),
+                                torch.as_tensor(arrays["feet"][rows].reshape(-1, 18))).numpy()
+    from sklearn.metrics import roc_auc_score
+    assert roc_auc_score(synthetic_rule(arrays["patch"][rows]), p) > 0.95
+    # The baselines are scored on the same rows; the base rate ranks nothing.
+    assert card["baselines"]["base_rate"]["n"] == card["test"]["n"]
+    assert card["baselines"]["base_rate"]["auc"] is None or card["baselines"]["base_rate"]["auc"] == 0.5
+    assert card["baselines"]["logistic"]["auc"] > 0.9  # the rule is a threshold on a hand-made feature
+    assert card["baselines"]["gradient_boosting"]["n"] == card["test"]["n"]
+    assert card["beats_baselines"] in (True, False)
+
+
+def test_training_is_reproducible():
+    arrays, manifest = synthetic_arrays(scenes=12, headings=6, kinds=("orthogonal",), seed=2)
+    config = small_config(max_epochs=3, min_train_trials=10, min_train_per_class=1, losses=["bce"])
+    a = train_networks(arrays, fingerprint="f", config=config).networks[("nominal", "orthogonal")].net
+    b = train_networks(arrays, fingerprint="f", config=config).networks[("nominal", "orthogonal")].net
+    for (ka, va), (kb, vb) in zip(a.state_dict().items(), b.state_dict().items()):
+        assert ka == kb and torch.equal(va, vb)
+
+
+def test_networks_without_enough_data_are_listed_missing():
+    arrays, manifest = synthetic_arrays(scenes=12, headings=6, kinds=("orthogonal", "turn"), seed=2)
+    keep = (arrays["kind"] == "orthogonal") | (np.arange(len(arrays["kind"])) % 9 == 0)
+    arrays = {k: v[keep] for k, v in arrays.items()}
+    config = small_config(max_epochs=2, networks=["nominal/orthogonal", "nominal/turn", "split_up/diagonal"],
+                          min_train_trials=20, min_train_per_class=1, losses=["bce"])
+    result = train_networks(arrays, fingerprint="f", config=config)
+    assert list(result.networks) == [("nominal", "orthogonal")]
+    assert "training trials" in result.missing["nominal/turn"]
+    assert result.missing["split_up/diagonal"].startswith("0 training trials")
+
+
+def test_bad_config_and_arrays_name_the_field():
+    arrays, _ = synthetic_arrays(scenes=5, headings=2, kinds=("orthogonal",))
+    with pytest.raises(QzError, match="training.split"):
+        train_networks(arrays, fingerprint="f", config=TrainingConfig(split=[0.5, 0.5, 0.5]))
+    with pytest.raises(QzError, match="training.losses"):
+        TrainingConfig(losses=["hinge"]).check()
+    broken = dict(arrays, feet=arrays["feet"][:, :5])
+    with pytest.raises(QzError, match="dataset.feet"):
+        train_networks(broken, fingerprint="f")
+    with pytest.raises(QzError, match="fingerprint"):
+        train_networks(arrays, fingerprint="")
+
+
+def test_beats_baselines_needs_every_baseline_beaten():
+    base = {"base_rate": {"brier": 0.25}, "logistic": {"auc": 0.8, "brier": 0.15},
+            "gradient_boosting": {"auc": 0.85, "brier": 0.12}}
+    assert ev.beats_baselines({"n": 10, "auc": 0.9, "brier": 0.1}, base) is True
+    assert ev.beats_baselines({"n": 10, "auc": 0.83, "brier": 0.1}, base) is False
+    assert ev.beats_baselines({"n": 10, "auc": None, "brier": 0.1}, base) is None
+
+
+def test_metrics_with_one_class_report_no_auc():
+    m = ev.binary_metrics(np.ones(5, bool), np.full(5, 0.8))
+    assert m["auc"] is None and m["accuracy"] == 1.0 and m["brier"] == pytest.approx(0.04)
+    assert m["confusion"] == [[0, 0], [0, 5]]
+    assert ev.binary_metrics([], [])["n"] == 0
+
+
+def test_expected_calibration_error_by_hand():
+    y = np.array([1, 0, 1, 1, 0, 0, 1, 1], bool)
+    p = np.array([0.05, 0.05, 0.35, 0.35, 0.95, 0.95, 0.95, 0.95])
+    # bins: [0, .1): mean y .5 vs .05; [.3, .4): 1 vs .35; [.9, 1]: .5 vs .95
+    expected = (2 * 0.45 + 2 * 0.65 + 4 * 0.45) / 8
+    assert ev.expected_calibration_error(y, p, 10) == pytest.approx(expected)
+    # Perfectly calibrated constant prediction.
+    assert ev.expected_calibration_error([1, 0, 1, 0], [0.5] * 4) == pytest.approx(0.0)
+
+
+def test_patch_features_see_each_patch_alone(monkeypatch):
+    flat = np.zeros((20, 20))
+    step = flat.copy()
+    step[12:] = 0.2
+    features = ev.patch_features(np.stack([flat, step, flat]), "orthogonal")
+    names = list(ev.FEATURE_NAMES)
+    assert features.shape == (3, 4)
+    # The step's neighbours in the mosaic stay flat: features do not leak between patches.
+    assert np.allclose(features[[0, 2]], 0.0, atol=1e-6)  # FFT rounding only
+    assert features[1, names.index("max_step_height")] == pytest.approx(0.2, abs=0.02)
+    assert features[1, names.index("height_range")] == pytest.approx(0.2)
+    assert features[1, names.index("max_slope")] > 0.1
+    # Chunked mosaics give the same features.
+    many = np.stack([flat, step, flat] * 3)
+    whole = ev.patch_features(many, "turn")
+    monkeypatch.setattr(ev, "FEATURE_CHUNK", 2)
+    assert np.allclose(ev.patch_features(many, "turn"), whole, atol=1e-6)
+    X = ev.baseline_inputs(np.stack([flat, step]), np.array([0, 1]), "turn")
+    assert X.shape == (2, 5) and list(X[:, -1]) == [0, 1]

@@ -1,0 +1,126 @@
+"""The capability MDP (paper 000 II-E.2) on a synthetic map with two corridors through a wall,
+one of which holds a low ridge that a stub capability model calls impossible."""
+
+import numpy as np
+import pytest
+
+from qz_drake.errors import QzError
+from qz_drake.planning.capability_mdp import (CapabilityMdpConfig, build_capability_mdp, plan, plan_on_map)
+from qz_drake.capability.model import predict_map
+from qz_drake.terrain import HeightMap
+
+START, GOAL = (1.5, 5.5), (12.5, 5.5)
+
+
+class StubModel:
+    """CapabilityModel's ``success`` interface: a move fails (p = 0.02) when its patch holds
+    anything higher than the topology's threshold above the standing ground, else p = 0.97;
+    turns succeed with 0.99. Counts its calls."""
+
+    def __init__(self, thresholds=None, default=0.05):
+        self.thresholds, self.default, self.calls = dict(thresholds or {}), default, []
+
+    def success(self, patches, feet, kind, topology, direction=None):
+        patches = np.asarray(patches)
+        assert np.shape(feet) == patches.shape[:-2] + (6, 3)
+        self.calls.append((kind, topology, patches.shape[:-2]))
+        if kind == "turn":
+            assert direction is not None
+            return np.full(patches.shape[:-2], 0.99)
+        high = patches.max(axis=(-2, -1))
+        return np.where(high > self.thresholds.get(topology, self.default), 0.02, 0.97)
+
+
+@pytest.fixture(scope="module")
+def corridors():
+    """14 m x 12 m, 0.1 m cells; a 0.6 m wall at x 6-7 m with two 3 m openings: A at
+    y 4-7 m on the straight line from start to goal, with a 0.08 m ridge at x 6.3-6.7 m, and
+    B at y 9-12 m, flat."""
+    res = 0.1
+    x = 0.05 + res * np.arange(140)
+    y = 0.05 + res * np.arange(120)
+    X, Y = np.meshgrid(x, y)
+    h = np.where((X > 6) & (X < 7), 0.6, 0.0)
+    h[(X > 6) & (X < 7) & (((Y > 4) & (Y < 7)) | (Y > 9))] = 0.0
+    h[(X > 6.3) & (X < 6.7) & (Y > 4) & (Y < 7)] = 0.08
+    return HeightMap(h, res, (0.05, 0.05))
+
+
+def crossing(plan_result):
+    """y of the path's cells in the wall's column (x = 6.5 m)."""
+    cells = plan_result.cells
+    return cells[np.isclose(cells[:, 0], 6.5), 1]
+
+
+def test_path_avoids_the_corridor_the_model_calls_impossible(corridors):
+    result = plan(StubModel(), corridors, START, 0, GOAL, config=CapabilityMdpConfig(topologies=["nominal"]))
+    assert result.reaches_goal and result.solution.converged
+    ys = crossing(result)
+    assert len(ys) and np.all(ys > 9)  # through B, not the ridge of A
+    assert result.success_probability > 0.4
+    assert np.allclose(result.cells[0], START) and np.allclose(result.cells[-1], GOAL)
+    # Each network saw the whole map in one batched call.
+    model = StubModel()
+    plan(model, corridors, START, 0, GOAL, config=CapabilityMdpConfig(topologies=["nominal"]))
+    assert sorted(c[0] for c in model.calls) == ["diagonal", "orthogonal", "turn"]
+
+
+def test_path_takes_the_short_corridor_when_the_model_allows_it(corridors):
+    result = plan(StubModel(default=0.1), corridors, START, 0, GOAL, config=CapabilityMdpConfig(topologies=["nominal"]))
+    assert result.reaches_goal
+    ys = crossing(result)
+    assert len(ys) and np.all((ys > 4) & (ys < 7))
+    # The straight line: eleven forward moves along heading 0, no turn.
+    assert [s.motion for s in result.steps] == ["forward"] * 11
+
+
+def test_topology_change_where_it_pays(corridors, tmp_path):
+    model = StubModel(thresholds={"front_bend": 0.1})  # only front_bend climbs the ridge
+    capability_map = predict_map(model, corridors, ["nominal", "front_bend"])
+    cheap = plan_on_map(capability_map, START, 0, GOAL, config=CapabilityMdpConfig(topology_change_cost=2.0))
+    assert cheap.reaches_goal and cheap.topology_changes >= 1
+    ys = crossing(cheap)
+    assert np.all((ys > 4) & (ys < 7))
+    ridge_steps = [s for s in cheap.steps if s.motion == "forward" and 5.0 < s.x < 7.0]
+    assert ridge_steps and all(s.action_topology == "front_bend" for s in ridge_steps)
+    from qz_drake.capability.plots import plot_plan
+    assert plot_plan(corridors, cheap, tmp_path / "plan.png").stat().st_size > 1000
+    # A change dearer than the detour: the robot stays nominal and goes round through B.
+    dear = plan_on_map(capability_map, START, 0, GOAL, config=CapabilityMdpConfig(topology_change_cost=60.0))
+    assert dear.reaches_goal and dear.topology_changes == 0 and np.all(crossing(dear) > 9)
+
+
+def test_mdp_structure_and_values(corridors):
+    capability_map = predict_map(StubModel(), corridors, ["nominal"])
+    mdp = build_capability_mdp(capability_map, GOAL)
+    S = mdp.failure_state + 1
+    assert len(mdp.P) == 3 and all(m.shape == (S, S) for m in mdp.P)
+    for m in mdp.P:
+        assert np.allclose(np.asarray(m.sum(axis=1)).ravel(), 1.0)
+    # Forward off the grid always fails; the absorbing states stay put.
+    s = mdp.state(0, 3, 4, "nominal")  # west edge, heading west
+    assert mdp.success[0, s] == 0.0 and mdp.P[0][s, mdp.failure_state] == 1.0
+    assert mdp.P[1][mdp.goal_state, mdp.goal_state] == 1.0
+    # Next to the goal, facing it: forward reaches the goal state with the goal's reward.
+    s = mdp.state(11, 5, 0, "nominal")
+    assert mdp.next_state[0, s] == mdp.goal_state
+    assert mdp.R[s, 0] == pytest.approx(-1.0 + 0.97 * 100.0 - 0.03 * 100.0)
+    result = plan_on_map(capability_map, START, 0, GOAL)
+    utility = result.utility_map()
+    assert utility.shape == (12, 14)
+    assert utility[5, 11] > utility[5, 8] > utility[5, 1]
+    # The start in the goal cell has arrived.
+    here = plan_on_map(capability_map, GOAL, 2, GOAL)
+    assert here.reaches_goal and here.steps == []
+
+
+def test_errors_name_the_field(corridors):
+    capability_map = predict_map(StubModel(), corridors, ["nominal"])
+    with pytest.raises(QzError, match="goal"):
+        build_capability_mdp(capability_map, (30.0, 5.0))
+    with pytest.raises(QzError, match="start"):
+        plan_on_map(capability_map, (-3.0, 1.0), 0, GOAL)
+    with pytest.raises(QzError, match="capability_mdp.discount"):
+        build_capability_mdp(capability_map, GOAL, CapabilityMdpConfig(discount=1.0))
+    with pytest.raises(QzError, match="start_topology"):
+        plan_on_map(capability_map, START, 0, GOAL, start_topology="split_up")
