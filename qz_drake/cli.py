@@ -20,6 +20,7 @@ from qz_drake.errors import ConfigError, QzError
 _COMMAND_MODULES = (
     "qz_drake.trajopt.commands",
     "qz_drake.planning.commands",
+    "qz_drake.planning.plan_command",
     "qz_drake.classification.commands",
     "qz_drake.capability.commands",
     "qz_drake.hardware.commands",

@@ -90,9 +90,14 @@ class ControllerConfig:
     # "stand": joint PD (paper 000 Eq. 7) holding the topology's standing pose;
     # "walk": missions along `route`, planned by `planner`, tracked by IK + joint PD.
     kind: str = "stand"
-    # Mission planner for "walk": "tripod" (kinematic alternating tripod plan) or "blc" (the
-    # trajectory optimisation of paper 000, solved per mission from the measured state).
+    # Mission planner for "walk": "tripod" (kinematic alternating tripod plan), "blc" (the
+    # trajectory optimisation of paper 000, solved per mission from the measured state, along
+    # the route) or "capplanner" (paper 000's whole CapPlanner: the learned capability model and
+    # value iteration choose the missions and topologies to the route's last waypoint, the
+    # goal; the BLC solves each).
     planner: str = "tripod"
+    # capplanner only: the capability model folder; empty: the one shipped in the package.
+    capability_model: str = ""
     # Waypoints of the route for "walk", from the start.
     route: list[Waypoint] = dataclasses.field(default_factory=list)
     # Longest local mission along the route. [m]
@@ -154,7 +159,7 @@ class Scenario:
 DISCRETE_APPROXIMATIONS = ("lagged", "similar", "sap", "tamsi")
 CONTROLLER_KINDS = ("stand", "walk")
 CONTROL_MODES = ("torque", "position")
-PLANNERS = ("tripod", "blc")
+PLANNERS = ("tripod", "blc", "capplanner")
 
 
 def _check_fields(schema, data, path: str) -> None:

@@ -313,6 +313,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     desired = desired_log.FindLog(context).data().T
     links = (None if leg_log is None else leg_log.FindLog(context).data().T,
              None if self_log is None else self_log.FindLog(context).data()[0])
+    if control.planner == "capplanner":  # the goal's heading is the planner's to choose
+        targets = targets[:-1] + [(targets[-1][0], targets[-1][1], None, targets[-1][3])]
     metrics = walking_metrics(scenario, info, missions.log, targets, times, states, contacts, trunk, desired,
                               fell=fell, timed_out=not stopped and (not missions.done or context.get_time() >= limit),
                               leg_link_force=links[0], self_force=links[1])
@@ -425,17 +427,49 @@ class _BlcMissions:
                 "topology_changes": len(log.switches)}
 
 
-def _unplanned(scenario, out, missions) -> SimulationResult:
+def _unplanned(scenario, out, missions, *, reason: str | None = None, code: str | None = None,
+               extra: dict | None = None) -> SimulationResult:
+    """The result of a walk that never started: its first mission could not be planned (or,
+    with CapPlanner, no route reaches the goal)."""
     from qz_drake.verdict import blc_failure_code
 
-    metrics = {"scenario": scenario.name, "success": False,
-               "reason": f"mission 0 could not be planned: {missions.first_failure}",
-               "reasons": [blc_failure_code(missions.first_failure)],
-               "missions": 0, "planner": scenario.controller.planner, **missions.counts()}
+    reason = reason or f"mission 0 could not be planned: {missions.first_failure}"
+    metrics = {"scenario": scenario.name, "success": False, "reason": reason,
+               "reasons": [code or blc_failure_code(missions.first_failure)],
+               "missions": 0, "planner": scenario.controller.planner,
+               **(missions.counts() if missions is not None else {}), **(extra or {})}
     if out is not None:
         (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return SimulationResult(metrics=metrics, times=np.zeros(0), states=np.zeros((0, 49)),
                             foot_contact=np.zeros((0, 6)), trunk_contact=np.zeros(0), files={})
+
+
+def _capability_planner(scenario, info):
+    """CapPlanner's top-level controller for a walking scenario: the capability model of
+    ``controller.capability_model`` (empty: the shipped one), the goal at the route's last
+    waypoint, planned over the station's heightmap from the robot's start."""
+    from qz_drake.capability.model import CapabilityModel
+    from qz_drake.planning.capability_mdp import CapabilityMdpConfig
+    from qz_drake.systems.capability_planner import CapabilityVIPlanner
+    from qz_drake.systems.state_layout import base_rpy
+
+    from qz_drake.capability.patches import KINDS
+    from qz_drake.errors import bad_value
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+    control = scenario.controller
+    model = CapabilityModel.load(control.capability_model or None)
+    # The topologies the model knows all three moves of.
+    topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
+    if info.topology.name not in topologies:
+        raise bad_value("scenario.robot.topology", info.topology.name,
+                        f"the capability model has no networks for it (it has {', '.join(topologies) or 'none'})")
+    x0 = info.initial_state
+    goal = control.route[-1]
+    return CapabilityVIPlanner(model=model, heightmap=info.heightmap, goal=(goal.x, goal.y),
+                               start=(float(x0[4]), float(x0[5]), float(base_rpy(x0)[2])),
+                               initial_topology=info.topology.name, plan_ahead=control.plan_ahead,
+                               mdp_config=CapabilityMdpConfig(topologies=topologies))
 
 
 def _planned_base(plans, times):

@@ -88,7 +88,7 @@ def judge_walk(criteria, *, goal_xy_yaw, times, states, desired_q, feet_W, conta
 
     Args:
         criteria: SuccessCriteria (qz_drake.config) with the bounds.
-        goal_xy_yaw: the final target (x, y, yaw) of the base. [m, rad]
+        goal_xy_yaw: the final target (x, y, yaw) of the base; yaw None: any heading. [m, rad]
         times: (N,) sample times; states (N, 49) station states; desired_q (N, 18) the joint
             references; feet_W (N, 6, 3) foot positions; contacts (N, 6) foot contact flags;
             trunk (N,) trunk contact flags; leg_link_force (N, 6) terrain force on each leg's
@@ -138,9 +138,12 @@ def judge_walk(criteria, *, goal_xy_yaw, times, states, desired_q, feet_W, conta
     final_xy_error = math.inf
     final_yaw_error = math.inf
     if len(states):
-        final_xy_error = float(np.hypot(*(states[-1, 4:6] - np.asarray(goal_xy_yaw[:2]))))
-        dyaw = base_rpy(states[-1])[2] - goal_xy_yaw[2]
-        final_yaw_error = float(abs(np.degrees(math.atan2(math.sin(dyaw), math.cos(dyaw)))))
+        final_xy_error = float(np.hypot(*(states[-1, 4:6] - np.asarray(goal_xy_yaw[:2], dtype=float))))
+        if goal_xy_yaw[2] is None:
+            final_yaw_error = 0.0
+        else:
+            dyaw = base_rpy(states[-1])[2] - goal_xy_yaw[2]
+            final_yaw_error = float(abs(np.degrees(math.atan2(math.sin(dyaw), math.cos(dyaw)))))
     if final_xy_error > criteria.max_final_xy_error:
         fail("missed_target", f"final base {final_xy_error:.2f} m from the target")
     if final_yaw_error > criteria.max_final_yaw_error_deg:

@@ -357,13 +357,13 @@ class MapInputs:
     feet: dict
 
 
-def sample_map_inputs(heightmap, topologies, *, cell_size: float = P.CELL_SIZE) -> MapInputs:
+def sample_map_inputs(heightmap, topologies, *, cell_size: float = P.CELL_SIZE, anchor=None) -> MapInputs:
     """Patches (once per kind: they do not depend on the topology) and each topology's nominal
     feet for every cell and heading, vectorised over all of them (built on patches.py)."""
     from qz_drake.robot.params import DEFAULT_PARAMS
     from qz_drake.robot.topology import get_topology
 
-    xs, ys = P.grid_centres(heightmap, cell_size)
+    xs, ys = P.grid_centres(heightmap, cell_size, anchor)
     # Grid arrays (8, ny, nx): heading index first, as the planner's states.
     k, gy, gx = np.meshgrid(np.arange(8), ys, xs, indexing="ij")
     yaw = P.heading_yaw(k)
@@ -380,12 +380,14 @@ def sample_map_inputs(heightmap, topologies, *, cell_size: float = P.CELL_SIZE) 
                      turn_patches=turn_patches, feet=feet)
 
 
-def predict_map(model, heightmap, topologies=None, *, cell_size: float = P.CELL_SIZE) -> CapabilityMap:
+def predict_map(model, heightmap, topologies=None, *, cell_size: float = P.CELL_SIZE,
+                anchor=None) -> CapabilityMap:
     """Every action's success probability from every cell and heading of the grid world.
 
     ``model`` is anything with CapabilityModel's ``success`` (a stub in tests). The inputs come
     from :func:`sample_map_inputs`; each network then sees all its queries in one batched
-    call. The robot is assumed to stand on the topology's nominal footholds.
+    call. The robot is assumed to stand on the topology's nominal footholds. ``anchor`` (x, y)
+    puts a cell centre there (the robot's start; see patches.grid_centres).
     """
     from qz_drake.robot.topology import TOPOLOGY_NAMES
 
@@ -394,7 +396,7 @@ def predict_map(model, heightmap, topologies=None, *, cell_size: float = P.CELL_
         for t in topologies:
             for kind in P.KINDS:
                 model.network(t, kind)  # a missing network fails before any work
-    return evaluate_map(model, sample_map_inputs(heightmap, topologies, cell_size=cell_size))
+    return evaluate_map(model, sample_map_inputs(heightmap, topologies, cell_size=cell_size, anchor=anchor))
 
 
 def evaluate_map(model, inputs: MapInputs) -> CapabilityMap:

@@ -108,17 +108,25 @@ def nominal_feet_W(heightmap, x, y, yaw, topology, foot_radius: float) -> np.nda
     return np.stack([fx, fy, heightmap.height(fx, fy) + foot_radius], axis=-1)
 
 
-def grid_centres(heightmap, cell_size: float = CELL_SIZE) -> tuple[np.ndarray, np.ndarray]:
+def grid_centres(heightmap, cell_size: float = CELL_SIZE, anchor=None) -> tuple[np.ndarray, np.ndarray]:
     """(xs, ys) of the grid world's cell centres over a heightmap: as many whole cells of
     ``cell_size`` as fit in the area the map's cells cover, from its lower-left corner (a
-    20 m x 20 m map has 20 x 20 cells). [m]"""
+    20 m x 20 m map has 20 x 20 cells); with ``anchor`` (x, y), the grid is shifted so that
+    the anchor (the robot's start) is a cell centre, keeping the cells that fit on the map.
+    [m]"""
     if not (math.isfinite(float(cell_size)) and cell_size > 0):
         raise bad_value("cell_size", cell_size, "must be a positive number of metres")
     xmin, xmax, ymin, ymax = heightmap.bounds
     half = 0.5 * heightmap.resolution
-    nx = int(math.floor((xmax - xmin + 2 * half) / cell_size + 1e-9))
-    ny = int(math.floor((ymax - ymin + 2 * half) / cell_size + 1e-9))
-    if nx < 1 or ny < 1:
+    lo = np.array([xmin - half, ymin - half])
+    hi = np.array([xmax + half, ymax + half])
+    if anchor is not None:
+        a = np.asarray(anchor, dtype=float).reshape(2)
+        # The first centre at or past lo + cell / 2 on the anchor's lattice.
+        first = a + np.ceil((lo + 0.5 * cell_size - a) / cell_size - 1e-9) * cell_size
+    else:
+        first = lo + 0.5 * cell_size
+    counts = np.floor((hi - 0.5 * cell_size - first) / cell_size + 1e-9).astype(int) + 1
+    if counts.min() < 1:
         raise bad_value("heightmap.bounds", heightmap.bounds, f"smaller than one {cell_size} m grid cell")
-    return (xmin - half + (np.arange(nx) + 0.5) * cell_size,
-            ymin - half + (np.arange(ny) + 0.5) * cell_size)
+    return (first[0] + np.arange(counts[0]) * cell_size, first[1] + np.arange(counts[1]) * cell_size)

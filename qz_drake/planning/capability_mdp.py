@@ -294,6 +294,8 @@ def plan(model, heightmap, start_xy, start_heading: int, goal_xy, *, start_topol
     from qz_drake.capability.model import predict_map
 
     config = (config or CapabilityMdpConfig()).check()
-    capability_map = predict_map(model, heightmap, config.topologies or None, cell_size=config.cell_size)
+    # The grid is anchored on the start: the robot starts at a cell centre, as the grid world has it.
+    capability_map = predict_map(model, heightmap, config.topologies or None, cell_size=config.cell_size,
+                                 anchor=start_xy)
     return plan_on_map(capability_map, start_xy, start_heading, goal_xy, start_topology=start_topology,
                        config=config)

@@ -91,7 +91,9 @@ class CapabilityVIPlanner(LeafSystem):
         self._topology0 = initial_topology
         clock = time.perf_counter()
         config = (mdp_config or CapabilityMdpConfig()).check()
-        self.capability_map = predict_map(model, heightmap, config.topologies or None, cell_size=config.cell_size)
+        # The grid is anchored on the start: the robot starts at a cell centre.
+        self.capability_map = predict_map(model, heightmap, config.topologies or None, cell_size=config.cell_size,
+                                          anchor=start[:2])
         self.mdp = build_capability_mdp(self.capability_map, goal, config)
         self.solution = value_iteration(self.mdp.P, self.mdp.R, config.discount, epsilon=config.epsilon,
                                         max_iter=config.max_iter)
@@ -111,7 +113,7 @@ class CapabilityVIPlanner(LeafSystem):
         self.DeclareAbstractOutputPort("guidance", lambda: AbstractValue.Make([]), self._calc_guidance,
                                        prerequisites_of_calc=state_only)
         self.DeclareAbstractOutputPort("utility", lambda: AbstractValue.Make(None), self._calc_utility,
-                                       prerequisites_of_calc=set())
+                                       prerequisites_of_calc={self.nothing_ticket()})
         self.DeclarePeriodicUnrestrictedUpdateEvent(check_period, 0.0, self._update)
 
     # -- planning ------------------------------------------------------------------------------
@@ -124,6 +126,11 @@ class CapabilityVIPlanner(LeafSystem):
         start = self.mdp.state(ix, iy, k, topology)
         steps, reaches, probability = most_likely_path(self.mdp, self.solution, start)
         missions = split_missions(steps, self._split, start_yaw=yaw) if reaches else []
+        if missions:
+            # The path ends at the goal cell's centre; the last mission goes to the goal itself
+            # (within half a cell of it).
+            last = missions[-1]
+            last.target = (self._goal[0], self._goal[1], last.target[2])
         self.log.replans.append((t, (x, y, k, topology), len(missions), probability))
         self.log.planning_time_s += time.perf_counter() - clock
         if not reaches or probability < self._min_success:
@@ -173,6 +180,11 @@ class CapabilityVIPlanner(LeafSystem):
             return
         state.get_mutable_abstract_state(self._missions).set_value((new, 0))
         self._record(new, 0, context.get_time())
+
+    def counts(self) -> dict:
+        """The planner's numbers for the walk's metrics."""
+        return {"planning_time_s": self.log.planning_time_s, "value_iterations": self.log.value_iterations,
+                "replans": max(len(self.log.replans) - 1, 0), "unreachable": self.log.unreachable}
 
     # -- outputs -----------------------------------------------------------------------------
     def _current(self, context):

@@ -182,6 +182,11 @@ class MissionTargetSequencer(LeafSystem):
     def num_targets(self) -> int:
         return len(self._targets)
 
+    @property
+    def done(self) -> bool:
+        """True once every target has its plan."""
+        return len(self.log.plans) >= len(self._targets)
+
     def _record(self, index: int, t: float) -> None:
         self.log.targets.append(self._targets[index])
         self.log.topologies.append(self._targets[index][3])

@@ -1,0 +1,135 @@
+"""``qz plan``: CapPlanner's top-level controller alone (paper 000 II-E.2, Fig. 6a).
+
+The learned capability of every move and turn over the map in one batch, value iteration over
+the capability MDP, the most likely path from the start to the goal and its BLC missions;
+writes the utility map with the path (``plan.png``) and ``plan.json``. A goal no path reaches
+is a reported outcome (exit 1); a goal off the map or where the robot cannot stand, a start
+where it cannot stand, or a model of another robot is bad input (exit 2).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+from qz_drake.errors import bad_value
+
+
+def parse_xy(text: str, field: str) -> tuple[float, float]:
+    parts = [p.strip() for p in str(text).split(",")]
+    try:
+        x, y = (float(p) for p in parts)
+    except ValueError:
+        raise bad_value(field, text, "expected X,Y in metres") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise bad_value(field, text, "must be finite")
+    return x, y
+
+
+def check_model_robot(model) -> None:
+    """Refuses a model whose card says it was trained on another robot (or robot code)."""
+    from qz_drake.capability.dataset import fingerprints
+    from qz_drake.capability.trials import TrialConfig
+
+    theirs = model.fingerprints.get("robot")
+    if theirs is not None and theirs != fingerprints(TrialConfig())["robot"]:
+        raise bad_value("--model", f"fingerprints.robot = {theirs}",
+                        "the model was trained on another robot configuration")
+
+
+def check_standable(heightmap, xy, topology: str, field: str) -> None:
+    """Raises QzError naming ``field`` when the robot cannot stand at xy in the topology."""
+    from qz_drake.errors import QzError
+    from qz_drake.robot.topology import get_topology
+    from qz_drake.station import standing_state
+
+    xmin, xmax, ymin, ymax = heightmap.bounds
+    if not (xmin <= xy[0] <= xmax and ymin <= xy[1] <= ymax):
+        raise bad_value(field, f"{xy[0]:g},{xy[1]:g}", f"off the map (x in [{xmin:g}, {xmax:g}], "
+                                                      f"y in [{ymin:g}, {ymax:g}])")
+    try:
+        standing_state(heightmap, get_topology(topology), xy, 0.0)
+    except QzError:
+        raise bad_value(field, f"{xy[0]:g},{xy[1]:g}",
+                        f"the robot cannot stand there in {topology} (inside an obstacle?)") from None
+
+
+def run_plan(args) -> int:
+    from qz_drake.capability.model import CapabilityModel
+    from qz_drake.capability.model_commands import load_terrain
+    from qz_drake.capability.patches import KINDS
+    from qz_drake.capability.plots import plot_plan
+    from qz_drake.planning.capability_mdp import CapabilityMdpConfig, plan
+    from qz_drake.planning.guidance import split_missions
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+    start, goal = parse_xy(args.start, "--start"), parse_xy(args.goal, "--goal")
+    if not 0 <= args.heading < 8:
+        raise bad_value("--heading", args.heading, "expected a heading index 0..7 (k * 45 deg)")
+    if args.topology not in TOPOLOGY_NAMES:
+        raise bad_value("--topology", args.topology, f"expected one of {', '.join(TOPOLOGY_NAMES)}")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise bad_value("--out", str(out), "is a file, not a folder")
+    heightmap = load_terrain(args.terrain, args.terrain_param, args.seed)
+    model = CapabilityModel.load(args.model)
+    check_model_robot(model)
+    topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
+    if args.topology not in topologies:
+        raise bad_value("--topology", args.topology, f"the model has no networks for it (it has "
+                                                     f"{', '.join(topologies) or 'none'})")
+    check_standable(heightmap, start, args.topology, "--start")
+    check_standable(heightmap, goal, args.topology, "--goal")
+    clock = time.perf_counter()
+    result = plan(model, heightmap, start, args.heading, goal, start_topology=args.topology,
+                  config=CapabilityMdpConfig(topologies=topologies))
+    planning_time = time.perf_counter() - clock
+    missions = split_missions(result.steps, start_yaw=args.heading * math.pi / 4) if result.reaches_goal else []
+    reachable = result.reaches_goal and result.success_probability >= args.min_success
+    reason = "" if reachable else (
+        "no path reaches the goal" if not result.reaches_goal else
+        f"the best path's predicted success {result.success_probability:.3f} < {args.min_success:g}")
+    out.mkdir(parents=True, exist_ok=True)
+    png = plot_plan(heightmap, result, out / "plan.png", title=f"{args.terrain}: CapPlanner's TLC")
+    cells = result.cells
+    length = float(sum(math.hypot(*(cells[i + 1] - cells[i])) for i in range(len(cells) - 1))) if len(cells) > 1 else 0.0
+    summary = {
+        "success": bool(reachable), "reason": reason, "planning_time_s": planning_time,
+        "iterations": int(result.solution.iterations), "converged": bool(result.solution.converged),
+        "max_change": float(result.solution.max_change), "path_length_m": length,
+        "predicted_success": float(result.success_probability), "missions": len(missions),
+        "topology_changes": int(result.topology_changes), "states": int(result.mdp.goal_state + 2),
+        "start": list(start), "goal": list(goal), "png": str(png),
+        "path": [{"x": s.x, "y": s.y, "heading": s.heading, "topology": s.action_topology, "motion": s.motion,
+                  "success": s.success} for s in result.steps],
+        "mission_targets": [{"x": m.target[0], "y": m.target[1], "yaw": m.target[2], "topology": m.topology,
+                             "success": m.success} for m in missions],
+    }
+    (out / "plan.json").write_text(json.dumps(summary, indent=1))
+    if args.json:
+        print(json.dumps({k: v for k, v in summary.items() if k not in ("path", "mission_targets")}))
+    else:
+        print(f"{'reachable' if reachable else 'UNREACHABLE'}: {len(missions)} missions, "
+              f"{length:.1f} m, P(success) {result.success_probability:.2f}, {result.topology_changes} topology "
+              f"changes, VI {result.solution.iterations} iterations, {planning_time:.2f} s -> {png}")
+    return 0 if reachable else 1
+
+
+def register(subparsers) -> None:
+    """Adds ``plan`` to the ``qz`` command."""
+    p = subparsers.add_parser("plan", help="CapPlanner's TLC alone: utility map, guidance path, missions")
+    p.add_argument("--terrain", required=True, help="terrain generator name, or a .npz / .yaml heightmap")
+    p.add_argument("--terrain-param", action="append", metavar="KEY=VALUE", help="generator parameter")
+    p.add_argument("--seed", type=int, default=0, help="terrain seed")
+    p.add_argument("--start", required=True, metavar="X,Y", help="start [m]")
+    p.add_argument("--heading", type=int, default=0, help="start heading index k (yaw k * 45 deg)")
+    p.add_argument("--topology", default="nominal", help="the robot's topology at the start")
+    p.add_argument("--goal", required=True, metavar="X,Y", help="goal [m]")
+    p.add_argument("--model", default=None, help="capability model folder (default: the shipped model)")
+    p.add_argument("--min-success", type=float, default=0.05,
+                   help="least predicted success of the path to call the goal reachable")
+    p.add_argument("--out", default="out/plan", help="output folder")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_plan)
