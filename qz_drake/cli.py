@@ -24,6 +24,7 @@ _COMMAND_MODULES = (
     "qz_drake.classification.commands",
     "qz_drake.capability.commands",
     "qz_drake.hardware.commands",
+    "qz_drake.experiments.commands",
 )
 
 

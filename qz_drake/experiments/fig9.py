@@ -37,6 +37,10 @@ class ExperimentConfig:
     # The BLC's budget per mission (as the capability trials: deterministic). [iterations], [s]
     blc_max_iterations: int = 30
     blc_time_limit: float = 30.0
+    # CapPlanner's capability model folder; empty: the shipped one.
+    capability_model: str = ""
+    # World scale (1: the experiment; smaller: tiny tasks for tests, see worlds.make_task).
+    scale: float = 1.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,14 +56,23 @@ class TaskSpec:
 
 
 def _astar(task, config):
+    """A* over the geometric cost map: a fixed route in the nominal topology (planner blc)."""
     from qz_drake.experiments.astar_baseline import AStarBaselineConfig, astar_route
 
-    return astar_route(task.heightmap, task.start, task.goal,
-                       AStarBaselineConfig(waypoint_spacing=config.mission_length))
+    route = astar_route(task.heightmap, task.start, task.goal,
+                        AStarBaselineConfig(waypoint_spacing=config.mission_length))
+    return route, "blc", route.waypoints
 
 
-# Top-level controllers: name -> route function (task, config) -> Route.
-PLANNERS = {"astar": _astar}
+def _capplanner(task, config):
+    """CapPlanner's TLC in the diagram (planner capplanner): the goal is the only waypoint."""
+    from qz_drake.experiments.astar_baseline import Route
+
+    return Route(True, "", [], 0.0, np.zeros((0, 2))), "capplanner", [(*task.goal, 0.0, "nominal")]
+
+
+# Top-level controllers: name -> (task, config) -> (Route, walking planner, waypoints).
+PLANNERS = {"astar": _astar, "capplanner": _capplanner}
 
 
 def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> dict:
@@ -70,30 +83,29 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
     from qz_drake.trajopt.parameters import BlcParameters
 
     clock = time.perf_counter()
-    task = make_task(spec.terrain, spec.difficulty, spec.seed)
+    task = make_task(spec.terrain, spec.difficulty, spec.seed, scale=config.scale)
     record = {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,
               "planner": spec.planner, "straight_m": task.distance, "success": False, "reason": "",
               "message": "", "walked_m": 0.0, "displacement_ratio": None, "missions": 0, "replans": 0,
               "topology_changes": 0, "planning_time_s": 0.0, "wall_time_s": 0.0, "error": ""}
     try:
-        route = PLANNERS[spec.planner](task, config)
+        route, walking_planner, waypoints = PLANNERS[spec.planner](task, config)
         record["planning_time_s"] = route.planning_time_s
         if not route.found:
             record.update(reason="planner", message=route.reason)
             return record
-        points = np.array([task.start] + [w[:2] for w in route.waypoints])
-        r = 2.0
-        region = [float(points[:, 0].min() - r), float(points[:, 0].max() + r),
-                  float(points[:, 1].min() - r), float(points[:, 1].max() + r)]
+        # Both planners walk on the whole world (CapPlanner may detour anywhere on it).
+        xmin, xmax, ymin, ymax = task.heightmap.bounds
+        region = [xmin, xmax, ymin, ymax]
         budget = config.time_factor * task.distance / config.speed + config.time_margin
         scenario = Scenario(
             name=spec.key, terrain=TerrainConfig(kind="flat", region=region),
             robot=RobotConfig(initial_xy=list(task.start), initial_yaw=task.start_yaw),
             simulation=SimulationConfig(duration=budget),
-            controller=ControllerConfig(kind="walk", planner="blc", mission_length=config.mission_length,
+            controller=ControllerConfig(kind="walk", planner=walking_planner, mission_length=config.mission_length,
                                         speed=config.speed, phase_duration=config.phase_duration,
-                                        route=[Waypoint(x=x, y=y, yaw=a, topology=t)
-                                               for x, y, a, t in route.waypoints]))
+                                        capability_model=config.capability_model,
+                                        route=[Waypoint(x=x, y=y, yaw=a, topology=t) for x, y, a, t in waypoints]))
         result = walk(scenario, heightmap=task.heightmap, stop_on_failure=True,
                       blc_params=BlcParameters(max_iterations=config.blc_max_iterations,
                                                time_limit=config.blc_time_limit))
@@ -103,7 +115,10 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
         record.update(success=bool(m["success"]), reason=(m.get("reasons") or [""])[0],
                       message=str(m.get("reason", ""))[:300], walked_m=walked,
                       displacement_ratio=walked / task.distance if m["success"] else None,
-                      missions=int(m.get("missions", 0)), topology_changes=int(m.get("topology_changes", 0)))
+                      missions=int(m.get("missions", 0)), topology_changes=int(m.get("topology_changes", 0)),
+                      replans=int(m.get("replans", 0)))
+        if spec.planner == "capplanner":
+            record["planning_time_s"] = float(m.get("planning_time_s", 0.0))
     except Exception as e:  # a crash of the run, not an outcome: recorded as an error
         import traceback
 
@@ -158,9 +173,13 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
     if workers < 1:
         raise bad_value("--workers", workers, "must be at least 1")
     for t in terrains:
-        make_task(t, difficulties[0] if difficulties else "simple", 0)
+        make_task(t, "simple", 0, scale=config.scale)
     for d in difficulties:
-        make_task(terrains[0] if terrains else "stairs", d, 0)
+        make_task("stairs", d, 0, scale=config.scale)
+    if "capplanner" in planners:
+        from qz_drake.capability.model import CapabilityModel
+
+        CapabilityModel.load(config.capability_model or None)  # a missing model fails before any walk
     if ray_address:
         check_ray_address(ray_address)
     out = Path(out)

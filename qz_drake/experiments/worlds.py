@@ -69,9 +69,9 @@ class Task:
         return f"{self.terrain}-{self.difficulty}-{self.seed}"
 
 
-def _grid():
-    nx, ny = int(round(WORLD_SIZE_X / RESOLUTION)), int(round(WORLD_SIZE_Y / RESOLUTION))
-    origin = (-WORLD_SIZE_X / 2 + RESOLUTION / 2, -WORLD_SIZE_Y / 2 + RESOLUTION / 2)
+def _grid(scale: float = 1.0):
+    nx, ny = int(round(scale * WORLD_SIZE_X / RESOLUTION)), int(round(scale * WORLD_SIZE_Y / RESOLUTION))
+    origin = (-nx * RESOLUTION / 2 + RESOLUTION / 2, -ny * RESOLUTION / 2 + RESOLUTION / 2)
     x = origin[0] + RESOLUTION * np.arange(nx)
     y = origin[1] + RESOLUTION * np.arange(ny)
     gx, gy = np.meshgrid(x, y)
@@ -82,12 +82,12 @@ def _snap(v: float) -> float:
     return round(v / RESOLUTION) * RESOLUTION
 
 
-def _stairs_hill(heights, gx, gy, rng, rise: float, width_range) -> None:
-    width = rng.uniform(*width_range)
-    cy = rng.uniform(-WORLD_SIZE_Y / 2 + width / 2, WORLD_SIZE_Y / 2 - width / 2) \
-        if width < WORLD_SIZE_Y else 0.0
+def _stairs_hill(heights, gx, gy, rng, rise: float, width_range, scale: float) -> None:
+    size_y, band = scale * WORLD_SIZE_Y, scale * BAND_HALF_WIDTH
+    width = min(rng.uniform(*width_range), size_y)
+    cy = rng.uniform(-size_y / 2 + width / 2, size_y / 2 - width / 2) if width < size_y else 0.0
     length = 2 * _STEPS * _RUN + _LANDING
-    x0 = _snap(rng.uniform(-BAND_HALF_WIDTH, BAND_HALF_WIDTH - length))
+    x0 = _snap(rng.uniform(-band, max(band - length, -band)))
     lateral = (gy >= _snap(cy - width / 2)) & (gy < _snap(cy + width / 2))
     level = np.zeros_like(heights)
     for k in range(_STEPS):
@@ -95,41 +95,46 @@ def _stairs_hill(heights, gx, gy, rng, rise: float, width_range) -> None:
     heights[:] = np.maximum(heights, np.where(lateral, rise * level, 0.0))
 
 
-def _obstacles(heights, gx, gy, rng, height_range, share: float) -> None:
-    band = 2 * BAND_HALF_WIDTH * WORLD_SIZE_Y
+def _obstacles(heights, gx, gy, rng, height_range, share: float, scale: float) -> None:
+    half_band, size_y = scale * BAND_HALF_WIDTH, scale * WORLD_SIZE_Y
+    area = 2 * half_band * size_y
     covered = 0.0
     for _ in range(2000):
-        if covered >= share * band:
+        if covered >= share * area:
             break
         sx, sy = rng.uniform(0.3, 1.0, 2)
-        cx = rng.uniform(-BAND_HALF_WIDTH + sx / 2, BAND_HALF_WIDTH - sx / 2)
-        cy = rng.uniform(-WORLD_SIZE_Y / 2 + sy / 2, WORLD_SIZE_Y / 2 - sy / 2)
+        cx = rng.uniform(-half_band + sx / 2, half_band - sx / 2)
+        cy = rng.uniform(-size_y / 2 + sy / 2, size_y / 2 - sy / 2)
         mask = (gx >= _snap(cx - sx / 2)) & (gx < _snap(cx + sx / 2)) & \
                (gy >= _snap(cy - sy / 2)) & (gy < _snap(cy + sy / 2))
         heights[mask] = np.maximum(heights[mask], rng.uniform(*height_range))
         covered += sx * sy
 
 
-def make_task(terrain: str, difficulty: str, seed: int) -> Task:
-    """The task (and its world) of a terrain, a difficulty and a seed."""
+def make_task(terrain: str, difficulty: str, seed: int, scale: float = 1.0) -> Task:
+    """The task (and its world) of a terrain, a difficulty and a seed. ``scale`` < 1 shrinks
+    the world, the band and the start-goal distance (not the features): a tiny task for tests."""
     if terrain not in TERRAINS:
         raise bad_value("--terrains", terrain, f"expected one of {', '.join(TERRAINS)}")
     if difficulty not in DIFFICULTIES:
         raise bad_value("--difficulties", difficulty, f"expected one of {', '.join(DIFFICULTIES)}")
     rng = np.random.default_rng([TERRAINS.index(terrain), DIFFICULTIES.index(difficulty), int(seed), 0xF19])
-    gx, gy, origin = _grid()
+    if not 0.2 <= scale <= 1.0:
+        raise bad_value("scale", scale, "must be within [0.2, 1]")
+    gx, gy, origin = _grid(scale)
     heights = np.zeros(gx.shape)
     rise, widths = _STAIRS[difficulty]
     height_range, share = _OBSTACLES[difficulty]
     if terrain in ("stairs", "both"):
         for _ in range(2 if terrain == "stairs" else 1):
-            _stairs_hill(heights, gx, gy, rng, rise, widths)
+            _stairs_hill(heights, gx, gy, rng, rise, widths, scale)
     if terrain in ("obstacles", "both"):
-        _obstacles(heights, gx, gy, rng, height_range, share if terrain == "obstacles" else share / 2)
+        _obstacles(heights, gx, gy, rng, height_range, share if terrain == "obstacles" else share / 2, scale)
+    s = scale
     while True:  # start and goal 8-15 m apart, on flat ground outside the band
-        start = (float(rng.uniform(-7.5, -4.0)), float(rng.uniform(-3.0, 3.0)))
-        goal = (float(rng.uniform(4.0, 7.5)), float(rng.uniform(-3.0, 3.0)))
-        if 8.0 <= math.hypot(goal[0] - start[0], goal[1] - start[1]) <= 15.0:
+        start = (float(rng.uniform(-7.5 * s, -4.0 * s)), float(rng.uniform(-3.0 * s, 3.0 * s)))
+        goal = (float(rng.uniform(4.0 * s, 7.5 * s)), float(rng.uniform(-3.0 * s, 3.0 * s)))
+        if 8.0 * s <= math.hypot(goal[0] - start[0], goal[1] - start[1]) <= 15.0 * s:
             break
     yaw = math.atan2(goal[1] - start[1], goal[0] - start[0])
     return Task(terrain=terrain, difficulty=difficulty, seed=int(seed), start=start, start_yaw=yaw,

@@ -1,0 +1,55 @@
+"""``qz experiment capplanner-vs-astar``: paper 000 Fig. 9 (see qz_drake.experiments.fig9)."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from qz_drake.errors import bad_value
+
+
+def _names(text, field, valid):
+    if text is None:
+        return tuple(valid)
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    for n in names:
+        if n not in valid:
+            raise bad_value(field, n, f"expected some of {', '.join(valid)}")
+    if not names:
+        raise bad_value(field, text, "expected a comma-separated list")
+    return names
+
+
+def run_fig9(args) -> int:
+    from qz_drake.experiments.fig9 import PLANNERS, ExperimentConfig, run_experiment
+    from qz_drake.experiments.plots import plot_fig9
+    from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS
+
+    config = ExperimentConfig(capability_model=args.model or "", scale=args.scale)
+    summary = run_experiment(args.out, planners=_names(args.planners, "--planners", tuple(PLANNERS)),
+                             terrains=_names(args.terrains, "--terrains", TERRAINS),
+                             difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
+                             tasks=args.tasks, workers=args.workers, ray_address=args.ray_address, config=config,
+                             progress=not args.json and sys.stderr.isatty())
+    png = plot_fig9(summary["rows"], f"{args.out}/fig9.png", title="CapPlanner's TLC against A* (same BLC)")
+    summary["figure"] = str(png)
+    print(json.dumps(summary, indent=None if args.json else 2))
+    return 0
+
+
+def register(subparsers) -> None:
+    """Adds ``experiment`` (capplanner-vs-astar) to the ``qz`` command."""
+    experiment = subparsers.add_parser("experiment", help="long experiments that compare planners")
+    sub = experiment.add_subparsers(dest="experiment_command", required=True, parser_class=type(experiment))
+    p = sub.add_parser("capplanner-vs-astar", help="paper 000 Fig. 9: the learned TLC against A*")
+    p.add_argument("--out", required=True, help="results folder (results.jsonl, results.csv/json, fig9.png)")
+    p.add_argument("--tasks", type=int, default=20, help="tasks per terrain and difficulty")
+    p.add_argument("--terrains", default=None, help="comma-separated: stairs,obstacles,both")
+    p.add_argument("--difficulties", default=None, help="comma-separated: simple,medium,hard")
+    p.add_argument("--planners", default=None, help="comma-separated: capplanner,astar (default both)")
+    p.add_argument("--model", default=None, help="CapPlanner's capability model folder (default: shipped)")
+    p.add_argument("--scale", type=float, default=1.0, help="world scale (1: the experiment's worlds)")
+    p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    p.add_argument("--ray-address", default=None, help="run the tasks on this Ray cluster (host:port)")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_fig9)

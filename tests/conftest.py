@@ -1,0 +1,23 @@
+"""Fixtures shared across test folders."""
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def synthetic_model_dir(tmp_path_factory):
+    """A capability model of the nominal topology trained on synthetic trials whose label is a
+    known rule (success when the patch's height range is at most 0.15 m): real CNNs, real
+    files, for the planners' end-to-end tests while no model ships."""
+    import torch
+
+    from qz_drake.capability.model import save_model
+    from qz_drake.capability.synthetic import synthetic_arrays
+    from qz_drake.capability.training import TrainingConfig, train_networks
+
+    torch.set_num_threads(1)
+    arrays, manifest = synthetic_arrays(scenes=40, headings=12)
+    # No component fingerprints: the model describes no robot configuration, so the robot
+    # check of planners (plan_command.check_model_robot) lets it through.
+    result = train_networks(arrays, fingerprint=manifest["fingerprint"], fingerprints=None,
+                            config=TrainingConfig(max_epochs=40, patience=8))
+    return save_model(result, tmp_path_factory.mktemp("synthetic_model"))
