@@ -135,15 +135,18 @@ class CapabilityMdp:
         """(topology, motion) of action a."""
         return self.topologies[a // 3], MOTIONS[a % 3]
 
-    def cell_of(self, x: float, y: float, field: str = "position") -> tuple[int, int]:
-        """(ix, iy) of the grid cell containing world (x, y); an error off the grid."""
+    def cell_of(self, x: float, y: float, field: str = "position", *, margin: float = 0.0) -> tuple[int, int]:
+        """(ix, iy) of the grid cell containing world (x, y); a point up to ``margin`` beyond
+        the grid's outer cells counts as in them (the grid holds whole cells only, so a strip
+        of the map along its edges may lie outside it); an error further off."""
         half = 0.5 * self.config.cell_size
-        ix = int(np.floor((x - (self.xs[0] - half)) / self.config.cell_size))
-        iy = int(np.floor((y - (self.ys[0] - half)) / self.config.cell_size))
-        if not (0 <= ix < len(self.xs) and 0 <= iy < len(self.ys)):
+        fx = (x - (self.xs[0] - half)) / self.config.cell_size
+        fy = (y - (self.ys[0] - half)) / self.config.cell_size
+        slack = margin / self.config.cell_size
+        if not (-slack <= fx < len(self.xs) + slack and -slack <= fy < len(self.ys) + slack):
             raise bad_value(field, [float(x), float(y)], f"off the planning grid x {self.xs[0] - half:.2f}.."
                             f"{self.xs[-1] + half:.2f}, y {self.ys[0] - half:.2f}..{self.ys[-1] + half:.2f} m")
-        return ix, iy
+        return (int(np.clip(np.floor(fx), 0, len(self.xs) - 1)), int(np.clip(np.floor(fy), 0, len(self.ys) - 1)))
 
 
 def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | None = None) -> CapabilityMdp:
@@ -156,7 +159,8 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
     mdp = CapabilityMdp(P=[], R=np.empty(0), success=np.empty(0), next_state=np.empty(0),
                         xs=np.asarray(capability_map.xs), ys=np.asarray(capability_map.ys), topologies=topologies,
                         goal_cell=(0, 0), config=config)
-    mdp.goal_cell = mdp.cell_of(*goal_xy, field="goal")
+    # A goal in the map's edge strip outside the whole cells belongs to the nearest cell.
+    mdp.goal_cell = mdp.cell_of(*goal_xy, field="goal", margin=config.cell_size)
     grid = T * K * ny * nx
     S, A = grid + 2, 3 * T
     goal, failure = grid, grid + 1

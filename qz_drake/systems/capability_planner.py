@@ -121,7 +121,7 @@ class CapabilityVIPlanner(LeafSystem):
         from qz_drake.planning.capability_mdp import most_likely_path
 
         clock = time.perf_counter()
-        ix, iy = self.mdp.cell_of(x, y, field="start")
+        ix, iy = self.mdp.cell_of(x, y, field="start", margin=self.mdp.config.cell_size)
         k = int(round(yaw / HEADING_STEP)) % 8
         start = self.mdp.state(ix, iy, k, topology)
         steps, reaches, probability = most_likely_path(self.mdp, self.solution, start)
@@ -170,7 +170,7 @@ class CapabilityVIPlanner(LeafSystem):
         p = plan.base_position(plan.end_time)
         yaw = float(plan.base_rpy(plan.end_time)[2])
         topology = missions[index].topology
-        ix, iy = self.mdp.cell_of(float(p[0]), float(p[1]), field="expected end")
+        ix, iy = self.mdp.cell_of(float(p[0]), float(p[1]), field="expected end", margin=self.mdp.config.cell_size)
         if (ix, iy) == self.mdp.goal_cell:
             self._last_handed = True
             return
