@@ -24,6 +24,7 @@ SUITES = {
     "costmap": ("bench_planning.py", "bench_costmap"),
     "svm": ("bench_svm.py", "run"),
     "capability": ("bench_capability.py", "run"),
+    "plan": ("bench_plan.py", "run"),
     "hardware": ("bench_hardware.py", "run"),
 }
 

@@ -457,7 +457,7 @@ def _capability_planner(scenario, info):
     from qz_drake.errors import bad_value
     from qz_drake.robot.topology import TOPOLOGY_NAMES
 
-    from qz_drake.planning.plan_command import check_model_robot
+    from qz_drake.planning.plan_command import check_model_robot, check_standable
 
     control = scenario.controller
     model = CapabilityModel.load(control.capability_model or None)
@@ -469,6 +469,8 @@ def _capability_planner(scenario, info):
                         f"the capability model has no networks for it (it has {', '.join(topologies) or 'none'})")
     x0 = info.initial_state
     goal = control.route[-1]
+    check_standable(info.heightmap, (goal.x, goal.y), info.topology.name,
+                    f"scenario.controller.route[{len(control.route) - 1}]")
     return CapabilityVIPlanner(model=model, heightmap=info.heightmap, goal=(goal.x, goal.y),
                                start=(float(x0[4]), float(x0[5]), float(base_rpy(x0)[2])),
                                initial_topology=info.topology.name, plan_ahead=control.plan_ahead,
