@@ -72,3 +72,21 @@ def test_qz_plan_writes_the_utility_map_and_names_bad_input(synthetic_model_dir,
         bad = subprocess.run(QZ + base, capture_output=True, text=True, timeout=300)
         lines = bad.stderr.strip().splitlines()
         assert bad.returncode == 2 and len(lines) == 1 and field in lines[0], bad.stderr
+
+
+def test_a_capplanner_goal_inside_an_obstacle_or_off_the_map_names_the_field(synthetic_model_dir):
+    from qz_drake.errors import QzError
+
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent / "systems"))
+    from test_capability_planner import START, _world
+
+    world = _world()
+    world.heights[world.heights > 0.3] = 0.6  # a wall the trunk cannot straddle
+    for goal, match in (((0.25, -1.0), "cannot stand"), ((30.0, 0.0), "off the map")):
+        scenario = Scenario(name="bad_goal", robot=RobotConfig(initial_xy=list(START)),
+                            terrain=TerrainConfig(region=[-4, 4, -3, 4]),
+                            controller=ControllerConfig(kind="walk", planner="capplanner",
+                                                        capability_model=str(synthetic_model_dir),
+                                                        route=[Waypoint(x=goal[0], y=goal[1])]))
+        with pytest.raises(QzError, match=r"scenario.controller.route\[0\].*" + match):
+            walk(scenario, heightmap=world)

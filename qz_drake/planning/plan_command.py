@@ -49,11 +49,26 @@ def check_standable(heightmap, xy, topology: str, field: str) -> None:
     if not (xmin <= xy[0] <= xmax and ymin <= xy[1] <= ymax):
         raise bad_value(field, f"{xy[0]:g},{xy[1]:g}", f"off the map (x in [{xmin:g}, {xmax:g}], "
                                                       f"y in [{ymin:g}, {ymax:g}])")
+    import numpy as np
+
+    from qz_drake.robot.params import DEFAULT_PARAMS
+
     try:
-        standing_state(heightmap, get_topology(topology), xy, 0.0)
+        x0 = standing_state(heightmap, get_topology(topology), xy, 0.0)
     except QzError:
         raise bad_value(field, f"{xy[0]:g},{xy[1]:g}",
-                        f"the robot cannot stand there in {topology} (inside an obstacle?)") from None
+                        f"the robot cannot stand there in {topology} (a foot out of reach)") from None
+    # The trunk must clear the ground under it (any heading: the disc the trunk sweeps).
+    lx, ly, lz = DEFAULT_PARAMS.trunk_size
+    radius = 0.5 * float(np.hypot(lx, ly))
+    g = np.arange(-radius, radius + 1e-9, 0.05)
+    gx, gy = np.meshgrid(g, g)
+    inside = np.hypot(gx, gy) <= radius
+    ground = heightmap.height(xy[0] + gx[inside], xy[1] + gy[inside])
+    if float(ground.max()) > float(x0[6]) - 0.5 * lz - 0.02:
+        raise bad_value(field, f"{xy[0]:g},{xy[1]:g}",
+                        f"the robot cannot stand there in {topology}: ground {ground.max():.2f} m under "
+                        f"the trunk (inside an obstacle?)")
 
 
 def run_plan(args) -> int:
