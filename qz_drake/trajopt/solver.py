@@ -6,9 +6,11 @@ Python constraints), SPRAL (the only linear solver in that wheel), a wall-time l
 tolerances from BlcParameters. After Ipopt returns, every constraint is evaluated at the returned
 point; the solve succeeds only if Ipopt converged and the worst violation is below
 ``violation_tolerance``, and the plan then also holds at every 100 Hz sample (verdict.py:
-swing feet above the terrain, feet in their boxes, stance forces pushing and inside the friction
-pyramid, single-rigid-body residuals small). Nothing a task can do raises here: bad inputs (a wrong number of feet,
-an unknown gait) raise QzError before solving; a task that cannot be solved is a result.
+swing feet above the terrain, stance feet in their boxes, stance forces pushing and inside the
+friction pyramid, single-rigid-body residuals small). Optionally (``max_refinements``) a plan
+that fails only the dense check is solved again with constraint samples added where it failed.
+Nothing a task can do raises here: bad inputs (a wrong number of feet, an unknown gait) raise
+QzError before solving; a task that cannot be solved is a result.
 """
 
 from __future__ import annotations
