@@ -115,6 +115,31 @@ def _resolve(task: BlcTask, robot: RobotModel, terrain, params: BlcParameters):
     return start, rpy, feet, target, schedule
 
 
+def reachable_distance(robot: RobotModel, schedule, margin: float = 0.01) -> float:
+    """An upper bound on how far the CoM can move over the schedule with every stance foot in
+    its kinematic box (Eq. 1): over a stance of foot i the CoM stays within rho_i of the fixed
+    foot, rho_i the farthest point of the box around the nominal foothold (any rotation), so it
+    moves at most 2 rho_i; along a chain of overlapping stances covering [0, T] the bounds add
+    up, and the cheapest chain is the bound. ``margin`` per stance covers the verdict's
+    tolerances. inf when no chain covers [0, T] (a flight phase). [m]"""
+    n = np.abs(robot.nominal_footholds) + robot.box_half_sizes
+    rho = np.linalg.norm(n, axis=1) + margin
+    intervals = [(a, b, 2 * rho[leg]) for leg in range(schedule.num_legs)
+                 for a, b in schedule.stance_intervals(leg)]
+    T = schedule.duration
+    # Cheapest chain from t = 0 to t = T (intervals sorted by start; a few dozen of them).
+    intervals.sort()
+    best = [math.inf] * len(intervals)
+    for k, (a, b, cost) in enumerate(intervals):
+        if a <= 1e-12:
+            best[k] = cost
+        for j in range(k):
+            if intervals[j][1] >= a - 1e-12 and best[j] + cost < best[k]:
+                best[k] = best[j] + cost
+    ends = [best[k] for k, (_, b, _) in enumerate(intervals) if b >= T - 1e-12]
+    return min(ends) if ends else math.inf
+
+
 def ipopt_options(params: BlcParameters, wall_time: float) -> SolverOptions:
     solver_id = IpoptSolver.id()
     options = SolverOptions()
@@ -174,6 +199,15 @@ def solve_blc(task: BlcTask, robot: RobotModel | None = None, terrain=None,
         if x0.shape != (formulation.variables.num_vars,):
             raise bad_value("initial_guess", f"vector of {x0.size} values",
                             f"expected {formulation.variables.num_vars}", ConfigError)
+    # A target beyond what the boxes let the body travel in this schedule fails at once.
+    distance = float(np.hypot(*(np.asarray(target[:2]) - start[:2])))
+    reach = reachable_distance(robot, schedule)
+    if distance > reach:
+        solution = _verdict(formulation, x0, "Not solved", 0, clock, 0.0)
+        solution.reason = (f"infeasible: target {distance:.2f} m away, the kinematic boxes let "
+                           f"the body travel at most {reach:.2f} m in {schedule.duration:g} s "
+                           f"with this gait (no Ipopt solve; the trajectories are the guess)")
+        return solution
     iterations, ipopt_time, extra = 0, 0.0, {}
     for refinement in range(int(params.max_refinements) + 1):
         prog, x_vars, counter = formulation.build_program()

@@ -190,6 +190,30 @@ def test_impossible_tasks_fail_with_a_reason_within_the_time_limit():
     assert not blocked.success and "violation" in blocked.reason
 
 
+def test_a_target_beyond_the_boxes_reach_fails_before_ipopt():
+    """Qingzhui's tripod over 1 s: two overlapping stances cover it (group B until 0.5 s,
+    group A from 0.5 s); over each the body stays within rho = |(|n| + b)| of a fixed foot,
+    rho = |(0.37 + 0.15, 0.553 + 0.12, 0.499 + 0.10)| = 1.04 m for the corner feet (1.09 m
+    for MF and MB), plus 0.01 m, so at most 2 x 2 x 1.05 = 4.2 m."""
+    from qz_drake.trajopt.gait import make_gait
+    from qz_drake.trajopt.solver import reachable_distance
+
+    robot = qingzhui()
+    n = np.abs(robot.nominal_footholds) + robot.box_half_sizes
+    rho = np.linalg.norm(n, axis=1) + 0.01
+    schedule = make_gait("tripod", 6, 1.0)
+    # Group B (MB, RF, LF) stands until 0.5 s, group A (MF, RB, LB) from 0.5 s: the cheapest
+    # chain takes the least rho of each group.
+    assert reachable_distance(robot, schedule) == pytest.approx(
+        2 * rho[[3, 1, 5]].min() + 2 * rho[[0, 2, 4]].min())
+    assert reachable_distance(robot, schedule) == pytest.approx(4.2, abs=0.01)
+    far = solve_blc(BlcTask(target=(5.0, 0.0, 0.0), duration=1.0))
+    assert not far.success and far.reason.startswith("infeasible: target 5.00 m away")
+    assert far.iterations == 0 and far.ipopt_time == 0.0
+    # Within reach, the bound stays out of the way (the solve itself decides).
+    assert reachable_distance(robot, make_gait("tripod", 6, 2.0)) > 4.0
+
+
 def test_bad_tasks_raise_errors_naming_the_field():
     with pytest.raises(QzError, match="task.target"):
         solve_blc(BlcTask(target=(float("nan"), 0.0, 0.0), duration=2.0))
