@@ -103,6 +103,7 @@ def _cmd_simulate(args) -> int:
     positive_seconds(args.duration, "--duration")
     output_folder(args.out, create=False)
     heightmap = prepare_scenario(scenario)
+    output_folder(args.out)
     # The map is built once: the station takes the checked one.
     station_factory, realtime_rate = partial(make_station, heightmap=heightmap), 0.0
     if args.station == "lcm":
