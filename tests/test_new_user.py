@@ -207,13 +207,17 @@ def robot_in_view(recording: Path, time: float, tmp_path: Path, screenshot: Path
 
 @pytest.mark.slow
 @pytest.mark.skipif(CHROMIUM is None, reason="needs chromium (apt-get install -y chromium) to render recordings")
-def test_recording_camera_keeps_the_walking_robot_in_view(tmp_path):
-    code, out, err = qz("simulate", "scenarios/walk_flat.yaml", "--out", tmp_path / "walk")
+def test_demo_recording_keeps_the_robot_in_view(tmp_path):
+    # Before, the camera stood still and the robot walked out of the view by 15 s.
+    code, out, err = qz("demo", "--out", tmp_path / "demo")
     assert code == 0, err
-    duration = json.loads(out)["sim_time_s"]
+    assert "Meshcat" not in out + err
+    duration = json.loads(out)["runs"]["walk_grid_map"]["sim_time_s"]
     for time in (0.0, duration / 2, duration):
-        x, y, z = robot_in_view(tmp_path / "walk" / "recording.html", time, tmp_path)
+        x, y, z = robot_in_view(tmp_path / "demo" / "recording.html", time, tmp_path,
+                                screenshot=tmp_path / f"demo_{time:g}.png")
         assert abs(x) < 0.5 and abs(y) < 0.5 and z < 1.0, (time, x, y, z)
+        assert (tmp_path / f"demo_{time:g}.png").stat().st_size > 10_000
 
 
 # -- 6. rough edges ---------------------------------------------------------------------------------------
