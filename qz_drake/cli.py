@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import math
+import re
 import sys
 from pathlib import Path
 
@@ -28,9 +30,54 @@ _COMMAND_MODULES = (
 )
 
 
+# A number or a comma-separated list of numbers, e.g. -5,-3 or -1e-2: an option's value, not an
+# option. Maps are centred on the origin, so half of all coordinates are negative.
+_NEGATIVE_NUMBERS = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(,\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)*$")
+
+
 class _OneLineParser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # argparse reads "--start -5,-3" as two options; it accepts "-5" only.
+        self._negative_number_matcher = _NEGATIVE_NUMBERS
+
     def error(self, message):  # one line, exit 2, as for every other bad input
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def output_folder(value, field: str = "--out", *, create: bool = True) -> Path:
+    """The folder ``value`` names, created if needed (``create``); an existing file or a folder
+    that cannot be made is a ConfigError naming ``field``."""
+    path = Path(value)
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{field} = {str(value)!r}: is a file; expected a folder to write into")
+    if not create:
+        return path
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ConfigError(f"{field} = {str(value)!r}: cannot create the folder ({e.strerror})") from None
+    return path
+
+
+def positive_seconds(value, field: str) -> float | None:
+    """``value`` as a finite positive duration (None passes through); errors name ``field``."""
+    if value is None:
+        return None
+    if not (math.isfinite(value) and value > 0):
+        raise ConfigError(f"{field} = {value}: must be a finite positive number of seconds")
+    return float(value)
+
+
+def prepare_scenario(scenario):
+    """The scenario's heightmap, after the checks that need it (start and waypoints on the map,
+    a start the robot can stand on: qz_drake.config.check_against_map)."""
+    from qz_drake.config import check_against_map
+    from qz_drake.station import make_heightmap
+
+    heightmap = make_heightmap(scenario.terrain, scenario.random_seed)
+    check_against_map(scenario, heightmap)
+    return heightmap
 
 
 def parse_key_values(items: list[str] | None, field: str = "--param") -> dict[str, float]:
@@ -48,17 +95,20 @@ def parse_key_values(items: list[str] | None, field: str = "--param") -> dict[st
 
 
 def _cmd_simulate(args) -> int:
+    from functools import partial
+
     from qz_drake.config import load_scenario
     from qz_drake.simulation import simulate
     from qz_drake.station import make_station
 
     scenario = load_scenario(args.scenario)
-    if args.duration is not None and not args.duration > 0:
-        raise ConfigError(f"--duration = {args.duration}: must be positive")
-    station_factory, realtime_rate = make_station, 0.0
+    positive_seconds(args.duration, "--duration")
+    output_folder(args.out, create=False)
+    heightmap = prepare_scenario(scenario)
+    output_folder(args.out)
+    # The map is built once: the station takes the checked one.
+    station_factory, realtime_rate = partial(make_station, heightmap=heightmap), 0.0
     if args.station == "lcm":
-        from functools import partial
-
         from qz_drake.hardware.commands import load_hardware_file
         from qz_drake.hardware.loopback import make_lcm_loopback_station, make_remote_lcm_station
 
@@ -76,15 +126,25 @@ def _cmd_simulate(args) -> int:
     return 0 if result.metrics["success"] else 1
 
 
+# What ``qz terrain --out`` can write (matplotlib's raster and vector formats).
+_PICTURE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pdf", ".svg")
+
+
 def _cmd_terrain(args) -> int:
     from qz_drake.config import TerrainConfig
     from qz_drake.station import make_heightmap
     from qz_drake.viz.plots import plot_heightmap
 
+    out = Path(args.out)
+    if out.suffix.lower() not in _PICTURE_SUFFIXES:
+        raise ConfigError(f"--out = {args.out!r}: expected a picture file ({', '.join(_PICTURE_SUFFIXES)})")
+    if out.is_dir():
+        raise ConfigError(f"--out = {args.out!r}: is a folder; expected a picture file")
+    if args.save is not None and Path(args.save).is_dir():
+        raise ConfigError(f"--save = {args.save!r}: is a folder; expected a .npz file")
     config = TerrainConfig(kind=args.name, params=parse_key_values(args.param))
     heightmap = make_heightmap(config, seed=args.seed)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    output_folder(out.parent, "--out")
     plot_heightmap(heightmap, out, title=f"{args.name} (seed {args.seed})")
     if args.save:
         heightmap.save_npz(args.save)
@@ -98,6 +158,8 @@ def _cmd_terrain(args) -> int:
 def _cmd_demo(args) -> int:
     from qz_drake.demo import run_demo
 
+    positive_seconds(args.duration, "--duration")
+    output_folder(args.out)
     metrics = run_demo(args.out, duration=args.duration)
     print(json.dumps(metrics))
     return 0 if metrics["success"] else 1
@@ -144,7 +206,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser("bench", help="run a benchmark suite (see benchmarks/)")
-    p.add_argument("suite", help="a suite of qz_drake.bench.SUITES (sim, walk, blc, astar, costmap, svm, capability, ...) or all")
+    from qz_drake.bench import SUITES
+
+    p.add_argument("suite", help=f"one of {', '.join(SUITES)}, or all")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.add_argument("--repeats", type=int, default=None, help="runs per case (median reported)")
     p.add_argument("--quick", action="store_true", help="a small subset of the suite")
@@ -168,6 +232,12 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args))
     except QzError as e:
         print(f"qz {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        # A file the user named cannot be read or written (a folder where a file was meant, no
+        # permission, a full disk): the same one line as for any other bad input.
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"qz {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)
         return 2
 
 

@@ -22,10 +22,13 @@ class TerrainConfig:
     # A generator of qz_drake.terrain (flat, slope, stairs, step, gap, pits, waves, rough,
     # obstacles, long_range, material_floor), "grid_map" (the packaged grid_map image) or "file".
     kind: str = "flat"
-    # Generator parameters in SI units, e.g. {rise: 0.1, count: 2} for stairs; for grid_map:
-    # resolution [m], min_height [m], max_height [m].
+    # Generator parameters in SI units, e.g. {rise: 0.1, count: 2} for stairs; for grid_map and
+    # for a picture file: resolution [m] (cell size), min_height [m] and max_height [m] (the
+    # heights of pixel values 0 and full scale).
     params: dict[str, float] = dataclasses.field(default_factory=dict)
-    # Heightmap file (.npz or a map-server .yaml) when kind is "file".
+    # Heightmap file when kind is "file": a .npz (HeightMap.save_npz), a map-server .yaml with
+    # its image, or a picture (.png, ...) with its scale in params; centred on the origin. A
+    # relative path is relative to the scenario file's folder.
     file: str = ""
     # Contact geometry: "auto", "boxes" (point contact) or "mesh" (hydroelastic).
     contact: str = "auto"
@@ -174,13 +177,44 @@ def _check_fields(schema, data, path: str) -> None:
         if key not in fields:
             raise bad_value(f"{path}.{key}", value,
                             f"unknown field (valid: {', '.join(sorted(fields))})")
-        hint = hints[key]
-        if typing.get_origin(hint) is list and isinstance(value, list):
-            (item,) = typing.get_args(hint)
-            for k, entry in enumerate(value):
-                _check_fields(item, entry, f"{path}.{key}[{k}]")
-        else:
-            _check_fields(hint, value, f"{path}.{key}")
+        _check_value(hints[key], value, f"{path}.{key}")
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check_value(hint, value, path: str) -> None:
+    """Raises ConfigError when ``value`` cannot be read as ``hint`` (a dataclass, float, int, str,
+    bool, list[...] or dict[str, float]): Drake's typed loader would say only, e.g.,
+    "'float' object is not iterable", without the field."""
+    origin = typing.get_origin(hint)
+    if dataclasses.is_dataclass(hint):
+        _check_fields(hint, value, path)
+    elif origin is list:
+        if not isinstance(value, list):
+            raise bad_value(path, value, "expected a list, e.g. [1.0, 2.0]")
+        (item,) = typing.get_args(hint)
+        for k, entry in enumerate(value):
+            _check_value(item, entry, f"{path}[{k}]")
+    elif origin is dict:
+        if not isinstance(value, dict):
+            raise bad_value(path, value, "expected a mapping, e.g. {rise: 0.1}")
+        _, item = typing.get_args(hint)
+        for key, entry in value.items():
+            _check_value(item, entry, f"{path}.{key}")
+    elif hint is float:
+        if not _is_number(value):
+            raise bad_value(path, value, "expected a number")
+    elif hint is int:
+        if not (isinstance(value, int) and not isinstance(value, bool)):
+            raise bad_value(path, value, "expected a whole number")
+    elif hint is bool:
+        if not isinstance(value, bool):
+            raise bad_value(path, value, "expected true or false")
+    elif hint is str:
+        if not isinstance(value, (str, int, float)) or isinstance(value, bool):
+            raise bad_value(path, value, "expected a text")
 
 
 def _positive(path: str, value: float) -> None:
@@ -268,22 +302,87 @@ def load_scenario_text(text: str, source: str = "<string>") -> Scenario:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as e:
         raise ConfigError(f"{source}: not valid YAML ({str(e).splitlines()[0]})") from None
-    _check_fields(Scenario, raw if raw is not None else {}, "scenario")
+    if raw is None:
+        # An empty file would silently run the default scenario (standing on flat ground).
+        raise bad_value("scenario", source, "holds no fields; an empty file would run the default scenario (see scenarios/*.yaml)")
+    _check_fields(Scenario, raw, "scenario")
     try:
-        scenario = yaml_load_typed(schema=Scenario, data=text if raw else "{}")
+        scenario = yaml_load_typed(schema=Scenario, data=text)
     except (RuntimeError, ValueError, TypeError) as e:
         raise ConfigError(f"{source}: {e}") from None
     return validate_scenario(scenario)
 
 
+def resolve_paths(scenario: Scenario, folder) -> Scenario:
+    """Makes the scenario's relative file paths (terrain.file) relative to ``folder``, the
+    scenario file's folder, as a map-server YAML's image is relative to the YAML."""
+    file = scenario.terrain.file
+    if file and not Path(file).expanduser().is_absolute():
+        scenario.terrain.file = str(Path(folder) / file)
+    elif file:
+        scenario.terrain.file = str(Path(file).expanduser())
+    return scenario
+
+
 def load_scenario(path) -> Scenario:
-    """Loads and validates a scenario YAML file."""
+    """Loads and validates a scenario YAML file; relative paths in it are relative to its folder."""
     path = Path(path)
+    if path.is_dir():
+        raise bad_value("scenario", str(path), "is a folder; expected a scenario .yaml file")
     if not path.is_file():
         raise bad_value("scenario", str(path), "no such file")
-    return load_scenario_text(path.read_text(), str(path))
+    return resolve_paths(load_scenario_text(path.read_text(), str(path)), path.parent)
 
 
 def save_scenario(scenario: Scenario, path) -> None:
     """Writes only the fields that differ from the defaults."""
     Path(path).write_text(yaml_dump_typed(scenario, defaults=Scenario()))
+
+
+# The generator parameter that sets the height of the terrain's features, by terrain kind: a
+# start that Qingzhui cannot stand on is blamed on it (the terrain is what the user changed).
+_HEIGHT_PARAMS = {"stairs": "rise", "step": "height", "gap": "depth", "pits": "depth", "waves": "amplitude",
+                  "rough": "amplitude", "obstacles": "max_height", "slope": "angle_deg",
+                  "grid_map": "max_height", "file": "max_height"}
+
+
+def check_against_map(scenario: Scenario, heightmap) -> None:
+    """Checks what only the map can decide: the start and every waypoint lie on it, and the
+    robot can stand at the start. Raises ConfigError naming the field and its value.
+
+    A waypoint off the map would be simulated and reported only as a goal missed by tens of
+    metres; a start the legs cannot stand on would be blamed on the start position although
+    the terrain's parameters made it."""
+    from qz_drake.errors import KinematicsError, QzError
+    from qz_drake.robot.params import DEFAULT_PARAMS
+    from qz_drake.robot.topology import get_topology
+    from qz_drake.station import standing_state
+
+    xmin, xmax, ymin, ymax = heightmap.bounds
+    where = f"off the map (x in [{xmin:g}, {xmax:g}], y in [{ymin:g}, {ymax:g}] m)"
+    r = scenario.robot
+    if not bool(heightmap.contains(r.initial_xy[0], r.initial_xy[1])):
+        raise bad_value("scenario.robot.initial_xy", list(r.initial_xy), where)
+    for k, w in enumerate(scenario.controller.route):
+        if not bool(heightmap.contains(w.x, w.y)):
+            raise bad_value(f"scenario.controller.route[{k}]", {"x": w.x, "y": w.y}, where)
+    params = dataclasses.replace(DEFAULT_PARAMS, payload_mass=r.payload_kg)
+    try:
+        standing_state(heightmap, get_topology(r.topology, params), r.initial_xy, r.initial_yaw, params,
+                       foot_offsets=r.initial_foot_offsets or None)
+    except (ConfigError, KinematicsError) as e:
+        if "initial_foot_offsets" in str(e):
+            raise
+        t = scenario.terrain
+        name = _HEIGHT_PARAMS.get(t.kind)
+        why = str(e).split(": ", 1)[-1]
+        if name in t.params:
+            raise bad_value(f"scenario.terrain.params.{name}", t.params[name],
+                            f"Qingzhui cannot stand at scenario.robot.initial_xy = {list(r.initial_xy)} on this "
+                            f"terrain: {why}") from None
+        if t.kind == "file":
+            raise bad_value("scenario.robot.initial_xy", list(r.initial_xy),
+                            f"Qingzhui cannot stand there on scenario.terrain.file = {t.file!r}: {why}") from None
+        raise
+    except QzError:
+        raise

@@ -10,11 +10,13 @@ with the walked path and a summary.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 
 from qz_drake.config import ControllerConfig, Scenario, SimulationConfig, TerrainConfig, Waypoint
+from qz_drake.errors import bad_value
 from qz_drake.simulation import simulate
 
 
@@ -38,6 +40,8 @@ def run_demo(out_dir: str | Path, duration: float | None = None) -> dict:
     from qz_drake.station import make_heightmap
     from qz_drake.viz.plots import plot_heightmap
 
+    if duration is not None and not (math.isfinite(duration) and duration > 0):
+        raise bad_value("duration", duration, "must be a finite positive number of seconds")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     runs, paths = {}, {}

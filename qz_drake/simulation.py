@@ -21,6 +21,7 @@ from qz_drake.config import Scenario
 from qz_drake.station import GRAVITY, make_station
 from qz_drake.systems.joint_pd import JointPdController
 from qz_drake.systems.state_layout import BASE_POS, JOINT_Q, base_rpy, tilt_deg
+from qz_drake.viz.recording import recording_meshcat
 
 # Samples per second of the logged signals. [Hz]
 LOG_RATE = 100.0
@@ -106,7 +107,7 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         if meshcat is None:
-            meshcat = Meshcat()
+            meshcat = recording_meshcat()
     station_diagram, info = station_factory(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh")
     station = builder.AddSystem(station_diagram)
     _standing_controller(builder, station, info, scenario)
@@ -141,7 +142,7 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
         from qz_drake.viz.plots import plot_standing
         from qz_drake.viz.recording import save_recording
 
-        files["recording"] = str(save_recording(meshcat, out / "recording.html"))
+        files["recording"] = str(save_recording(meshcat, out / "recording.html", follow_robot=True))
         files["plot"] = str(plot_standing(times, states, contacts, info, out / "base_and_contacts.png"))
         (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
         files["metrics"] = str(out / "metrics.json")
@@ -241,7 +242,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-        meshcat = meshcat or Meshcat()
+        meshcat = meshcat or recording_meshcat()
     control = scenario.controller
     builder = DiagramBuilder()
     extra = {} if heightmap is None else {"heightmap": heightmap}
@@ -329,7 +330,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
         from qz_drake.viz.plots import plot_walk
         from qz_drake.viz.recording import save_recording
 
-        files["recording"] = str(save_recording(meshcat, out / "recording.html"))
+        files["recording"] = str(save_recording(meshcat, out / "recording.html", follow_robot=True))
         files.update(plot_walk(times, states, contacts, desired, missions.log, info, out))
         (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
         files["metrics"] = str(out / "metrics.json")

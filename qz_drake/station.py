@@ -52,7 +52,25 @@ def make_heightmap(config: TerrainConfig, seed: int = 0):
     if config.kind == "file":
         path = Path(config.file)
         if not path.is_file():
-            raise bad_value("scenario.terrain.file", config.file, "no such file")
+            raise bad_value("scenario.terrain.file", config.file,
+                            "no such file (a relative path is relative to the scenario file's folder)")
+        scale = {"resolution", "min_height", "max_height"}
+        for key in config.params:
+            if key not in scale:
+                raise bad_value(f"scenario.terrain.params.{key}", config.params[key],
+                                f"unknown parameter of a heightmap file (valid: {', '.join(sorted(scale))})")
+        if path.suffix.lower() in HeightMap.IMAGE_SUFFIXES:
+            for key in ("resolution", "max_height"):
+                if key not in config.params:
+                    raise bad_value(f"scenario.terrain.params.{key}", None,
+                                    f"required with a picture file ({path.name}): its cell size and the "
+                                    f"height of a full-scale pixel, e.g. params: {{resolution: 0.05, "
+                                    f"min_height: 0.0, max_height: 0.4}}")
+            return HeightMap.load(path, **config.params)
+        if config.params:
+            key = sorted(config.params)[0]
+            raise bad_value(f"scenario.terrain.params.{key}", config.params[key],
+                            f"a {path.suffix} file carries its own scale; give params only with an image")
         return HeightMap.load(path)
     if config.kind == "grid_map":
         allowed = {"resolution", "min_height", "max_height"}
@@ -88,9 +106,11 @@ def standing_state(heightmap, topology: Topology, xy=(0.0, 0.0), yaw: float = 0.
         p_BF = R.T @ (p_WF - np.array([xy[0], xy[1], base_z]))
         q[i], ok = kinematics.leg_inverse_kinematics(i, p_BF, topology.bends[i], params)
         if not ok:
-            raise bad_value("scenario.robot.initial_xy", list(xy),
-                            f"the terrain under leg {i} is out of reach for a standing pose",
-                            ConfigError)
+            offset = ground[i] - float(np.mean(ground))
+            raise bad_value("scenario.robot.initial_xy", [float(v) for v in xy],
+                            f"the ground under leg {LEG_NAMES[i]} at ({feet_xy[i, 0]:.2f}, {feet_xy[i, 1]:.2f}) "
+                            f"is {abs(offset):.2f} m {'above' if offset > 0 else 'below'} the mean under the "
+                            f"six feet, out of the leg's reach for a standing pose", ConfigError)
     return make_state([xy[0], xy[1], base_z], [0.0, 0.0, yaw], q.reshape(-1))
 
 

@@ -3,8 +3,9 @@
 ``qz impedance-sweep [--json] [--out DIR]`` runs Fig. 13's one-leg model at 5, 15 and 25 kN/m
 and prints ``{"stiffness_N_per_m": [...], "max_error_m": [...], "oscillates": [...]}``.
 
-``qz trot SCENARIO.yaml`` trots a scenario's floor at ``controller.speed`` for
-``simulation.duration`` (the trot_*.yaml scenarios).
+``qz trot SCENARIO.yaml [--out DIR]`` trots a scenario's floor at ``controller.speed`` for
+``simulation.duration`` (the trot_*.yaml scenarios) and writes ``recording.html`` and
+``metrics.json`` to DIR (default out/trot), as ``qz simulate`` does.
 
 ``qz classify collect --out DIR`` trots over each material at random speeds (5 kg payload)
 and writes ``DIR/dataset.npz``; ``qz classify train --dataset DIR --out DIR [--json]`` trains
@@ -75,18 +76,31 @@ def run_impedance_sweep(args) -> int:
 
 def run_trot(args) -> int:
     from qz_drake.classification.runs import simulate_trot
+    from qz_drake.cli import output_folder, positive_seconds, prepare_scenario
     from qz_drake.config import load_scenario
+    from qz_drake.viz.recording import recording_meshcat, save_recording
 
     scenario = load_scenario(args.scenario)
+    positive_seconds(args.duration, "--duration")
+    output_folder(args.out, create=False)
+    prepare_scenario(scenario)
+    out = output_folder(args.out)
     duration = scenario.simulation.duration if args.duration is None else args.duration
     speed = scenario.controller.speed if args.speed is None else args.speed
-    run = simulate_trot(scenario, duration=duration, speed=speed)
+    meshcat = recording_meshcat()
+    meshcat.StartRecording()
+    run = simulate_trot(scenario, duration=duration, speed=speed, meshcat=meshcat)
+    meshcat.StopRecording()
+    recording = save_recording(meshcat, out / "recording.html", follow_robot=True)
     T = 1.0 if run.times[-1] > 2.0 else run.times[-1] / 2
     late = run.times >= run.times[-1] - T
     metrics = {"scenario": scenario.name, "fell": run.fell, "success": not run.fell,
                "distance_m": float(run.states[-1, 4] - run.states[0, 4]),
                "final_speed_m_per_s": float((run.states[late][-1, 4] - run.states[late][0, 4]) / T),
-               "stances": int(len(run.stance_leg)), "wall_time_s": run.wall_time_s}
+               "stances": int(len(run.stance_leg)), "wall_time_s": run.wall_time_s,
+               "sim_time_s": float(run.times[-1]), "speed_m_per_s": float(speed)}
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    metrics["files"] = {"recording": str(recording), "metrics": str(out / "metrics.json")}
     print(json.dumps(metrics))
     return 0 if metrics["success"] else 1
 
@@ -199,6 +213,7 @@ def register(subparsers) -> None:
     p.add_argument("scenario", help="scenario YAML file (scenarios/trot_*.yaml)")
     p.add_argument("--speed", type=float, default=None, help="forward speed [m/s] (default controller.speed)")
     p.add_argument("--duration", type=float, default=None, help="simulated time [s]")
+    p.add_argument("--out", default="out/trot", help="output folder (recording.html, metrics.json)")
     p.set_defaults(func=run_trot)
 
     classify = subparsers.add_parser("classify", help="terrain classification (paper 002)")

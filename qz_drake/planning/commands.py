@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from qz_drake.cli import output_folder
 from qz_drake.errors import ConfigError, bad_value
 
 ROBOTS = ("qingzhui", "quadruped")
@@ -93,9 +94,9 @@ def run_costmap(args) -> int:
     from qz_drake.terrain.features import build_cost_map
     from qz_drake.viz.costmap_plots import plot_cost_maps
 
+    out = output_folder(args.out, create=False)
     scenario, heightmap = _load(args)
     cost_map = build_cost_map(heightmap, footprint=_footprint(args.robot))
-    out = Path(args.out)
     pngs = plot_cost_maps(cost_map, out, title=scenario.name)
     npz = save_cost_map_npz(cost_map, out / "cost_map.npz")
     summary = {"scenario": scenario.name, "robot": args.robot, **_summary(cost_map),
@@ -124,6 +125,28 @@ def _check_on_map(heightmap, point, field: str) -> None:
                         f"off the map (x in [{xmin:g}, {xmax:g}], y in [{ymin:g}, {ymax:g}])")
 
 
+def blocked_because(cost_map, xy) -> str:
+    """Why the cost map blocks the cell of world point ``xy``, in words, or "" if it does not.
+
+    The body cost (paper 003, 2.1.4) blocks a cell where the step height within the body's disc
+    (radius ``body_features.radius`` around it) exceeds ``body_cost.max_step_height``: a wall
+    within reach of the trunk blocks the cell, also where the walker's feet could still find
+    footholds beside it. A walk that reaches such a goal therefore does not contradict A*."""
+    row, col = cost_map.cell(*xy)
+    heading = cost_map.heading_cost()[:, row, col]
+    if np.isfinite(heading).any():
+        return ""
+    config = cost_map.config
+    step = float(cost_map.body.step_height[row, col])
+    limit = float(config.body_cost.max_step_height)
+    radius = float(config.body_features.radius)
+    if step > limit:
+        return (f"a step of {step:.2f} m lies within {radius:g} m of it (the body's disc), above the "
+                f"cost map's max_step_height {limit:g} m; the walker may still reach it where its feet "
+                f"find footholds beside the step (the cost map is conservative)")
+    return "the feet cost is infinite for every heading (no foothold triangle fits)"
+
+
 def run_astar(args) -> int:
     from qz_drake.planning.astar import AStarConfig, astar
     from qz_drake.terrain.features import build_cost_map
@@ -133,6 +156,7 @@ def run_astar(args) -> int:
         raise bad_value("--safety-weight", args.safety_weight, "must be in [0, 1]")
     if args.margin is not None and not (math.isfinite(args.margin) and args.margin >= 0.0):
         raise bad_value("--margin", args.margin, "must be >= 0 metres")
+    output_folder(args.out, create=False)
     scenario, heightmap = _load(args)
     start, goal = _endpoints(args, scenario)
     _check_on_map(heightmap, start, "--start")
@@ -146,18 +170,24 @@ def run_astar(args) -> int:
     config = AStarConfig(distance_weight=1.0 - args.safety_weight, safety_weight=args.safety_weight)
     result = astar(cost_map, start, goal, config=config)
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_folder(args.out)
+    blocked = {name: why for name, point in (("start", start), ("goal", goal))
+               if (why := blocked_because(cost_map, point))} if not result.found else {}
+    reason = result.reason
+    for name, point in (("start", start), ("goal", goal)):
+        # The search names cells (row, col); a user gave metres.
+        if reason.startswith(f"{name} (") and "blocked" in reason:
+            reason = f"{name} ({point[0]:g}, {point[1]:g}) m is blocked"
     png = plot_cost_map_path(cost_map, out / "astar_path.png",
                              paths_xy={f"safety weight {args.safety_weight:g}": result.xy},
                              start_xy=start, goal_xy=goal,
-                             title=f"{scenario.name}: A* ({result.reason})")
+                             title=f"{scenario.name}: A* ({reason})")
     np.savez_compressed(out / "astar_path.npz", xy=result.xy, cells=result.cells, headings=result.headings)
     summary = {
         "scenario": scenario.name,
         "robot": args.robot,
         "found": bool(result.found),
-        "reason": result.reason,
+        "reason": reason,
         "start": list(start),
         "goal": list(goal),
         "length_m": result.length if result.found else None,
@@ -169,6 +199,8 @@ def run_astar(args) -> int:
         "map_shape": list(cost_map.shape),
         "png": str(png),
     }
+    if blocked:
+        summary["blocked_because"] = blocked
     print(json.dumps(summary, indent=None if args.json else 2))
     return 0 if result.found else 1
 

@@ -320,14 +320,28 @@ class HeightMap:
             origin = (-(W - 1) * res / 2.0, -(H - 1) * res / 2.0)
         return cls(heights, resolution, origin)
 
+    # Picture files ``load`` reads with a scale given by the caller (grid_map's image converter).
+    IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
     @classmethod
-    def load(cls, path: str | Path) -> HeightMap:
-        """Loads a ``.npz`` (save_npz) or a map-server style ``.yaml`` with its image (save_png)."""
+    def load(cls, path: str | Path, resolution: float | None = None, min_height: float | None = None,
+             max_height: float | None = None) -> HeightMap:
+        """Loads a ``.npz`` (save_npz), a map-server style ``.yaml`` with its image (save_png), or
+        a picture (``IMAGE_SUFFIXES``) with its scale: ``resolution`` [m] and ``max_height`` [m]
+        are then required, ``min_height`` defaults to 0 (see from_image; centred on the origin)."""
         path = Path(path)
+        if path.suffix.lower() in cls.IMAGE_SUFFIXES:
+            for name, value in (("resolution", resolution), ("max_height", max_height)):
+                if value is None:
+                    raise _error(f"heightmap.{name}", None,
+                                 f"required to read the picture {path.name} (e.g. resolution 0.05, "
+                                 f"min_height 0, max_height 0.4)")
+            return cls.from_image(path, resolution, 0.0 if min_height is None else min_height, max_height)
         if path.suffix == ".npz":
             return cls.load_npz(path)
         if path.suffix not in (".yaml", ".yml"):
-            raise _error("heightmap.file", str(path), "expected a .npz or a .yaml file")
+            raise _error("heightmap.file", str(path),
+                         f"expected a .npz, a map-server .yaml or a picture ({', '.join(cls.IMAGE_SUFFIXES)})")
         if not path.is_file():
             raise _error("heightmap.file", str(path), "no such file")
         try:

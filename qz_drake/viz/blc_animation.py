@@ -37,13 +37,14 @@ def plot_solution(solution, path: str | Path | None = None, rate: float = 100.0)
         [f"leg {i}" for i in range(s["foot_pos"].shape[1])]
     for ax, key, label, title in ((axes[0, 1], "foot_pos", "foot height [m]", "feet"),
                                   (axes[1, 0], "foot_force", "vertical force [N]",
-                                   "forces (zero in swing)")):
+                                   "vertical foot forces (0 N while a foot swings)")):
         for leg, name in enumerate(names):
             ax.plot(t, s[key][:, leg, 2], color=_LEG_COLORS[leg % 6], label=name)
         ax.set_xlabel("t [s]")
         ax.set_ylabel(label)
         ax.set_title(title)
     axes[0, 1].legend(ncol=3, fontsize=8)
+    axes[1, 0].legend(ncol=3, fontsize=8)
     ax = axes[1, 1]
     ax.plot(s["base_pos"][:, 0], s["base_pos"][:, 1], "k", lw=2, label="CoM")
     for leg in range(s["foot_pos"].shape[1]):

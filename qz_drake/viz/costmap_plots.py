@@ -33,16 +33,28 @@ def _layer(cost_map, attribute: str) -> np.ndarray:
     return np.asarray(value, dtype=float)
 
 
+# Legend entry of the black cells.
+BLOCKED_LABEL = "blocked (step higher than max_step_height)"
+
+
 def _draw(ax, fig, image: np.ndarray, extent, label: str, title: str):
-    # Blocked cells (inf) are drawn black so they read as walls, not as the top of the scale.
+    # Blocked cells (inf) are drawn black so they read as walls, not as the top of the scale; a
+    # legend entry says so.
+    from mpl_toolkits.axes_grid1 import make_axes_locatable
+
     masked = np.ma.masked_invalid(image)
     cmap = plt.get_cmap("viridis").with_extremes(bad="black")
     im = ax.imshow(masked, origin="lower", extent=extent, cmap=cmap, interpolation="nearest")
-    fig.colorbar(im, ax=ax, label=label)
+    ax.set_aspect("equal")
+    # The colour bar in an axes beside the map, as tall as the map (not as the figure).
+    cax = make_axes_locatable(ax).append_axes("right", size="4%", pad=0.1)
+    fig.colorbar(im, cax=cax, label=label)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(title)
-    ax.set_aspect("equal")
+    if np.ma.getmaskarray(masked).any():
+        ax.fill([], [], color="black", label=BLOCKED_LABEL)
+        ax.legend(loc="upper right", fontsize=8)
 
 
 def plot_cost_maps(cost_map, out_dir: str | Path, *, title: str = "") -> dict[str, Path]:
