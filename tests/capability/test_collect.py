@@ -18,8 +18,8 @@ from qz_drake.capability.dataset import load_records, load_training_arrays
 from qz_drake.capability.trials import TIME_FIELDS, trial_index
 from qz_drake.errors import ConfigError
 
-# Seed 0's scene 0 is a stairs scene; turns in two topologies are the cheapest trials.
-SMALL = dict(seed=0, scenes=1, topologies=("nominal", "front_bend"), kinds=("turn",), progress=False)
+# Seed 27's scene 0 is flat ground (both starts valid); turns in two topologies are the cheapest trials.
+SMALL = dict(seed=27, scenes=1, topologies=("nominal", "front_bend"), kinds=("turn",), progress=False)
 QZ = [sys.executable, "-m", "qz_drake.cli"]
 
 
@@ -80,7 +80,7 @@ def test_a_stale_manifest_is_refused_naming_the_field(reference, tmp_path):
     with pytest.raises(ConfigError, match="fingerprints.blc"):
         collect(copy, workers=1, **SMALL)
     with pytest.raises(ConfigError, match="seed"):
-        collect(reference, workers=1, **{**SMALL, "seed": 1})
+        collect(reference, workers=1, **{**SMALL, "seed": 28})
 
 
 @pytest.mark.parametrize("args, field", [
