@@ -16,7 +16,7 @@ import re
 import sys
 from pathlib import Path
 
-from qz_drake.errors import ConfigError, QzError
+from qz_drake.errors import ConfigError, QzError, bad_value
 
 # Modules that add subcommands; a module that is not there yet is skipped.
 _COMMAND_MODULES = (
@@ -92,6 +92,20 @@ def parse_key_values(items: list[str] | None, field: str = "--param") -> dict[st
         except ValueError:
             raise ConfigError(f"{field} {key} = {value!r}: not a number") from None
     return out
+
+
+def parse_names(text: str | None, field: str, valid) -> tuple[str, ...] | None:
+    """A comma-separated list of names, each one of ``valid``; None passes through. Errors
+    name ``field`` and the bad name."""
+    if text is None:
+        return None
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    if not names:
+        raise bad_value(field, text, "expected a comma-separated list")
+    for n in names:
+        if n not in valid:
+            raise bad_value(field, n, f"unknown (valid: {', '.join(valid)})")
+    return names
 
 
 def _cmd_simulate(args) -> int:

@@ -17,20 +17,9 @@ import numpy as np
 from qz_drake.errors import ConfigError, bad_value
 
 
-def _names(text: str | None, field: str, valid) -> tuple[str, ...] | None:
-    if text is None:
-        return None
-    names = tuple(n.strip() for n in text.split(",") if n.strip())
-    if not names:
-        raise bad_value(field, text, "expected a comma-separated list")
-    for n in names:
-        if n not in valid:
-            raise bad_value(field, n, f"unknown (valid: {', '.join(valid)})")
-    return names
-
-
 def run_collect(args) -> int:
     from qz_drake.capability.collect import collect
+    from qz_drake.cli import parse_names
     from qz_drake.capability.patches import KINDS
     from qz_drake.capability.trials import TrialConfig
     from qz_drake.robot.topology import TOPOLOGY_NAMES
@@ -43,8 +32,8 @@ def run_collect(args) -> int:
         raise bad_value("--headings", args.headings, "must be at least 1")
     config = TrialConfig(headings_per_scene=args.headings)
     summary = collect(args.out, seed=args.seed, scenes=args.scenes,
-                      topologies=_names(args.topologies, "--topologies", TOPOLOGY_NAMES),
-                      kinds=_names(args.kinds, "--kinds", KINDS), config=config,
+                      topologies=parse_names(args.topologies, "--topologies", TOPOLOGY_NAMES),
+                      kinds=parse_names(args.kinds, "--kinds", KINDS), config=config,
                       workers=args.workers, ray_address=args.ray_address, shard_size=args.shard_size,
                       progress=not args.json and sys.stderr.isatty() or args.progress,
                       command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),

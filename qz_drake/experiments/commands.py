@@ -5,19 +5,10 @@ from __future__ import annotations
 import json
 import sys
 
-from qz_drake.errors import bad_value
+def _names(text, field, valid) -> tuple[str, ...]:
+    from qz_drake.cli import parse_names
 
-
-def _names(text, field, valid):
-    if text is None:
-        return tuple(valid)
-    names = tuple(n.strip() for n in text.split(",") if n.strip())
-    for n in names:
-        if n not in valid:
-            raise bad_value(field, n, f"expected some of {', '.join(valid)}")
-    if not names:
-        raise bad_value(field, text, "expected a comma-separated list")
-    return names
+    return parse_names(text, field, valid) or tuple(valid)
 
 
 def run_fig9(args) -> int:

@@ -17,17 +17,6 @@ from pathlib import Path
 from qz_drake.errors import bad_value
 
 
-def parse_xy(text: str, field: str) -> tuple[float, float]:
-    parts = [p.strip() for p in str(text).split(",")]
-    try:
-        x, y = (float(p) for p in parts)
-    except ValueError:
-        raise bad_value(field, text, "expected X,Y in metres") from None
-    if not (math.isfinite(x) and math.isfinite(y)):
-        raise bad_value(field, text, "must be finite")
-    return x, y
-
-
 def check_model_robot(model) -> None:
     """Refuses a model whose card says it was trained on another robot (or robot code)."""
     from qz_drake.capability.dataset import fingerprints
@@ -72,6 +61,7 @@ def check_standable(heightmap, xy, topology: str, field: str) -> None:
 
 
 def run_plan(args) -> int:
+    from qz_drake.planning.commands import parse_xy
     from qz_drake.capability.model import CapabilityModel
     from qz_drake.capability.model_commands import load_terrain
     from qz_drake.capability.patches import KINDS

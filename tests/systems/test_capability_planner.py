@@ -3,7 +3,6 @@ impossible, hands out missions one by one, replans at each mission start, says w
 is unreachable; and (slow) the whole CapPlanner walks a world in Drake."""
 
 import numpy as np
-import pytest
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
