@@ -247,6 +247,9 @@ def main(argv: list[str] | None = None) -> int:
     except QzError as e:
         print(f"qz {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM (collections write what finished first)
+        print(f"qz {args.command}: interrupted", file=sys.stderr)
+        return 130
     except OSError as e:
         # A file the user named cannot be read or written (a folder where a file was meant, no
         # permission, a full disk): the same one line as for any other bad input.
