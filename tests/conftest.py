@@ -20,4 +20,9 @@ def synthetic_model_dir(tmp_path_factory):
     # check of planners (plan_command.check_model_robot) lets it through.
     result = train_networks(arrays, fingerprint=manifest["fingerprint"], fingerprints=None,
                             config=TrainingConfig(max_epochs=40, patience=8))
+    # The planners' tests rely on the three nominal networks being there and having learned
+    # the rule on held-out scenes.
+    assert sorted(result.networks) == [("nominal", "diagonal"), ("nominal", "orthogonal"), ("nominal", "turn")]
+    for network in result.networks.values():
+        assert network.card["test"]["auc"] > 0.9, network.card["test"]
     return save_model(result, tmp_path_factory.mktemp("synthetic_model"))

@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 
-from qz_drake.errors import ConfigError, bad_value
+from qz_drake.errors import bad_value
 
 
 def run_collect(args) -> int:
@@ -141,4 +141,4 @@ def register(subparsers) -> None:
         register_model_commands(sub)
 
 
-__all__ = ["register", "dataset_stats", "ConfigError"]
+__all__ = ["register", "dataset_stats"]
