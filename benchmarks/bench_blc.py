@@ -84,15 +84,17 @@ def impossible_cases() -> dict:
     }
 
 
-def solve_case(robot, terrain, task, repeats: int) -> dict:
+def solve_case(robot, terrain, task, repeats: int, params=None) -> dict:
     times, solution = [], None
     for _ in range(repeats):
-        solution = solve_blc(task, robot, terrain)
+        solution = solve_blc(task, robot, terrain, params)
         times.append(solution.solve_time)
+    dense = solution.dense
     return {"solve_time_s_median": statistics.median(times), "solve_times_s": times,
             "iterations": solution.iterations, "success": bool(solution.success),
             "max_violation": solution.max_violation, "n_vars": solution.num_variables,
-            "n_constraints": solution.num_constraints, "reason": solution.reason}
+            "n_constraints": solution.num_constraints, "reason": solution.reason,
+            "dense": None if dense is None else dense.summary()}
 
 
 def stairs_success_map(results: dict) -> dict:
@@ -107,11 +109,14 @@ def stairs_success_map(results: dict) -> dict:
     return table
 
 
-def run(repeats: int = 5, quick: bool = False) -> dict:
+def all_cases(quick: bool = False) -> dict:
+    return {**qingzhui_cases(quick), **hyq_cases(quick), **impossible_cases()}
+
+
+def run(repeats: int = 5, quick: bool = False, params=None) -> dict:
     if quick:
         repeats = 1
-    cases = {**qingzhui_cases(quick), **hyq_cases(quick), **impossible_cases()}
-    results = {name: solve_case(*case, repeats) for name, case in cases.items()}
+    results = {name: solve_case(*case, repeats, params) for name, case in all_cases(quick).items()}
     results["stairs_success_map"] = stairs_success_map(results)
     return results
 

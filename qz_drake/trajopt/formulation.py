@@ -64,10 +64,13 @@ class BlcFormulation:
         start_feet: foot positions at t = 0, (L, 3), world. [m]
         target: (x, y, yaw) of the CoM at t = T. [m, m, rad]
         start_velocity: CoM velocity at t = 0, (3,). [m/s]
+        extra_samples: more sample times per sampled constraint ("dynamics",
+            "linear_dynamics", "kinematics"), e.g. where a dense check found the plan
+            violating it (solver.py's check-and-refine loop). [s]
     """
 
     def __init__(self, robot, terrain, params, schedule, *, start_position, start_rpy, start_feet,
-                 target, start_velocity=(0.0, 0.0, 0.0)):
+                 target, start_velocity=(0.0, 0.0, 0.0), extra_samples: dict | None = None):
         self.robot, self.terrain, self.params, self.schedule = robot, terrain, params, schedule
         self.start_position = np.asarray(start_position, dtype=float).reshape(3)
         self.start_rpy = np.asarray(start_rpy, dtype=float).reshape(3)
@@ -84,6 +87,13 @@ class BlcFormulation:
                                                params.linear_dynamics_dt)
         kin = np.arange(0.0, T - 1e-9, params.kinematics_dt)
         self.kinematics_times = np.append(kin, T)
+        self.extra_samples = {k: np.asarray(t, dtype=float) for k, t in (extra_samples or {}).items()}
+        for key in self.extra_samples:
+            if key not in ("dynamics", "linear_dynamics", "kinematics"):
+                raise ValueError(f"extra_samples: unknown constraint {key!r}")
+            name = f"{key}_times"
+            setattr(self, name, np.unique(np.concatenate([getattr(self, name),
+                                                          self.extra_samples[key]])))
         self.nonlinear: list[SampledConstraint] = []
         self.linear: list[LinearConstraintTerm] = []
         self._build_bounds()
@@ -138,7 +148,7 @@ class BlcFormulation:
                 self.nonlinear.append(TerrainConstraint(
                     LinearSamples.concatenate(stance), terrain, robot.foot_radius, 0.0, 0.0,
                     name="terrain/stance"))
-            clearance = self._swing_samples(p.swing_clearance_fractions)
+            clearance = self._swing_samples(p.swing_clearance_fractions, p.swing_clearance_dt)
             if clearance is not None:
                 self.nonlinear.append(TerrainConstraint(
                     clearance, terrain, robot.foot_radius, 0.0, np.inf, name="terrain/swing"))
@@ -151,39 +161,52 @@ class BlcFormulation:
         if p.enabled("force"):
             f_max = robot.max_normal_forces if p.max_normal_force is None else \
                 np.full(v.num_legs, p.max_normal_force)
-            forces, footholds, limits, segments = [], [], [], []
+            forces, footholds, limits, lows, segments = [], [], [], [], []
             for leg in range(v.num_legs):
-                f, h = self._force_samples(leg)
+                f, h, at_node = self._force_samples(leg)
                 if f is None:
                     continue
                 start = sum(len(x.weights) for x in forces)
                 forces.append(f)
                 footholds.append(h)
                 limits.append(np.full(f.num_samples, f_max[leg] / weight))
+                # f_min at the force nodes; inner control points only push (>= 0), which
+                # keeps the whole polynomial pushing without pinning its rates (measured:
+                # f_min at every control point stalled Ipopt on the wave gait).
+                lows.append(np.where(at_node, p.min_normal_force / weight, 0.0))
                 segments.append((start, start + f.num_samples))
             if forces:
                 self.nonlinear.append(ForceConstraint(
                     LinearSamples.concatenate(forces), LinearSamples.concatenate(footholds),
-                    terrain, p.friction_coefficient, p.min_normal_force / weight,
+                    terrain, p.friction_coefficient, np.concatenate(lows),
                     np.concatenate(limits), segments=segments))
 
     def _foothold_samples(self, leg: int, stance: int) -> LinearSamples:
         idx = self.variables.footholds[leg][stance]
         return LinearSamples(np.ones((1, 1, 3)), idx.reshape(1, 1, 3))
 
-    def _swing_samples(self, fractions) -> LinearSamples | None:
+    def _swing_samples(self, fractions, dt: float = 0.0) -> LinearSamples | None:
+        """Foot samples at the given fractions of every swing and, with dt > 0, at every
+        multiple of dt inside it (the grid of the dense verdict when dt = 1 / its rate)."""
         v = self.variables
         parts = []
+        grid = np.arange(0.0, v.duration + 0.5 * dt, dt) if dt > 0 else np.zeros(0)
         for leg in range(v.num_legs):
             for t0, t1 in v.schedule.swing_intervals(leg):
                 times = t0 + np.asarray(fractions, dtype=float) * (t1 - t0)
+                inside = grid[(grid > t0 + 1e-9) & (grid < t1 - 1e-9)]
+                times = np.unique(np.concatenate([times, inside]))
                 parts.append(v.foot_position[leg].sample(times, 0))
         return LinearSamples.concatenate(parts) if parts else None
 
     def _force_samples(self, leg: int):
-        """Force and foothold samples of one foot: per stance, at its force nodes and (with
-        force_samples_per_polynomial = 2) midway between them; the last one of a stance is
-        read from the left (the force just before liftoff)."""
+        """Force points of one foot and the foothold each belongs to. With
+        ``force_points = "bernstein"`` (default): the Bezier control points of every force
+        polynomial of every stance, so the cone of Eq. 5 holds along the whole polynomial;
+        with "samples": at the force nodes and (force_samples_per_polynomial = 2) midway
+        between them, the last one of a stance read from the left (just before liftoff)."""
+        if self.params.force_points == "bernstein":
+            return self._force_control_points(leg)
         v, p = self.variables, self.params
         per_stance = int(p.force_polynomials_per_stance) * int(p.force_samples_per_polynomial)
         spline = v.foot_force[leg]
@@ -201,12 +224,35 @@ class BlcFormulation:
                 forces.append(spline.sample(times[~inner], 0, side="left"))
             stance_ids.append(np.full(len(times), s))
         if not forces:
-            return None, None
+            return None, None, None
         forces = LinearSamples.concatenate(forces)
-        stance_ids = np.concatenate(stance_ids)
-        idx = v.footholds[leg][stance_ids]
-        footholds = LinearSamples(np.ones((len(stance_ids), 1, 3)), idx[:, None, :])
-        return forces, footholds
+        return (forces, self._stance_footholds(leg, np.concatenate(stance_ids)),
+                np.ones(forces.num_samples, dtype=bool))
+
+    def _force_control_points(self, leg: int):
+        v = self.variables
+        spline = v.foot_force[leg]
+        b = spline.breaks
+        mid = 0.5 * (b[:-1] + b[1:])
+        in_stance = v.schedule.in_contact(mid)[:, leg] & (np.diff(b) > 0)
+        segments = np.flatnonzero(in_stance)
+        if not len(segments):
+            return None, None, None
+        points = spline.bernstein_points(segments)
+        keep = np.ones((len(segments), 4), dtype=bool)
+        # A polynomial's first point is its predecessor's last (the same node).
+        keep[1:, 0] = segments[1:] != segments[:-1] + 1
+        keep = keep.reshape(-1)
+        # Points that are structurally zero (nodes pinned by zero_force_at_touchdown) carry no
+        # constraint (the cone holds trivially; f_min does not apply there).
+        keep &= np.any(points.weights != 0, axis=(1, 2))
+        stance = np.repeat(v.stance_of(leg, mid[segments]), 4)[keep]
+        at_node = np.tile([True, False, False, True], len(segments))[keep]
+        return points.take(keep), self._stance_footholds(leg, stance), at_node
+
+    def _stance_footholds(self, leg: int, stance_ids: np.ndarray) -> LinearSamples:
+        idx = self.variables.footholds[leg][stance_ids]
+        return LinearSamples(np.ones((len(stance_ids), 1, 3)), idx[:, None, :])
 
     # -- costs ------------------------------------------------------------------------------
     def cost_terms(self):

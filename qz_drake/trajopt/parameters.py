@@ -38,21 +38,31 @@ class BlcParameters:
 
     # Duration of each body spline polynomial: a node every 0.1 s (TOWR). [s]
     base_node_spacing: float = 0.1
-    # Time between samples of the dynamics constraint (at interval midpoints). [s]
-    dynamics_dt: float = 0.1
+    # Time between samples of the angular half of Eq. 2 (at interval midpoints). Measured on
+    # the bench suite with the dense verdict (issue 11): TOWR's 0.1 s left the angular residual
+    # between samples at 0.2-3 body weights x 0.3 m (90th percentile); 0.05 s brings it to
+    # 0.02-0.04, below the verdict's 0.05; 0.025 s to 0.001 at 3-4x the time. [s]
+    dynamics_dt: float = 0.05
     # Time between samples of the linear-momentum half of Eq. 2 (interval midpoints). It is a
     # sparse linear equality, cheap for Ipopt. Measured on the bench suite (the saved 100 Hz
     # samples, away from contact switches): with TOWR's 0.1 s the planned acceleration and the
     # forces disagree between samples by 0.5-3 body weights (90th percentile); 0.05 s brings
     # that to 0.01-0.5 at about the same solve time; 0.025 s to below 0.01 at 2-4x the time. [s]
     linear_dynamics_dt: float = 0.05
-    # Time between samples of the kinematic box constraint (TOWR). [s]
-    kinematics_dt: float = 0.08
+    # Time between samples of the kinematic box constraint. TOWR's 0.08 s let stance feet
+    # leave their boxes by 3-5 mm between samples on stairs (the dense verdict's limit: 2 mm);
+    # 0.04 s keeps them inside on the bench suite at about 1.2x the time. [s]
+    kinematics_dt: float = 0.04
     # Cubic force polynomials per stance phase (TOWR: 3).
     force_polynomials_per_stance: int = 3
     # Pin each stance's first and last force node to zero, as TOWR does (False: forces may
     # jump at touchdown and liftoff, which a duty factor of 0.5 needs for continuous support).
     zero_force_at_touchdown: bool = False
+    # Where the force cone of Eq. 5 is imposed: "bernstein", at the four Bezier control points
+    # of every force polynomial, which keeps the whole polynomial inside the cone (issue 11:
+    # sampled at nodes and midpoints, a stairs plan pulled with -61 N between samples);
+    # "samples": at force_samples_per_polynomial points per polynomial only.
+    force_points: str = "bernstein"
     # Force-constraint samples per force polynomial (1: at nodes; 2: nodes and midpoints).
     force_samples_per_polynomial: int = 2
     # Least force along the terrain normal inside a stance (paper 000 f_min). [N]
@@ -63,8 +73,17 @@ class BlcParameters:
     friction_coefficient: float = 0.5
     # Least height of the swing apex above the terrain under it (foot sphere surface). [m]
     swing_apex_height: float = 0.06
+    # Free x, y offset and rate of each swing's mid node (variables.py): a foot can rise
+    # before it moves forward. Without it the horizontal motion is a fixed smooth cubic and,
+    # with clearance checked densely (issue 11), TOWR's HyQ block takes 5-20x the iterations.
+    free_swing_midpoint: bool = False
     # Swing fractions (0..1) at which the foot must be above the terrain (Eq. 4).
     swing_clearance_fractions: tuple[float, ...] = (0.25, 0.75)
+    # And at every multiple of this inside each swing (0: the fractions only). With 0.01 s,
+    # the dense verdict's 100 Hz grid, a swing foot is above the terrain wherever the plan is
+    # checked or saved (issue 11: with the fractions alone, TOWR's HyQ stairs plan swung a foot
+    # 0.10 m deep into a riser). One cheap row per sample. [s]
+    swing_clearance_dt: float = 0.01
     # Bound on |roll| and |pitch| of the body at the nodes. [rad]
     max_roll_pitch: float = 0.7
     # Enabled constraints (names in CONSTRAINT_REASONS).
@@ -81,25 +100,75 @@ class BlcParameters:
     time_limit: float = 5.0
     # Ipopt's convergence tolerance (scaled NLP error).
     tolerance: float = 1e-4
+    # Ipopt stops at an "acceptable" point after acceptable_iter consecutive iterates whose
+    # constraint violation is below 0.1 violation_tolerance and whose overall error is below
+    # acceptable_tol. Eq. 1-6 is a feasibility problem (no cost): once the constraints hold,
+    # the dual error Ipopt keeps polishing says nothing about the plan, which the verdict
+    # checks anyway. Measured (issue 11): the wave gait and the small quadruped reached
+    # feasible points (violation 1e-7) and then ran into the time limit. Ipopt's defaults:
+    # 10 tolerance and 15.
+    acceptable_tol: float = 1e-3
+    acceptable_iter: int = 15
     # Ipopt's absolute constraint violation tolerance.
     constraint_tolerance: float = 1e-4
     # Verdict: a solve succeeds only when every constraint, evaluated at the returned point,
     # is violated by less than this (m, rad, or body weights).
     violation_tolerance: float = 1e-3
+    # Dense verdict (trajopt/verdict.py): a converged plan succeeds only if it also holds at
+    # every dense sample (False: the sampled constraints alone decide, as before issue 11).
+    dense_verdict: bool = True
+    # Dense verdict: the plan is checked at this rate, the .npz's. [Hz]
+    dense_check_rate: float = 100.0
+    # A swing foot may dip this far below the terrain at a dense sample (twice the solver's
+    # violation_tolerance: the constraint samples are met to that). [m]
+    dense_clearance_tolerance: float = 2e-3
+    # A foot may leave its kinematic box by this much at a dense sample. [m]
+    dense_box_tolerance: float = 2e-3
+    # A stance normal force may fall this far below zero, a tangential force this far outside
+    # the friction pyramid, at a dense sample. [body weights]
+    dense_force_tolerance: float = 2e-3
+    # Single-rigid-body residuals: their dense_residual_percentile-th percentile over the
+    # samples farther than dense_switch_margin from a contact switch must stay below
+    # dense_residual_limit (issue 11: 0.05 body weights at the 90th percentile). The angular
+    # residual (a torque) is divided by m g and by dense_residual_lever, the issue's 0.3 m.
+    dense_residual_percentile: float = 90.0
+    dense_residual_limit: float = 0.05
+    dense_residual_lever: float = 0.3  # [m]
+    dense_switch_margin: float = 0.015  # [s]
+    # Check and refine (solver.py): a converged plan that fails the dense check is solved
+    # again, from where it is, with constraint samples added where it failed, at most this
+    # many times, while at least refine_min_time of the time limit is left. Off by default:
+    # measured (issue 11), a re-solve fixed a 3-5 mm box excess on two stairs cases in 5-6
+    # iterations but wandered off for 40-100 iterations on another stairs case and on the
+    # small quadruped; boxes every 0.04 s do the same job without the gamble. [s]
+    max_refinements: int = 0
+    refine_min_time: float = 0.5
+    # Ipopt's initial barrier parameter for such a re-solve (its default 0.1 first pushes the
+    # converged point away from its active bounds).
+    refine_mu_init: float = 1e-4
     # Ipopt iteration limit.
     max_iterations: int = 3000
     # Ipopt linear solver (the pip wheel of Drake ships SPRAL only).
     linear_solver: str = "spral"
+    # numpy BLAS threads during a solve; 0: unchanged. One measured 1.5-2x faster on the
+    # 2-core machine (threads.py).
+    blas_threads: int = 1
     # Samples of one nonlinear constraint per Drake binding: small bindings keep Drake's
-    # dense AutoDiff round trip cheap (its cost grows with the square of a binding's size).
-    samples_per_binding: int = 1
+    # dense AutoDiff round trip cheap (its cost grows with the square of a binding's size),
+    # few bindings keep the Python calls few. With samples 0.04-0.05 s apart, neighbours share
+    # their body nodes and footholds, so 4 samples cost little more than 1: measured
+    # interleaved (issue 11), 0.82-0.87x the time of 1 per binding (2: 0.89-0.96; 8 against
+    # 4: 0.86-1.01, noise), the same iterations.
+    samples_per_binding: int = 4
     # Ipopt console print level (0 = silent).
     print_level: int = 0
 
     def __post_init__(self):
         for name in ("base_node_spacing", "dynamics_dt", "linear_dynamics_dt", "kinematics_dt",
                      "time_limit", "tolerance", "constraint_tolerance", "violation_tolerance",
-                     "stand_duration", "nominal_speed"):
+                     "stand_duration", "nominal_speed", "dense_check_rate",
+                     "dense_clearance_tolerance", "dense_box_tolerance", "dense_force_tolerance",
+                     "dense_residual_limit", "dense_residual_lever"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and value > 0):
                 raise bad_value(f"blc.{name}", value, "must be positive", ConfigError)
@@ -118,6 +187,12 @@ class BlcParameters:
                             "must be at least 1")
         if int(self.samples_per_binding) < 1:
             raise bad_value("blc.samples_per_binding", self.samples_per_binding, "must be at least 1")
+        if not self.swing_clearance_dt >= 0:
+            raise bad_value("blc.swing_clearance_dt", self.swing_clearance_dt,
+                            "must be non-negative")
+        if self.force_points not in ("bernstein", "samples"):
+            raise bad_value("blc.force_points", self.force_points,
+                            "expected 'bernstein' or 'samples'")
         for f in self.swing_clearance_fractions:
             if not 0 < f < 1:
                 raise bad_value("blc.swing_clearance_fractions", self.swing_clearance_fractions,

@@ -59,6 +59,11 @@ class BlcSolution:
     # The decision vector at the returned point and the resolved parameters.
     x: np.ndarray | None = None
     params: object = None
+    # The dense verdict's figures (verdict.DenseCheck; None for a non-finite point).
+    dense: object = None
+    # Check-and-refine re-solves it took (constraint samples added where the dense check
+    # failed; solver.py).
+    refinements: int = 0
 
     def __deepcopy__(self, memo):
         return self  # never modified after the solve; Drake copies abstract values often
@@ -97,12 +102,23 @@ class BlcSolution:
     def save_npz(self, path: str | Path) -> Path:
         """Writes the solution sampled at 100 Hz: t, base_pos (N, 3) (the CoM), base_rpy (N, 3),
         foot_pos (N, L, 3), foot_force (N, L, 3) [N], contact (N, L), mass, inertia (3, 3) about
-        the CoM in the body frame, gravity (3,) [m/s^2], mu, and the terrain (heightmap (H, W),
-        origin (2,), resolution)."""
+        the CoM in the body frame, gravity (3,) [m/s^2], mu, the terrain (heightmap (H, W),
+        origin (2,), resolution), foot_radius [m] (foot_pos are sphere centres: the sole is
+        foot_radius lower), phase_durations (L, P) [s], each foot's alternating stance and
+        swing durations from t = 0 (stance first), NaN-padded to the longest foot, and the
+        kinematic boxes: nominal_footholds (L, 3) and box_half_sizes (L, 3) in the body frame
+        about the CoM [m]."""
         path = Path(path)
         data = self.sample(NPZ_RATE)
         heights, origin, resolution = self.terrain_grid()
+        durations = self.contact_schedule.phase_durations
+        phases = np.full((len(durations), max(len(d) for d in durations)), np.nan)
+        for leg, d in enumerate(durations):
+            phases[leg, :len(d)] = d
         np.savez(path, **data, mass=float(self.robot.mass), inertia=self.robot.inertia_matrix,
+                 foot_radius=float(self.robot.foot_radius), phase_durations=phases,
+                 nominal_footholds=self.robot.nominal_footholds,
+                 box_half_sizes=self.robot.box_half_sizes,
                  gravity=np.array([0.0, 0.0, -self.robot.gravity]), mu=float(self.mu),
                  heightmap=np.asarray(heights, dtype=float), origin=np.asarray(origin, dtype=float),
                  resolution=float(resolution))
@@ -113,4 +129,5 @@ class BlcSolution:
         return {"success": bool(self.success), "status": self.status, "reason": self.reason,
                 "solve_time_s": round(float(self.solve_time), 4), "iterations": int(self.iterations),
                 "max_violation": float(self.max_violation), "n_vars": int(self.num_variables),
-                "n_constraints": int(self.num_constraints)}
+                "n_constraints": int(self.num_constraints), "refinements": int(self.refinements),
+                "dense": None if self.dense is None else self.dense.summary()}

@@ -5,8 +5,12 @@ Ipopt settings: the limited-memory Hessian (the pip wheel of Drake has no exact 
 Python constraints), SPRAL (the only linear solver in that wheel), a wall-time limit, and
 tolerances from BlcParameters. After Ipopt returns, every constraint is evaluated at the returned
 point; the solve succeeds only if Ipopt converged and the worst violation is below
-``violation_tolerance``. Nothing a task can do raises here: bad inputs (a wrong number of feet,
-an unknown gait) raise QzError before solving; a task that cannot be solved is a result.
+``violation_tolerance``, and the plan then also holds at every 100 Hz sample (verdict.py:
+swing feet above the terrain, stance feet in their boxes, stance forces pushing and inside the
+friction pyramid, single-rigid-body residuals small). Optionally (``max_refinements``) a plan
+that fails only the dense check is solved again with constraint samples added where it failed.
+Nothing a task can do raises here: bad inputs (a wrong number of feet, an unknown gait) raise
+QzError before solving; a task that cannot be solved is a result.
 """
 
 from __future__ import annotations
@@ -27,6 +31,8 @@ from qz_drake.trajopt.parameters import BlcParameters
 from qz_drake.trajopt.robot_model import RobotModel, qingzhui
 from qz_drake.trajopt.solution import BlcSolution
 from qz_drake.trajopt.terrain import as_terrain
+from qz_drake.trajopt.threads import blas_threads
+from qz_drake.trajopt.verdict import dense_check
 
 # Seconds of the time limit kept back from Ipopt for its last iteration and the verdict.
 VERDICT_MARGIN = 0.25
@@ -109,6 +115,31 @@ def _resolve(task: BlcTask, robot: RobotModel, terrain, params: BlcParameters):
     return start, rpy, feet, target, schedule
 
 
+def reachable_distance(robot: RobotModel, schedule, margin: float = 0.01) -> float:
+    """An upper bound on how far the CoM can move over the schedule with every stance foot in
+    its kinematic box (Eq. 1): over a stance of foot i the CoM stays within rho_i of the fixed
+    foot, rho_i the farthest point of the box around the nominal foothold (any rotation), so it
+    moves at most 2 rho_i; along a chain of overlapping stances covering [0, T] the bounds add
+    up, and the cheapest chain is the bound. ``margin`` per stance covers the verdict's
+    tolerances. inf when no chain covers [0, T] (a flight phase). [m]"""
+    n = np.abs(robot.nominal_footholds) + robot.box_half_sizes
+    rho = np.linalg.norm(n, axis=1) + margin
+    intervals = [(a, b, 2 * rho[leg]) for leg in range(schedule.num_legs)
+                 for a, b in schedule.stance_intervals(leg)]
+    T = schedule.duration
+    # Cheapest chain from t = 0 to t = T (intervals sorted by start; a few dozen of them).
+    intervals.sort()
+    best = [math.inf] * len(intervals)
+    for k, (a, b, cost) in enumerate(intervals):
+        if a <= 1e-12:
+            best[k] = cost
+        for j in range(k):
+            if intervals[j][1] >= a - 1e-12 and best[j] + cost < best[k]:
+                best[k] = best[j] + cost
+    ends = [best[k] for k, (_, b, _) in enumerate(intervals) if b >= T - 1e-12]
+    return min(ends) if ends else math.inf
+
+
 def ipopt_options(params: BlcParameters, wall_time: float) -> SolverOptions:
     solver_id = IpoptSolver.id()
     options = SolverOptions()
@@ -117,7 +148,8 @@ def ipopt_options(params: BlcParameters, wall_time: float) -> SolverOptions:
             ("linear_solver", params.linear_solver),
             ("tol", params.tolerance),
             ("constr_viol_tol", params.constraint_tolerance),
-            ("acceptable_tol", 10 * params.tolerance),
+            ("acceptable_tol", params.acceptable_tol),
+            ("acceptable_iter", int(params.acceptable_iter)),
             ("acceptable_constr_viol_tol", 0.1 * params.violation_tolerance),
             ("max_iter", int(params.max_iterations)),
             ("max_wall_time", max(wall_time, 0.05)),
@@ -167,16 +199,49 @@ def solve_blc(task: BlcTask, robot: RobotModel | None = None, terrain=None,
         if x0.shape != (formulation.variables.num_vars,):
             raise bad_value("initial_guess", f"vector of {x0.size} values",
                             f"expected {formulation.variables.num_vars}", ConfigError)
-    prog, x_vars, counter = formulation.build_program()
-    # Ipopt checks its wall-time limit once per iteration; the margin covers the iteration in
-    # flight and the verdict, so that the whole call ends within params.time_limit.
-    remaining = params.time_limit - (time.perf_counter() - clock) - VERDICT_MARGIN
-    ipopt_clock = time.perf_counter()
-    result = IpoptSolver().Solve(prog, x0, ipopt_options(params, remaining))
-    ipopt_time = time.perf_counter() - ipopt_clock
-    x = result.GetSolution(x_vars)
-    status = result.get_solver_details().ConvertStatusToString()
-    return _verdict(formulation, x, status, max(counter["jacobians"] - 1, 0), clock, ipopt_time)
+    # A target beyond what the boxes let the body travel in this schedule fails at once.
+    distance = float(np.hypot(*(np.asarray(target[:2]) - start[:2])))
+    reach = reachable_distance(robot, schedule)
+    if distance > reach:
+        solution = _verdict(formulation, x0, "Not solved", 0, clock, 0.0)
+        solution.reason = (f"infeasible: target {distance:.2f} m away, the kinematic boxes let "
+                           f"the body travel at most {reach:.2f} m in {schedule.duration:g} s "
+                           f"with this gait (no Ipopt solve; the trajectories are the guess)")
+        return solution
+    iterations, ipopt_time, extra = 0, 0.0, {}
+    for refinement in range(int(params.max_refinements) + 1):
+        prog, x_vars, counter = formulation.build_program()
+        # Ipopt checks its wall-time limit once per iteration; the margin covers the iteration
+        # in flight and the verdict, so that the whole call ends within params.time_limit.
+        remaining = params.time_limit - (time.perf_counter() - clock) - VERDICT_MARGIN
+        options = ipopt_options(params, remaining)
+        if refinement:
+            # From a converged point: a small barrier parameter keeps Ipopt near it.
+            options.SetOption(IpoptSolver.id(), "mu_init", params.refine_mu_init)
+        ipopt_clock = time.perf_counter()
+        with blas_threads(params.blas_threads):
+            result = IpoptSolver().Solve(prog, x0, options)
+        ipopt_time += time.perf_counter() - ipopt_clock
+        x = result.GetSolution(x_vars)
+        status = result.get_solver_details().ConvertStatusToString()
+        iterations += max(counter["jacobians"] - 1, 0)
+        solution = _verdict(formulation, x, status, iterations, clock, ipopt_time)
+        solution.refinements = refinement
+        # Check and refine: a plan that meets every sampled constraint but fails the dense
+        # check gets constraint samples where it failed and is solved again from where it is.
+        sampled_ok = status in CONVERGED and solution.max_violation <= params.violation_tolerance
+        dense = solution.dense
+        left = params.time_limit - (time.perf_counter() - clock)
+        if (solution.success or not sampled_ok or dense is None or not dense.refine_times
+                or left < params.refine_min_time):
+            break
+        for key, times in dense.refine_times.items():
+            extra[key] = np.concatenate([extra.get(key, np.zeros(0)), times])
+        formulation = BlcFormulation(robot, terrain, params, schedule, start_position=start,
+                                     start_rpy=rpy, start_feet=feet, target=target,
+                                     start_velocity=task.start_velocity, extra_samples=extra)
+        x0 = x
+    return solution
 
 
 def _verdict(formulation: BlcFormulation, x: np.ndarray, status: str, iterations: int,
@@ -197,13 +262,19 @@ def _verdict(formulation: BlcFormulation, x: np.ndarray, status: str, iterations
     if not feasible:
         reasons.append(f"max violation {worst:.3g} > {params.violation_tolerance:g} "
                        f"in {name} ({where})")
+    # The dense check runs on every finite plan (its figures describe failed plans too) but
+    # only decides for converged, feasible ones.
+    dense = dense_check(formulation, x) if finite else None
+    dense_passed = dense is None or dense.passed or not params.dense_verdict
+    if converged and feasible and not dense_passed:
+        reasons.append("dense check: " + "; ".join(dense.failures))
     elapsed = time.perf_counter() - clock
     if elapsed > params.time_limit and (not converged or not feasible):
         reasons.append(f"time limit {params.time_limit:g} s")
     xs = x if finite else np.nan_to_num(x)
     force_pps = [spline.to_piecewise_polynomial(xs, robot.weight) for spline in v.foot_force]
     return BlcSolution(
-        success=converged and feasible, status=status, reason="; ".join(reasons),
+        success=converged and feasible and dense_passed, status=status, reason="; ".join(reasons),
         solve_time=elapsed, iterations=iterations, max_violation=float(worst),
         num_variables=v.num_vars, num_constraints=formulation.num_constraints,
         duration=v.duration,
@@ -213,4 +284,4 @@ def _verdict(formulation: BlcFormulation, x: np.ndarray, status: str, iterations
         foot_forces=force_pps, contact_schedule=formulation.schedule, robot=robot,
         terrain=formulation.terrain, mu=params.friction_coefficient,
         violations={n: (val, w) for n, val, w in violations}, ipopt_time=ipopt_time, x=x,
-        params=params)
+        params=params, dense=dense)

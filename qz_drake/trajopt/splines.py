@@ -140,6 +140,31 @@ class NodeSpline:
         n, _, Q, D = weights.shape
         return LinearSamples(weights.reshape(n, 4 * Q, D), index.reshape(n, 4 * Q, D)).compact()
 
+    def bernstein_points(self, segments) -> LinearSamples:
+        """The four Bezier control points of each given segment, (4 n, 2Q, D), rows ordered
+        (segment, point): for a cubic Hermite piece of length h with end values p0, p1 and
+        rates m0, m1 they are p0, p0 + h m0 / 3, p1 - h m1 / 3, p1. The piece lies in their
+        convex hull, so a convex constraint met at the four points holds along the whole piece
+        (used for the force cone: forces push and stay in the friction pyramid between
+        samples, not only at them)."""
+        seg = np.asarray(segments, dtype=np.int64).reshape(-1)
+        h = self.breaks[seg + 1] - self.breaks[seg]
+        n, Q, D = len(seg), self.value_index.shape[1], self.dim
+        zero_i = np.zeros((n, Q, D), dtype=np.int64)
+        zero_c = np.zeros((n, Q, D))
+        vi0, vc0 = self.value_index[seg], self.value_coef[seg]
+        vi1, vc1 = self.value_index[seg + 1], self.value_coef[seg + 1]
+        di0, dc0 = self.deriv_index[seg], self.deriv_coef[seg]
+        di1, dc1 = self.deriv_index[seg + 1], self.deriv_coef[seg + 1]
+        k = (h / 3.0)[:, None, None]
+        points = [(np.concatenate([vi0, zero_i], 1), np.concatenate([vc0, zero_c], 1)),
+                  (np.concatenate([vi0, di0], 1), np.concatenate([vc0, k * dc0], 1)),
+                  (np.concatenate([vi1, di1], 1), np.concatenate([vc1, -k * dc1], 1)),
+                  (np.concatenate([vi1, zero_i], 1), np.concatenate([vc1, zero_c], 1))]
+        index = np.stack([p[0] for p in points], axis=1).reshape(4 * n, 2 * Q, D)
+        weights = np.stack([p[1] for p in points], axis=1).reshape(4 * n, 2 * Q, D)
+        return LinearSamples(weights, index).compact()
+
     def node_values(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(N, D) node values and derivatives at the decision vector x."""
         x = np.asarray(x, dtype=float)

@@ -7,7 +7,9 @@ parameterisation, Winkler et al. 2018; paper 000 Eq. 3 holds by construction).
   two cubic polynomials through a mid node. The mid node's x, y are the mean of the two footholds
   and its x, y rate 1.5 x (step / swing time), which makes the horizontal motion the smooth cubic
   with zero end velocities (TOWR's swing constraint, here eliminated rather than imposed); its
-  height is a variable and its vertical rate is zero (the apex).
+  height is a variable and its vertical rate is zero (the apex). With ``free_swing_midpoint``
+  (default) the mid node's x, y and their rates get free offsets, as TOWR's swing nodes are
+  free: a foot next to an edge can rise before it moves.
 * Forces, in body-weight units (f / (m g)): per stance phase ``force_polynomials_per_stance``
   cubic polynomials whose nodes (value and rate) are variables, and zero during a swing. The
   force may jump at touchdown and liftoff, as a contact force can. TOWR instead pins the nodes
@@ -52,6 +54,8 @@ class BlcVariables:
 
         self.footholds: list[np.ndarray] = []  # per leg (S, 3) indices
         self.apex_heights: list[np.ndarray] = []  # per leg (S - 1,) indices
+        # per leg (S - 1, offset / rate, xy) indices of the free swing mid node, or None
+        self.swing_midpoints: list[np.ndarray | None] = []
         self.force_nodes: list[np.ndarray] = []  # per leg (N, 2, 3) indices, -1 = zero
         self.force_node_times: list[np.ndarray] = []  # per leg (N,), nudged into the stance
         self.foot_position: list[NodeSpline] = []
@@ -62,9 +66,12 @@ class BlcVariables:
             num_stances = (len(b)) // 2
             stance = self._allocate(f"foothold_{leg}", (num_stances, 3))
             apex = self._allocate(f"apex_z_{leg}", (num_stances - 1,))
+            mid = (self._allocate(f"swing_mid_{leg}", (num_stances - 1, 2, 2))
+                   if params.free_swing_midpoint else None)
             self.footholds.append(stance)
             self.apex_heights.append(apex)
-            self.foot_position.append(self._foot_spline(b, stance, apex))
+            self.swing_midpoints.append(mid)
+            self.foot_position.append(self._foot_spline(b, stance, apex, mid))
             self.foot_force.append(self._force_spline(leg, b, P, params.zero_force_at_touchdown))
 
     # -- layout -----------------------------------------------------------------------------
@@ -75,30 +82,42 @@ class BlcVariables:
         self.num_vars += size
         return idx
 
-    def _foot_spline(self, b: np.ndarray, stance: np.ndarray, apex: np.ndarray) -> NodeSpline:
-        # Nodes: stance start, stance end, swing mid, next stance start, ... (Q = 2 terms).
+    def _foot_spline(self, b: np.ndarray, stance: np.ndarray, apex: np.ndarray,
+                     mid: np.ndarray | None = None) -> NodeSpline:
+        # Nodes: stance start, stance end, swing mid, next stance start, ... (Q = 3 terms).
+        # The swing mid node's x, y are the footholds' mean plus, with ``mid`` (per swing:
+        # offset x, y and rate x, y variables), a free offset, and its rate 1.5 x step / swing
+        # time plus a free rate: a foot can then rise before it moves forward (a block's or a
+        # riser's edge next to the foothold), which the fixed smooth cubic cannot.
         times, vi, vc, di, dc = [], [], [], [], []
         num_stances = len(stance)
         one = np.ones(3)
+        unused_i = np.zeros(3, dtype=np.int64)
         for s in range(num_stances):
             for t in (b[2 * s], b[2 * s + 1]):
                 times.append(t)
-                vi.append(np.stack([stance[s], stance[s]]))
-                vc.append(np.stack([one, 0 * one]))
-                di.append(np.zeros((2, 3), dtype=np.int64))
-                dc.append(np.zeros((2, 3)))
+                vi.append(np.stack([stance[s], stance[s], unused_i]))
+                vc.append(np.stack([one, 0 * one, 0 * one]))
+                di.append(np.zeros((3, 3), dtype=np.int64))
+                dc.append(np.zeros((3, 3)))
             if s + 1 < num_stances:
                 t0, t1 = b[2 * s + 1], b[2 * s + 2]
                 times.append(0.5 * (t0 + t1))
-                idx = np.stack([stance[s], stance[s + 1]])
+                idx = np.stack([stance[s], stance[s + 1], unused_i])
                 idx[:, 2] = apex[s]
-                coef = np.array([[0.5, 0.5, 1.0], [0.5, 0.5, 0.0]])
+                coef = np.array([[0.5, 0.5, 1.0], [0.5, 0.5, 0.0], [0.0, 0.0, 0.0]])
+                didx = np.stack([stance[s], stance[s + 1], unused_i])
+                rate = 1.5 / (t1 - t0)
+                dcoef = np.array([[-rate, -rate, 0.0], [rate, rate, 0.0], [0.0, 0.0, 0.0]])
+                if mid is not None:
+                    idx[2, :2] = mid[s, 0]
+                    coef[2, :2] = 1.0
+                    didx[2, :2] = mid[s, 1]
+                    dcoef[2, :2] = 1.0
                 vi.append(idx)
                 vc.append(coef)
-                didx = np.stack([stance[s], stance[s + 1]])
-                rate = 1.5 / (t1 - t0)
                 di.append(didx)
-                dc.append(np.array([[-rate, -rate, 0.0], [rate, rate, 0.0]]))
+                dc.append(dcoef)
         return NodeSpline(np.array(times), np.array(vi), np.array(vc), np.array(di), np.array(dc))
 
     def _force_spline(self, leg: int, b: np.ndarray, P: int, zero_at_boundaries: bool) -> NodeSpline:

@@ -12,9 +12,12 @@ def test_blc_flat_solve_writes_a_consistent_npz(tmp_path, capsys):
     code = main(["blc", "--terrain", "flat", "--distance", "1.0", "--duration", "2.0", "--out", str(out), "--json"])
     result = json.loads(capsys.readouterr().out)
     assert code == 0 and result["success"], result
-    for key in ("status", "solve_time_s", "iterations", "max_violation", "n_vars", "n_constraints"):
+    for key in ("status", "solve_time_s", "iterations", "max_violation", "n_vars", "n_constraints",
+                "dense"):
         assert key in result
+    assert result["dense"]["passed"] and result["dense"]["min_swing_clearance"] > -2e-3
     data = np.load(out)
+    assert float(data["foot_radius"]) > 0 and data["phase_durations"].shape[0] == 6
     t, pos, feet, force, contact = data["t"], data["base_pos"], data["foot_pos"], data["foot_force"], data["contact"]
     assert feet.shape == (len(t), 6, 3) and contact.shape == (len(t), 6)
     # Goal reached; stance feet carry the weight (vertical forces sum to m g on average).

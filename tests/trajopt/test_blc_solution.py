@@ -15,6 +15,7 @@ from qz_drake.terrain import make_terrain
 from qz_drake.trajopt.parameters import BlcParameters
 from qz_drake.trajopt.robot_model import qingzhui
 from qz_drake.trajopt.solver import BlcTask, solve_blc
+from tests.trajopt.npz_checks import assert_plan_holds
 
 SLOPE_DEG = 10.0
 
@@ -23,7 +24,9 @@ SLOPE_DEG = 10.0
 def uphill(tmp_path_factory):
     """1 m up a uniform 10 deg incline (the whole map rises along +x) in 2.5 s, saved."""
     heightmap = make_terrain("slope", angle_deg=SLOPE_DEG, start_x=-2.0)
-    solution = solve_blc(BlcTask(target=(1.0, 0.0, 0.0), duration=2.5), qingzhui(), heightmap)
+    # The tests check plans, not speed: a loaded machine must not fail them on the time limit.
+    solution = solve_blc(BlcTask(target=(1.0, 0.0, 0.0), duration=2.5), qingzhui(), heightmap,
+                         BlcParameters(time_limit=60.0))
     path = solution.save_npz(tmp_path_factory.mktemp("blc") / "uphill.npz")
     return solution, dict(np.load(path))
 
@@ -99,13 +102,19 @@ def test_saved_samples_satisfy_single_rigid_body_dynamics(uphill):
         worst_linear = max(worst_linear, np.abs(residual).max() / weight)
         checked += 1
     assert checked > 0.8 * t[-1] / params.linear_dynamics_dt
-    for ts in np.arange(0.5 * params.dynamics_dt, t[-1], params.dynamics_dt):
-        k = int(round(ts / dt))
+    def angular_residual(k):
         f, p = data["foot_force"][k], data["foot_pos"][k]
         w = [_body_rate(rpy[j], (rpy[j + 1] - rpy[j - 1]) / (2 * dt)) for j in (k - 1, k, k + 1)]
         w_dot = (w[2] - w[0]) / (2 * dt)
         torque_W = np.cross(p - r[k], f).sum(axis=0)
-        residual = inertia @ w_dot + np.cross(w[1], inertia @ w[1]) - _rotation(rpy[k]).T @ torque_W
+        return inertia @ w_dot + np.cross(w[1], inertia @ w[1]) - _rotation(rpy[k]).T @ torque_W
+
+    for ts in np.arange(0.5 * params.dynamics_dt, t[-1], params.dynamics_dt):
+        k = int(np.floor(ts / dt + 1e-9))
+        if np.any(data["contact"][k] != data["contact"][k + 1]):
+            continue
+        s = (ts - t[k]) / dt
+        residual = (1 - s) * angular_residual(k) + s * angular_residual(k + 1)
         worst_angular = max(worst_angular, np.abs(residual).max() / weight)
     # Body weights; the interpolation between grid points adds up to about 2e-3 where the
     # forces bend fastest.
@@ -154,10 +163,17 @@ def test_stance_forces_lie_in_the_friction_pyramid_of_the_terrain_normal(uphill)
     assert np.abs(f1).max() > 0.1 * mu * fn.max()
 
 
+def test_uphill_plan_holds_between_samples(uphill):
+    """Issue 11's dense figures, from the .npz alone (npz_checks.py)."""
+    solution, data = uphill
+    assert solution.dense.passed, solution.dense.failures
+    assert_plan_holds(data, "uphill")
+
+
 def test_feet_stay_in_their_kinematic_boxes(uphill):
     _, data = uphill
     robot = qingzhui()
-    for k in range(0, len(data["t"]), 8):  # the 0.08 s samples
+    for k in range(0, len(data["t"]), 4):  # the 0.04 s samples
         R = _rotation(data["base_rpy"][k])
         local = (data["foot_pos"][k] - data["base_pos"][k]) @ R - robot.nominal_footholds
         assert np.all(np.abs(local) <= robot.box_half_sizes + 1e-3), data["t"][k]
@@ -172,6 +188,30 @@ def test_impossible_tasks_fail_with_a_reason_within_the_time_limit():
     wall = make_terrain("step", height=1.0, start_x=1.0)
     blocked = solve_blc(BlcTask(target=(1.5, 0.0, 0.0), duration=3.0), terrain=wall, params=params)
     assert not blocked.success and "violation" in blocked.reason
+
+
+def test_a_target_beyond_the_boxes_reach_fails_before_ipopt():
+    """Qingzhui's tripod over 1 s: two overlapping stances cover it (group B until 0.5 s,
+    group A from 0.5 s); over each the body stays within rho = |(|n| + b)| of a fixed foot,
+    rho = |(0.37 + 0.15, 0.553 + 0.12, 0.499 + 0.10)| = 1.04 m for the corner feet (1.09 m
+    for MF and MB), plus 0.01 m, so at most 2 x 2 x 1.05 = 4.2 m."""
+    from qz_drake.trajopt.gait import make_gait
+    from qz_drake.trajopt.solver import reachable_distance
+
+    robot = qingzhui()
+    n = np.abs(robot.nominal_footholds) + robot.box_half_sizes
+    rho = np.linalg.norm(n, axis=1) + 0.01
+    schedule = make_gait("tripod", 6, 1.0)
+    # Group B (MB, RF, LF) stands until 0.5 s, group A (MF, RB, LB) from 0.5 s: the cheapest
+    # chain takes the least rho of each group.
+    assert reachable_distance(robot, schedule) == pytest.approx(
+        2 * rho[[3, 1, 5]].min() + 2 * rho[[0, 2, 4]].min())
+    assert reachable_distance(robot, schedule) == pytest.approx(4.2, abs=0.01)
+    far = solve_blc(BlcTask(target=(5.0, 0.0, 0.0), duration=1.0))
+    assert not far.success and far.reason.startswith("infeasible: target 5.00 m away")
+    assert far.iterations == 0 and far.ipopt_time == 0.0
+    # Within reach, the bound stays out of the way (the solve itself decides).
+    assert reachable_distance(robot, make_gait("tripod", 6, 2.0)) > 4.0
 
 
 def test_bad_tasks_raise_errors_naming_the_field():
