@@ -60,12 +60,11 @@ def blc_failure_code(reason: str) -> str:
                                 or "cpu time exceeded" in text or "iteration" in text) else "blc_infeasible"
 
 
-def foot_slip(times: np.ndarray, feet_W: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+def foot_slip(feet_W: np.ndarray, contacts: np.ndarray) -> np.ndarray:
     """Largest horizontal drift of each foot during one continuous contact, (6,). [m]
 
     feet_W (N, 6, 3) foot positions, contacts (N, 6) 1 when in contact.
     """
-    del times
     in_contact = contacts > 0.5
     worst = np.zeros(feet_W.shape[1])
     for leg in range(feet_W.shape[1]):
@@ -132,7 +131,7 @@ def judge_walk(criteria, *, goal_xy_yaw, times, states, desired_q, feet_W, conta
     if max_joint_error > criteria.max_joint_error_deg:
         fail("tracking", f"joint {j} off its reference by {max_joint_error:.0f} deg at "
                          f"t = {times[k]:.2f} s")
-    slip = foot_slip(times, feet_W, contacts) if len(states) else np.zeros(6)
+    slip = foot_slip(feet_W, contacts) if len(states) else np.zeros(6)
     if slip.max() > criteria.max_foot_slip_m:
         fail("slip", f"leg {int(np.argmax(slip))} slid {slip.max():.3f} m in one contact")
     final_xy_error = math.inf

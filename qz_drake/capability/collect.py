@@ -163,21 +163,10 @@ def check_ray_address(address: str, timeout: float = 5.0) -> None:
 
 def _crashed(spec: TrialSpec, message: str, config: TrialConfig) -> dict:
     """The error record of a trial whose worker died every time."""
-    from qz_drake.capability.scenes import scene_for
-    from qz_drake.capability.trials import ARRAY_FIELDS, RECORD_FIELDS, TIME_FIELDS, start_of
+    from qz_drake.capability.trials import base_record
 
-    import numpy as np
-
-    scene = scene_for(spec.seed, spec.scene)
-    heading, offsets, direction = start_of(spec, config)
-    record = {name: np.zeros((), dtype=dt).item() for name, dt in RECORD_FIELDS.items()}
-    record.update({name: np.zeros(shape, dtype=dt) for name, (shape, dt) in ARRAY_FIELDS.items()})
-    record.update({name: 0.0 for name in TIME_FIELDS})
-    record.update(index=spec.index, scene=spec.scene, heading_sample=spec.heading_sample,
-                  scene_kind=scene.kind, difficulty=scene.difficulty, scene_seed=scene.seed,
-                  topology=spec.topology, kind=spec.kind, heading=heading,
-                  direction=direction if spec.kind == "turn" else -1, foot_offsets=offsets,
-                  status="error", error=message)
+    record = base_record(spec, config)
+    record.update(status="error", error=message)
     return record
 
 
@@ -371,3 +360,121 @@ class _Progress:
     def close(self) -> None:
         if self.enabled:
             self._live.stop()
+
+
+@dataclasses.dataclass
+class Recertification:
+    """What ``recertify`` found: the components whose code changed, the trials re-run and
+    whether every one of them came out the same (then the manifest now names this code)."""
+
+    dataset: str
+    changed: list
+    rerun: int
+    identical: bool
+    mismatches: list
+    fingerprint_before: str
+    fingerprint_after: str
+    wall_time_s: float
+
+
+def recertification_sample(arrays: dict, count: int, key: str) -> list[int]:
+    """Up to ``count`` record positions, spread over every (status, kind, topology, outcome,
+    scene kind) group in turn, drawn with a seed derived from ``key``: failures and successes,
+    invalid starts, every kind and topology are all re-run, not only the common case."""
+    import hashlib
+
+    import numpy as np
+
+    rng = np.random.default_rng(int(hashlib.sha256(key.encode()).hexdigest()[:12], 16))
+    groups: dict = {}
+    for i in range(len(arrays["index"])):
+        if arrays["status"][i] == "error":
+            continue  # a crash is not behaviour to compare
+        g = (str(arrays["status"][i]), str(arrays["kind"][i]), str(arrays["topology"][i]),
+             bool(arrays["success"][i]), str(arrays["reason"][i]), str(arrays["scene_kind"][i]))
+        groups.setdefault(g, []).append(i)
+    order = [rng.permutation(members).tolist() for _, members in sorted(groups.items())]
+    rng.shuffle(order)
+    chosen: list[int] = []
+    while len(chosen) < count and any(order):
+        for members in order:
+            if members and len(chosen) < count:
+                chosen.append(members.pop())
+    return sorted(chosen)
+
+
+def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "") -> Recertification:
+    """Re-runs a sample of a dataset's trials with the running code; if every re-run record is
+    identical to the stored one (all fields but the wall times), the manifest is moved to this
+    code's fingerprints and the certification (old and new fingerprints, the trials re-run, the
+    command) is appended to its ``certifications``. Otherwise nothing is written.
+
+    This is for changes that should not change behaviour (a refactor, a speed-up, an option
+    that is off by default): trials are deterministic, so such a change reproduces every
+    stored record exactly. A change that alters only trials outside the sample can pass
+    unnoticed; a change meant to alter labels needs a new collection, not this.
+    """
+    from datetime import datetime, timezone
+
+    from qz_drake.capability.dataset import (combined_fingerprint, differing_fields, load_records,
+                                             read_manifest, records_to_arrays, write_manifest)
+    from qz_drake.capability.trials import TIME_FIELDS
+
+    clock = time.perf_counter()
+    if isinstance(sample, bool) or not isinstance(sample, int) or sample < 1:
+        raise bad_value("--sample", sample, "must be a positive whole number")
+    if workers < 1:
+        raise bad_value("--workers", workers, "must be at least 1")
+    manifest = read_manifest(path)
+    settings = dict(manifest.get("settings", {}))
+    try:
+        config = TrialConfig(**settings)
+    except TypeError as e:
+        raise bad_value("dataset.settings", settings, f"not this code's TrialConfig ({e})") from None
+    parts = fingerprints(config)
+    old = manifest.get("fingerprints", {})
+    changed = [k for k in sorted(set(parts) | set(old)) if parts.get(k) != old.get(k)]
+    before = manifest.get("fingerprint", "")
+    if not changed:
+        return Recertification(str(path), [], 0, True, [], before, before,
+                               time.perf_counter() - clock)
+    arrays, _ = load_records(path)
+    positions = recertification_sample(arrays, sample, before + combined_fingerprint(parts))
+    seed = int(manifest["seed"])
+    specs = [TrialSpec(seed, int(arrays["index"][i]), int(arrays["scene"][i]),
+                       int(arrays["heading_sample"][i]), str(arrays["topology"][i]),
+                       str(arrays["kind"][i])) for i in positions]
+    stored = {int(arrays["index"][i]): {k: v[i:i + 1] for k, v in arrays.items()} for i in positions}
+    rerun: dict[int, dict] = {}
+    pool = LocalPool(min(workers, len(specs)), config, 0) if specs else None
+    try:
+        if pool is not None:
+            pool.run(specs, lambda record: rerun.__setitem__(int(record["index"]), record))
+    finally:
+        if pool is not None:
+            pool.close()
+    mismatches = []
+    for index, old_record in stored.items():
+        new = records_to_arrays([rerun[index]])
+        fields = differing_fields(old_record, new, skip=TIME_FIELDS)
+        if fields:
+            mismatches.append({"index": index, "fields": fields,
+                               "stored": {f: _plain(old_record[f][0]) for f in fields[:4]},
+                               "now": {f: _plain(new[f][0]) for f in fields[:4]}})
+    after = combined_fingerprint(parts)
+    if not mismatches:
+        manifest.setdefault("certifications", []).append({
+            "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "changed": changed, "fingerprints_before": old, "fingerprints_after": parts,
+            "rerun_indices": sorted(stored), "command": command})
+        manifest["fingerprints"], manifest["fingerprint"] = parts, after
+        write_manifest(path, manifest)
+    return Recertification(str(path), changed, len(stored), not mismatches, mismatches, before,
+                           after if not mismatches else before, time.perf_counter() - clock)
+
+
+def _plain(value):
+    import numpy as np
+
+    value = np.asarray(value)
+    return value.tolist() if value.ndim else value.item()

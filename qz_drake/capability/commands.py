@@ -1,7 +1,9 @@
 """``qz capability ...``: the capability pipeline of paper 000 II-E.1 on the command line.
 
 ``collect`` runs (or resumes) BLC trials into a dataset folder, on local processes or a Ray
-cluster; ``stats`` summarises a dataset. The model commands (``train``, ``evaluate``, ``map``)
+cluster; ``stats`` summarises a dataset; ``recertify`` re-runs a sample of its trials after a
+change to the code that should not change behaviour, and moves the manifest to the new code
+only if every record comes out identical. The model commands (``train``, ``evaluate``, ``map``)
 are added by qz_drake.capability.model_commands when present.
 """
 
@@ -107,6 +109,26 @@ def run_stats(args) -> int:
     return 0
 
 
+def run_recertify(args) -> int:
+    from qz_drake.capability.collect import recertify
+
+    result = recertify(args.dataset, sample=args.sample, workers=args.workers,
+                       command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
+    if args.json:
+        print(json.dumps(dataclasses.asdict(result)))
+    elif not result.changed:
+        print(f"{result.dataset}: the code's fingerprints are the dataset's; nothing to certify")
+    elif result.identical:
+        print(f"{result.dataset}: {', '.join(result.changed)} changed; {result.rerun} trials re-run, "
+              f"every record identical: the manifest now names this code ({result.fingerprint_after})")
+    else:
+        first = result.mismatches[0]
+        print(f"{result.dataset}: {', '.join(result.changed)} changed; {len(result.mismatches)} of "
+              f"{result.rerun} re-run trials differ (trial {first['index']}: {', '.join(first['fields'])}): "
+              f"the labels describe other behaviour; collect a new dataset")
+    return 0 if result.identical else 1
+
+
 def register(subparsers) -> None:
     """Adds ``capability`` (collect, stats, and the model commands) to the ``qz`` command."""
     capability = subparsers.add_parser("capability", help="capability trials, dataset and model (paper 000)")
@@ -131,6 +153,15 @@ def register(subparsers) -> None:
     p.add_argument("dataset", help="dataset folder")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.set_defaults(func=run_stats)
+
+    p = sub.add_parser("recertify", help="re-run a sample of a dataset's trials with this code; "
+                                         "if all are identical, the manifest names this code")
+    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("--sample", type=int, default=36, help="trials to re-run (spread over kinds, "
+                                                          "topologies and outcomes)")
+    p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_recertify)
 
     try:
         from qz_drake.capability.model_commands import register_model_commands

@@ -144,8 +144,13 @@ class TrialStore:
         return self.path / name
 
     def _write_manifest(self) -> None:
-        text = json.dumps(self.manifest, indent=1)
-        _atomic_write(self.path / MANIFEST, lambda tmp: tmp.write_text(text))
+        write_manifest(self.path, self.manifest)
+
+
+def write_manifest(path, manifest: dict) -> None:
+    """Writes a dataset folder's manifest atomically (a reader never sees half of it)."""
+    text = json.dumps(manifest, indent=1)
+    _atomic_write(Path(path) / MANIFEST, lambda tmp: tmp.write_text(text))
 
 
 def read_manifest(path) -> dict:
@@ -189,6 +194,22 @@ def records_to_arrays(records: list[dict]) -> dict[str, np.ndarray]:
     for name in TIME_FIELDS:
         out[name] = np.array([r[name] for r in records], dtype="f8")
     return out
+
+
+def differing_fields(a: dict, b: dict, skip=()) -> list[str]:
+    """The fields where two sets of record arrays differ (NaN equals NaN), in a's order."""
+    out = []
+    for key in a:
+        if key in skip:
+            continue
+        if key not in b:
+            out.append(key)
+            continue
+        x, y = np.asarray(a[key]), np.asarray(b[key])
+        nan_aware = x.dtype.kind in "fc" and y.dtype.kind in "fc"
+        if x.shape != y.shape or not np.array_equal(x, y, equal_nan=nan_aware):
+            out.append(key)
+    return out + [key for key in b if key not in a and key not in skip]
 
 
 def load_records(path) -> tuple[dict[str, np.ndarray], dict]:

@@ -173,6 +173,22 @@ def _error_record(base: dict, message: str, status: str = "error") -> dict:
     return base
 
 
+def base_record(spec: TrialSpec, config: TrialConfig, scene=None) -> dict:
+    """A trial's record before it runs: its identity, scene and start, outcome fields zero."""
+    from qz_drake.capability.scenes import scene_for
+
+    scene = scene or scene_for(spec.seed, spec.scene)
+    heading, offsets, direction = start_of(spec, config)
+    record = {name: np.zeros((), dtype=dt).item() for name, dt in RECORD_FIELDS.items()}
+    record.update({name: np.zeros(shape, dtype=dt) for name, (shape, dt) in ARRAY_FIELDS.items()})
+    record.update({name: 0.0 for name in TIME_FIELDS})
+    record.update(index=spec.index, scene=spec.scene, heading_sample=spec.heading_sample,
+                  scene_kind=scene.kind, difficulty=scene.difficulty, scene_seed=scene.seed,
+                  topology=spec.topology, kind=spec.kind, heading=heading,
+                  direction=direction if spec.kind == "turn" else -1, foot_offsets=offsets)
+    return record
+
+
 def run_trial(spec: TrialSpec, config: TrialConfig = TrialConfig(), criteria=None) -> dict:
     """Runs one trial; returns its record: status "executed" (a label), "invalid" (the robot
     cannot stand at the start in this topology: no foot IK, or a leg link or the trunk already
@@ -182,15 +198,8 @@ def run_trial(spec: TrialSpec, config: TrialConfig = TrialConfig(), criteria=Non
 
     clock = time.perf_counter()
     scene = scene_for(spec.seed, spec.scene)
-    heading, offsets, direction = start_of(spec, config)
-    record = {name: np.zeros((), dtype=dt).item() for name, dt in RECORD_FIELDS.items()}
-    record.update(index=spec.index, scene=spec.scene, heading_sample=spec.heading_sample,
-                  scene_kind=scene.kind, difficulty=scene.difficulty, scene_seed=scene.seed,
-                  topology=spec.topology, kind=spec.kind, heading=heading,
-                  direction=direction if spec.kind == "turn" else -1, error="",
-                  foot_offsets=offsets, patch=np.zeros((20, 20), np.float32),
-                  feet=np.zeros((6, 3), np.float32))
-    record.update({name: 0.0 for name in TIME_FIELDS})
+    heading, offsets, _ = start_of(spec, config)
+    record = base_record(spec, config, scene)
     hm = scene.heightmap
     ground = float(ground_reference(hm, 0.0, 0.0))
     record["patch"] = sample_patches(hm, 0.0, 0.0, heading, spec.kind, ground=ground)
@@ -251,8 +260,6 @@ def trial_blc_parameters(config: TrialConfig):
 
 
 def scenario_params(scenario):
-    import dataclasses as dc
-
     from qz_drake.robot.params import DEFAULT_PARAMS
 
-    return dc.replace(DEFAULT_PARAMS, payload_mass=scenario.robot.payload_kg)
+    return dataclasses.replace(DEFAULT_PARAMS, payload_mass=scenario.robot.payload_kg)

@@ -144,6 +144,10 @@ class InverseKinematicsTracker(LeafSystem):
         self._dt = 1.0 / rate
         # Touchdown IK per (plan, touchdown time), for the rolling compensation.
         self._touchdown_cache: dict = {}
+        # The reference at t + dt of the last update (plan, time, q): the next update's q(t).
+        # Eq. 7's difference quotient needs q at t and t + dt; updates come every dt, so each
+        # IK is solved once instead of twice (measured: half of a trial's simulation time).
+        self._ahead: tuple | None = None
         self._trajectory = self.DeclareAbstractInputPort("trajectory", AbstractValue.Make(object()))
         # Held references: q_des (18), v_des (18), forces (18), contact (6).
         self._held = self.DeclareDiscreteState(2 * NUM_JOINTS + 3 * NUM_LEGS + NUM_LEGS)
@@ -182,8 +186,13 @@ class InverseKinematicsTracker(LeafSystem):
         t = context.get_time()
         if len(self._touchdown_cache) > 64:
             self._touchdown_cache.clear()
-        q0 = self._reference(plan, t)
+        ahead = self._ahead
+        if ahead is not None and ahead[0] is plan and abs(ahead[1] - t) <= 1e-9:
+            q0 = ahead[2]
+        else:
+            q0 = self._reference(plan, t)
         q1 = self._reference(plan, t + self._dt)
+        self._ahead = (plan, t + self._dt, q1)
         v = (q1 - q0) / self._dt if t + self._dt <= plan.end_time else np.zeros(NUM_JOINTS)
         tc = float(np.clip(t, plan.start_time, plan.end_time))
         contact = plan.contact(tc)

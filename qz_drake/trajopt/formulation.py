@@ -208,10 +208,10 @@ class BlcFormulation:
         if self.params.force_points == "bernstein":
             return self._force_control_points(leg)
         v, p = self.variables, self.params
-        per_stance = int(p.force_polynomials_per_stance) * int(p.force_samples_per_polynomial)
         spline = v.foot_force[leg]
         forces, stance_ids = [], []
         for s, (t0, t1) in enumerate(v.schedule.stance_intervals(leg)):
+            per_stance = v.force_polynomial_counts[leg][s] * int(p.force_samples_per_polynomial)
             k = np.arange(per_stance + 1)
             if p.zero_force_at_touchdown:
                 last = len(v.footholds[leg]) - 1

@@ -53,8 +53,10 @@ class BlcParameters:
     # leave their boxes by 3-5 mm between samples on stairs (the dense verdict's limit: 2 mm);
     # 0.04 s keeps them inside on the bench suite at about 1.2x the time. [s]
     kinematics_dt: float = 0.04
-    # Cubic force polynomials per stance phase (TOWR: 3).
+    # Cubic force polynomials per stance phase (TOWR: 3), fewer in a stance where they would
+    # be shorter than min_force_polynomial_duration (at least one).
     force_polynomials_per_stance: int = 3
+    min_force_polynomial_duration: float = 0.08
     # Pin each stance's first and last force node to zero, as TOWR does (False: forces may
     # jump at touchdown and liftoff, which a duty factor of 0.5 needs for continuous support).
     zero_force_at_touchdown: bool = False
@@ -179,6 +181,9 @@ class BlcParameters:
         if self.max_normal_force is not None and not self.max_normal_force > self.min_normal_force:
             raise bad_value("blc.max_normal_force", self.max_normal_force,
                             "must exceed min_normal_force")
+        if not self.min_force_polynomial_duration >= 0:
+            raise bad_value("blc.min_force_polynomial_duration", self.min_force_polynomial_duration,
+                            "must be non-negative")
         if int(self.force_polynomials_per_stance) < 1:
             raise bad_value("blc.force_polynomials_per_stance", self.force_polynomials_per_stance,
                             "must be at least 1")

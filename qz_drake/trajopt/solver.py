@@ -95,6 +95,16 @@ def _resolve(task: BlcTask, robot: RobotModel, terrain, params: BlcParameters):
                             f"expected ({robot.num_legs}, 3) for {robot.name}")
     elif feet is None:
         _, _, feet = standing_start(robot, terrain, start[0], start[1], rpy[2])
+    if task.start_feet is not None and np.all(np.isfinite(feet)):
+        # Feet measured in simulation stand a few mm inside the terrain (contact penetration:
+        # 2-3 mm on the grid_map mesh). The start footholds are fixed, so a swing that leaves
+        # one must climb out of the ground before the first clearance sample 0.01 s later:
+        # measured on the demo's second mission, Ipopt then stalled at a 4e-5 swing violation
+        # for 300 iterations; lifted onto the surface, it converged in 5. A foot is a sphere
+        # resting on the terrain: its centre is put back radius above the surface.
+        surface = np.asarray(terrain.height(feet[:, 0], feet[:, 1]), dtype=float) + robot.foot_radius
+        feet = feet.copy()
+        feet[:, 2] = np.maximum(feet[:, 2], surface)
     target = np.asarray(task.target, dtype=float).reshape(-1)
     if target.shape != (3,) or not np.all(np.isfinite(target)):
         raise bad_value("task.target", task.target, "expected finite (x, y, yaw)")

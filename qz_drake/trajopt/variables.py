@@ -58,6 +58,7 @@ class BlcVariables:
         self.swing_midpoints: list[np.ndarray | None] = []
         self.force_nodes: list[np.ndarray] = []  # per leg (N, 2, 3) indices, -1 = zero
         self.force_node_times: list[np.ndarray] = []  # per leg (N,), nudged into the stance
+        self.force_polynomial_counts: list[list[int]] = []  # per leg, per stance
         self.foot_position: list[NodeSpline] = []
         self.foot_force: list[NodeSpline] = []
         P = int(params.force_polynomials_per_stance)
@@ -72,7 +73,8 @@ class BlcVariables:
             self.apex_heights.append(apex)
             self.swing_midpoints.append(mid)
             self.foot_position.append(self._foot_spline(b, stance, apex, mid))
-            self.foot_force.append(self._force_spline(leg, b, P, params.zero_force_at_touchdown))
+            self.foot_force.append(self._force_spline(leg, b, P, params.zero_force_at_touchdown,
+                                                      params.min_force_polynomial_duration))
 
     # -- layout -----------------------------------------------------------------------------
     def _allocate(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -120,14 +122,18 @@ class BlcVariables:
                 dc.append(dcoef)
         return NodeSpline(np.array(times), np.array(vi), np.array(vc), np.array(di), np.array(dc))
 
-    def _force_spline(self, leg: int, b: np.ndarray, P: int, zero_at_boundaries: bool) -> NodeSpline:
+    def _force_spline(self, leg: int, b: np.ndarray, most: int, zero_at_boundaries: bool,
+                      shortest: float = 0.0) -> NodeSpline:
         # Nodes: each stance's P + 1 nodes, then a zero node at liftoff and one at touchdown
-        # (repeated times: the force may jump there, as a contact force can).
+        # (repeated times: the force may jump there, as a contact force can). A stance has
+        # ``most`` polynomials, fewer when they would be shorter than ``shortest`` (at least 1).
         num_stances = len(b) // 2
-        times, value_idx, deriv_idx, eval_times = [], [], [], []
+        times, value_idx, deriv_idx, eval_times, counts = [], [], [], [], []
         zero = -np.ones(3, dtype=np.int64)
         for s in range(num_stances):
             t0, t1 = b[2 * s], b[2 * s + 1]
+            P = most if shortest <= 0 else min(most, max(1, int(np.floor((t1 - t0) / shortest + 1e-9))))
+            counts.append(P)
             if s > 0:
                 times.append(t0)
                 value_idx.append(zero)
@@ -153,6 +159,7 @@ class BlcVariables:
         nodes = np.stack([np.array(value_idx), np.array(deriv_idx)], axis=1)
         self.force_nodes.append(nodes)
         self.force_node_times.append(np.array(eval_times))
+        self.force_polynomial_counts.append(counts)
         return NodeSpline.from_variables(np.array(times), nodes[:, 0], nodes[:, 1])
 
     # -- queries ----------------------------------------------------------------------------

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qz_drake.capability.collect import CRASH_ENV, collect
-from qz_drake.capability.dataset import load_records, load_training_arrays
+from qz_drake.capability.collect import CRASH_ENV, collect, recertify
+from qz_drake.capability.dataset import differing_fields, load_records, load_training_arrays
 from qz_drake.capability.trials import TIME_FIELDS, trial_index
 from qz_drake.errors import ConfigError
 
@@ -26,11 +26,7 @@ QZ = [sys.executable, "-m", "qz_drake.cli"]
 def _same(a: Path, b: Path) -> None:
     ra, _ = load_records(a)
     rb, _ = load_records(b)
-    assert set(ra) == set(rb)
-    for key in ra:
-        if key in TIME_FIELDS:
-            continue
-        assert np.array_equal(ra[key], rb[key]), key
+    assert differing_fields(ra, rb, skip=TIME_FIELDS) == []
 
 
 @pytest.fixture(scope="module")
@@ -81,6 +77,41 @@ def test_a_stale_manifest_is_refused_naming_the_field(reference, tmp_path):
         collect(copy, workers=1, **SMALL)
     with pytest.raises(ConfigError, match="seed"):
         collect(reference, workers=1, **{**SMALL, "seed": 28})
+
+
+def test_recertify_moves_a_dataset_to_code_that_reproduces_it_and_refuses_one_that_does_not(reference, tmp_path):
+    # A code change that keeps behaviour (here: only the manifest's fingerprint differs)
+    # is certified by re-running trials; the dataset then resumes under the new code.
+    same = tmp_path / "refactored"
+    shutil.copytree(reference, same)
+    manifest = json.loads((same / "manifest.json").read_text())
+    current = dict(manifest["fingerprints"])
+    manifest["fingerprints"]["verdict"] = "0123456789abcdef"
+    (same / "manifest.json").write_text(json.dumps(manifest))
+    result = recertify(same, sample=2)
+    assert result.changed == ["verdict"] and result.rerun == 2 and result.identical
+    after = json.loads((same / "manifest.json").read_text())
+    assert after["fingerprints"] == current
+    assert after["certifications"][-1]["fingerprints_before"]["verdict"] == "0123456789abcdef"
+    assert collect(same, workers=1, **SMALL).ran == 0  # accepted again, nothing left to run
+
+    # Behaviour that changed (a stored outcome no longer reproduced) is refused: exit 1, the
+    # differing field named, the manifest left as it was.
+    changed = tmp_path / "changed"
+    shutil.copytree(reference, changed)
+    manifest = json.loads((changed / "manifest.json").read_text())
+    manifest["fingerprints"]["blc"] = "0123456789abcdef"
+    (changed / "manifest.json").write_text(json.dumps(manifest))
+    shard = changed / manifest["shards"][0]["file"]
+    with np.load(shard) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays["final_yaw_error_deg"] = arrays["final_yaw_error_deg"] + 1.0
+    np.savez_compressed(shard, **arrays)
+    run = subprocess.run(QZ + ["capability", "recertify", str(changed), "--sample", "2"],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 1, run.stderr
+    assert "final_yaw_error_deg" in run.stdout and "2 of 2" in run.stdout
+    assert json.loads((changed / "manifest.json").read_text()) == manifest
 
 
 @pytest.mark.parametrize("args, field", [

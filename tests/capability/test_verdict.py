@@ -66,5 +66,5 @@ def test_foot_slip_measures_each_contact_from_its_own_start():
     feet[:, 0, 0] = [0.0, 0.01, 0.5, 0.5, 0.52, 0.53]
     contacts = np.ones((6, 6))
     contacts[2, 0] = 0  # a swing between two stances: the 0.5 m move is not a slip
-    slip = foot_slip(np.arange(6), feet, contacts)
+    slip = foot_slip(feet, contacts)
     assert slip[0] == pytest.approx(0.03)

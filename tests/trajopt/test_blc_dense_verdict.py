@@ -143,3 +143,41 @@ def test_npz_names_foot_radius_and_phase_durations(saved):
     b = np.concatenate([[0.0], np.cumsum(durations[0][~np.isnan(durations[0])])])
     phase = np.clip(np.searchsorted(b, data["t"], side="right") - 1, 0, len(b) - 2)
     np.testing.assert_array_equal(phase % 2 == 0, data["contact"][:, 0])
+
+
+def test_start_feet_measured_inside_the_terrain_are_put_on_it_and_the_mission_solves():
+    """Feet measured in simulation stand a few mm inside the terrain (contact penetration).
+    Fixed there, the first swings must climb out of the ground before their first clearance
+    sample; the BLC puts them on the surface instead, and the mission solves as from a stand."""
+    from qz_drake.trajopt.robot_model import qingzhui
+
+    robot = qingzhui("nominal")
+    terrain = tt.as_terrain(None)
+    start, rpy, feet = standing_start(robot, terrain)
+    sunk = feet.copy()
+    sunk[:, 2] -= 0.003
+    budget = BlcParameters(max_iterations=30, time_limit=60.0)
+    solution = solve_blc(BlcTask(target=(1.0, 0.0, 0.0), start_position=tuple(start),
+                                 start_rpy=tuple(rpy), start_feet=sunk, duration=2.0),
+                         robot, terrain, budget)
+    assert solution.success, solution.reason
+    planned = np.array([pp.value(0.0).ravel() for pp in solution.foot_positions])
+    np.testing.assert_allclose(planned[:, :2], sunk[:, :2], atol=1e-9)
+    np.testing.assert_allclose(planned[:, 2], feet[:, 2], atol=1e-9)
+
+
+def test_a_turn_in_place_holds_the_dense_residuals():
+    """A 45 deg turn in place (a capability trial's turn: 1.2 s, a third of it stands). With
+    three force polynomials in the 0.2 s stances of the stands the forces wiggled between the
+    linear-dynamics samples (90th percentile 0.08 body weights); the 0.08 s floor on their
+    length keeps the plan consistent."""
+    from qz_drake.trajopt.robot_model import qingzhui
+
+    robot = qingzhui("nominal")
+    budget = BlcParameters(max_iterations=30, time_limit=60.0)
+    solution = solve_blc(BlcTask(target=(0.0, 0.0, np.pi / 4), duration=1.2), robot, None, budget)
+    assert solution.success, solution.reason
+    assert solution.dense.linear_residual <= 0.05 and solution.dense.angular_residual <= 0.05
+    three = solve_blc(BlcTask(target=(0.0, 0.0, np.pi / 4), duration=1.2), robot, None,
+                      BlcParameters(max_iterations=30, time_limit=60.0, min_force_polynomial_duration=0.0))
+    assert not three.success and three.dense.linear_residual > 0.05
