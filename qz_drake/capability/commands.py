@@ -44,6 +44,48 @@ def run_collect(args) -> int:
     return 0
 
 
+# Bins of the stair rise [m] for the topology comparison (paper 000: bend-inside legs are
+# safer going up stairs; a longer nominal stance is better on higher stairs).
+RISE_BINS = ((0.04, 0.10), (0.10, 0.16), (0.16, 0.27))
+# A move goes up a flight when its heading is within this of the flight's direction. [deg]
+UP_STAIRS_CONE_DEG = 50.0
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """The Wilson score interval of a success rate (95 % by default); (0, 1) for n = 0."""
+    if n == 0:
+        return 0.0, 1.0
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return float(max(0.0, centre - half)), float(min(1.0, centre + half))
+
+
+def stairs_up_rows(arrays: dict, seed: int) -> list[dict]:
+    """Success of forward moves (orthogonal, diagonal) up a flight of stairs, per topology and
+    rise bin, with Wilson 95 % intervals: the comparison paper 000 draws between topologies.
+    A scene's flight climbs along +x (scenes.stairs_scene); a move goes up it when the scene's
+    rise is positive and the heading is within UP_STAIRS_CONE_DEG of +x."""
+    from qz_drake.capability.scenes import scene_for
+
+    executed = (arrays["status"] == "executed") & (arrays["scene_kind"] == "stairs") \
+        & np.isin(arrays["kind"], ("orthogonal", "diagonal"))
+    rise = np.full(len(executed), np.nan)
+    for scene in np.unique(arrays["scene"][executed]):
+        rise[arrays["scene"] == scene] = scene_for(seed, int(scene)).params["rise"]
+    up = executed & (rise > 0) & (np.cos(arrays["heading"]) >= np.cos(np.radians(UP_STAIRS_CONE_DEG)))
+    rows = []
+    for low, high in RISE_BINS:
+        in_bin = up & (rise >= low) & (rise < high)
+        for topology in sorted(set(arrays["topology"][in_bin].tolist())):
+            sel = in_bin & (arrays["topology"] == topology)
+            n, k = int(sel.sum()), int(arrays["success"][sel].sum())
+            lo, hi = wilson_interval(k, n)
+            rows.append({"rise_m": [low, high], "topology": topology, "executed": n, "successes": k,
+                         "success_rate": k / n, "ci95": [lo, hi]})
+    return rows
+
+
 def dataset_stats(path) -> dict:
     """Per topology and kind: executed trials, successes, BLC-only successes, errors; per
     scene kind too; and the manifest's fingerprints."""
@@ -91,6 +133,7 @@ def dataset_stats(path) -> dict:
             "invalid_starts": int((arrays["status"] == "invalid").sum()),
             "successes": int(arrays["success"][executed].sum()),
             "rows": rows, "scene_kinds": scene_rows, "kinds": kind_rows, "failure_reasons": reasons,
+            "stairs_up": stairs_up_rows(arrays, int(manifest.get("seed", 0))),
             "seed": manifest.get("seed"), "fingerprint": manifest.get("fingerprint"),
             "fingerprints": manifest.get("fingerprints")}
 
@@ -106,6 +149,13 @@ def run_stats(args) -> int:
         rate = "-" if row["success_rate"] is None else f"{100 * row['success_rate']:.0f} %"
         print(f"  {row['topology']:>13} {row['kind']:>10}: {row['successes']}/{row['executed']} ({rate}), "
               f"BLC alone {row['blc_successes']}, errors {row['errors']}")
+    if stats["stairs_up"]:
+        print("  up stairs (orthogonal and diagonal moves), per rise and topology:")
+        for row in stats["stairs_up"]:
+            low, high = row["rise_m"]
+            lo, hi = row["ci95"]
+            print(f"    {low:.2f}-{high:.2f} m {row['topology']:>13}: {row['successes']}/{row['executed']} "
+                  f"({100 * row['success_rate']:.0f} %, 95 % CI {100 * lo:.0f}-{100 * hi:.0f} %)")
     return 0
 
 

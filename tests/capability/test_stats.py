@@ -1,0 +1,35 @@
+"""The dataset summary's topology comparison on stairs (paper 000: bend-inside legs are safer
+going up stairs, a longer stance better on higher ones): which trials count as going up a
+flight, the rise bins, and the Wilson intervals that say how sure each rate is."""
+
+import numpy as np
+import pytest
+
+from qz_drake.capability.commands import stairs_up_rows, wilson_interval
+from qz_drake.capability.scenes import scene_for
+
+
+def test_wilson_interval_matches_the_textbook_values():
+    lo, hi = wilson_interval(5, 10)
+    assert lo == pytest.approx(0.2366, abs=1e-4) and hi == pytest.approx(0.7634, abs=1e-4)
+    assert wilson_interval(0, 10)[0] == 0.0 and wilson_interval(10, 10)[1] == 1.0
+    assert wilson_interval(0, 0) == (0.0, 1.0)
+
+
+def test_only_moves_heading_up_a_rising_flight_are_compared():
+    # Scene 0 of seed 0 is a rising flight (rise 0.149 m): moves facing +x go up it.
+    assert scene_for(0, 0).kind == "stairs" and 0.10 < scene_for(0, 0).params["rise"] < 0.16
+    rows = {
+        "status": ["executed", "executed", "executed", "invalid", "executed"],
+        "scene_kind": ["stairs"] * 5,
+        "kind": ["orthogonal", "diagonal", "orthogonal", "orthogonal", "turn"],
+        "scene": [0, 0, 0, 0, 0],
+        "heading": [0.0, np.radians(45), np.pi, 0.0, 0.0],  # up, up, away, -, a turn
+        "topology": ["front_bend", "front_bend", "front_bend", "front_bend", "front_bend"],
+        "success": [True, False, True, True, True],
+    }
+    arrays = {k: np.asarray(v) for k, v in rows.items()}
+    [row] = stairs_up_rows(arrays, seed=0)
+    assert row["rise_m"] == [0.10, 0.16] and row["topology"] == "front_bend"
+    assert row["executed"] == 2 and row["successes"] == 1 and row["success_rate"] == 0.5
+    assert row["ci95"] == list(wilson_interval(1, 2))
