@@ -247,6 +247,13 @@ def main(argv: list[str] | None = None) -> int:
     except QzError as e:
         print(f"qz {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # The reader went away (`qz ... | head`): stop quietly, as Unix tools do, and keep
+        # the interpreter's final flush from failing on the closed pipe.
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM (collections write what finished first)
         print(f"qz {args.command}: interrupted", file=sys.stderr)
         return 130
