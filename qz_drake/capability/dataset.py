@@ -21,7 +21,6 @@ import dataclasses
 import hashlib
 import json
 import os
-from importlib import import_module
 from pathlib import Path
 
 import numpy as np
@@ -31,28 +30,87 @@ from qz_drake.errors import ConfigError, bad_value
 FORMAT = "qz_drake.capability.dataset/1"
 MANIFEST = "manifest.json"
 
-# The modules whose code decides each component's behaviour.
-_COMPONENT_MODULES = {
-    "robot": ("qz_drake.robot.params", "qz_drake.robot.urdf", "qz_drake.robot.kinematics",
-              "qz_drake.robot.topology", "qz_drake.robot.model"),
-    "blc": ("qz_drake.trajopt.parameters", "qz_drake.trajopt.formulation", "qz_drake.trajopt.constraints",
-            "qz_drake.trajopt.splines", "qz_drake.trajopt.variables", "qz_drake.trajopt.gait",
-            "qz_drake.trajopt.terrain", "qz_drake.trajopt.robot_model", "qz_drake.trajopt.initial_guess",
-            "qz_drake.trajopt.solver", "qz_drake.trajopt.solution", "qz_drake.systems.blc",
-            "qz_drake.systems.blc_plan"),
-    "controller": ("qz_drake.systems.ik_tracker", "qz_drake.systems.joint_pd",
-                   "qz_drake.systems.mission_sequencer", "qz_drake.station",
-                   "qz_drake.terrain.drake_geometry", "qz_drake.terrain.materials",
-                   "qz_drake.systems.sensors"),
-    "verdict": ("qz_drake.verdict",),
-    "scenes": ("qz_drake.capability.scenes", "qz_drake.capability.patches",
-               "qz_drake.capability.trials"),
-}
+# Where the fingerprinted code starts: every qz_drake module these import, directly or not,
+# at module level or inside a function (found in their syntax trees, so the set is the same
+# whatever the process has imported), is part of the fingerprint, except the packages below,
+# which a trial never runs: recordings and plots, the command line and benchmarks, the LCM
+# station backend, the collection driver (it only schedules run_trial), and the CapPlanner
+# stack (the learned model and the planners that use it, reachable from qz_drake.simulation's
+# capplanner controller only). A new module is fingerprinted unless it falls under one of
+# these. Each module belongs to the first component whose prefix it matches.
+FINGERPRINT_ROOTS = ("qz_drake.capability.trials", "qz_drake.simulation", "qz_drake.systems.blc",
+                     "qz_drake.systems.blc_plan")
+UNFINGERPRINTED = ("qz_drake.viz", "qz_drake.cli", "qz_drake.bench", "qz_drake.hardware",
+                   "qz_drake.planning", "qz_drake.systems.capability_planner",
+                   "qz_drake.capability.collect", "qz_drake.capability.commands",
+                   "qz_drake.capability.model", "qz_drake.capability.model_commands",
+                   "qz_drake.capability.networks", "qz_drake.capability.training",
+                   "qz_drake.capability.evaluation", "qz_drake.capability.plots",
+                   "qz_drake.capability.dataset")
+_COMPONENT_PREFIXES = (
+    ("robot", ("qz_drake.robot",)),
+    ("blc", ("qz_drake.trajopt", "qz_drake.systems.blc", "qz_drake.systems.blc_plan")),
+    ("verdict", ("qz_drake.verdict",)),
+    ("scenes", ("qz_drake.capability",)),
+    ("controller", ("qz_drake",)),  # the station, systems, simulation, terrain, config, ...
+)
+
+
+def _module_file(name: str) -> Path | None:
+    from importlib.util import find_spec
+
+    try:
+        spec = find_spec(name)
+    except (ImportError, ValueError):
+        return None
+    return Path(spec.origin) if spec is not None and spec.origin and spec.origin.endswith(".py") else None
+
+
+def _imported_modules(name: str, tree: ast.AST) -> set[str]:
+    """qz_drake modules a module's code imports (anywhere in it)."""
+    found = set()
+    package = name if name.endswith("__init__") else name.rpartition(".")[0]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names if a.name.startswith("qz_drake"))
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join(package.split(".")[: len(package.split(".")) - node.level + 1]
+                                + ([node.module] if node.module else []))
+            if base.startswith("qz_drake"):
+                found.add(base)
+                found.update(f"{base}.{a.name}" for a in node.names)  # kept if a module
+    return found
+
+
+def fingerprinted_modules() -> dict[str, list[str]]:
+    """Component -> the modules of its fingerprint (the import closure of FINGERPRINT_ROOTS)."""
+    seen, queue = set(), list(FINGERPRINT_ROOTS)
+    while queue:
+        name = queue.pop()
+        if name in seen or any(name == u or name.startswith(u + ".") for u in UNFINGERPRINTED):
+            continue
+        file = _module_file(name)
+        if file is None:
+            continue
+        seen.add(name)
+        queue.extend(_imported_modules(name, ast.parse(file.read_text())))
+        parent = name.rpartition(".")[0]
+        if parent.startswith("qz_drake"):
+            queue.append(parent)  # a package's __init__ runs before its modules
+    out: dict[str, list[str]] = {component: [] for component, _ in _COMPONENT_PREFIXES}
+    for name in sorted(seen):
+        for component, prefixes in _COMPONENT_PREFIXES:
+            if any(name == p or name.startswith(p + ".") for p in prefixes):
+                out[component].append(name)
+                break
+    return out
 
 
 def _code_hash(module_name: str) -> str:
     """Hash of a module's syntax tree without docstrings (comments are not in the tree)."""
-    source = Path(import_module(module_name).__file__).read_text()
+    source = _module_file(module_name).read_text()
     tree = ast.parse(source)
     for node in ast.walk(tree):
         body = getattr(node, "body", None)
@@ -82,8 +140,8 @@ def fingerprints(trial_config, criteria=None) -> dict[str, str]:
         "verdict": (repr(criteria or SuccessCriteria()),),
         "scenes": (repr(trial_config),),
     }
-    return {name: _digest(*config[name], *(_code_hash(m) for m in modules))
-            for name, modules in _COMPONENT_MODULES.items()}
+    return {name: _digest(*config[name], *(f"{m}:{_code_hash(m)}" for m in modules))
+            for name, modules in fingerprinted_modules().items()}
 
 
 def combined_fingerprint(parts: dict[str, str]) -> str:

@@ -156,3 +156,19 @@ def test_a_local_ray_cluster_gives_the_same_dataset_and_survives_a_killed_worker
         _same(reference, tmp_path / "ray_crash")
     finally:
         subprocess.run([str(ray_bin), "stop", "--force"], capture_output=True, env=env, timeout=120)
+
+
+def test_the_fingerprint_covers_the_code_a_trial_runs():
+    from qz_drake.capability.dataset import fingerprinted_modules
+
+    modules = fingerprinted_modules()
+    # Found by following imports from run_trial: the defaults of the scenario (time step,
+    # contact), the walk and its metrics, the heightmap's interpolation, the BLC's verdict.
+    for name in ("qz_drake.config", "qz_drake.simulation", "qz_drake.terrain.heightmap",
+                 "qz_drake.station", "qz_drake.systems.ik_tracker"):
+        assert name in modules["controller"], name
+    assert "qz_drake.trajopt.verdict" in modules["blc"] and modules["verdict"] == ["qz_drake.verdict"]
+    assert "qz_drake.capability.trials" in modules["scenes"]
+    everything = [m for names in modules.values() for m in names]
+    assert len(everything) == len(set(everything))
+    assert not any(m.startswith(("qz_drake.viz", "qz_drake.cli", "qz_drake.planning")) for m in everything)
