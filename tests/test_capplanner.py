@@ -55,6 +55,33 @@ def test_the_fig9_pipeline_runs_a_tiny_task_per_planner(synthetic_model_dir, tmp
     assert again["ran"] == 0 and (tmp_path / "results.csv").is_file()
 
 
+@pytest.mark.slow
+def test_astar_is_tuned_on_worlds_that_are_not_the_experiments(tmp_path):
+    from qz_drake.experiments.fig9 import ExperimentConfig, read_results, tune_astar
+
+    report = tune_astar(tmp_path, step_heights=(0.05, 0.24), slopes_deg=(30.0,), terrains=("obstacles",),
+                        difficulties=("simple",), tasks=1, config=ExperimentConfig(scale=0.3), progress=False)
+    grid = report["grid"]
+    assert [g["max_step_height"] for g in grid] == [0.05, 0.24] and all(g["tasks"] == 1 for g in grid)
+    for g in grid:
+        [record] = read_results(g["folder"])
+        assert record["seed"] >= 1000 and record["planner"] == "astar" and record["reason"] != "error"
+    best = max(g["successes"] for g in grid)
+    chosen = report["chosen"]
+    assert chosen["max_slope_deg"] == 30.0
+    assert [g for g in grid if g["max_step_height"] == chosen["max_step_height"]][0]["successes"] == best
+    assert json.loads((tmp_path / "tuning.json").read_text())["chosen"] == chosen
+
+
+@pytest.mark.parametrize("args, field", [(["--steps", "0.1,x"], "--steps"), (["--slopes", "-5"], "--slopes"),
+                                         (["--tasks", "0"], "--tasks")])
+def test_tune_astar_bad_input_is_one_line_exit_2(tmp_path, args, field):
+    run = subprocess.run(QZ + ["experiment", "tune-astar", "--out", str(tmp_path)] + args,
+                         capture_output=True, text=True, timeout=120)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1 and field in lines[0], run.stderr
+
+
 def test_qz_plan_writes_the_utility_map_and_names_bad_input(synthetic_model_dir, tmp_path):
     run = subprocess.run(QZ + ["plan", "--terrain", "flat", "--start", "0,0", "--goal", "3,0.5",
                                "--model", str(synthetic_model_dir), "--out", str(tmp_path), "--json"],

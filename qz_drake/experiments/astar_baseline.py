@@ -6,7 +6,7 @@ with cells blocked where the step height exceeds ``max_step_height`` or the slop
 ``max_slope_deg``; the path is cut into waypoints at most ``waypoint_spacing`` apart, all in
 the nominal topology (A* knows no topologies), and walked by the same BLC missions as
 CapPlanner's. Its thresholds are tuned on worlds that are not among the experiment's tasks
-(``tune_astar``).
+(``fig9.tune_astar``, ``qz experiment tune-astar``).
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""``qz experiment capplanner-vs-astar``: paper 000 Fig. 9 (see qz_drake.experiments.fig9)."""
+"""``qz experiment capplanner-vs-astar``: paper 000 Fig. 9, and ``qz experiment tune-astar``, the
+A* baseline's thresholds chosen on tuning worlds (see qz_drake.experiments.fig9)."""
 
 from __future__ import annotations
 
@@ -28,6 +29,41 @@ def run_fig9(args) -> int:
     return 0
 
 
+def _numbers(text, field) -> tuple[float, ...] | None:
+    from qz_drake.errors import bad_value
+
+    if text is None:
+        return None
+    try:
+        return tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise bad_value(field, text, "expected comma-separated numbers") from None
+
+
+def run_tune_astar(args) -> int:
+    from qz_drake.experiments.fig9 import TUNING_SLOPES_DEG, TUNING_STEP_HEIGHTS, ExperimentConfig, tune_astar
+    from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS
+
+    if args.tasks < 1:
+        from qz_drake.errors import bad_value
+
+        raise bad_value("--tasks", args.tasks, "must be a positive whole number")
+    report = tune_astar(args.out, step_heights=_numbers(args.steps, "--steps") or TUNING_STEP_HEIGHTS,
+                        slopes_deg=_numbers(args.slopes, "--slopes") or TUNING_SLOPES_DEG,
+                        terrains=_names(args.terrains, "--terrains", TERRAINS),
+                        difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
+                        tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
+                        config=ExperimentConfig(scale=args.scale), progress=not args.json and sys.stderr.isatty())
+    if args.json:
+        print(json.dumps(report))
+    else:
+        for row in report["grid"]:
+            print(f"step {row['max_step_height']:.2f} m, slope {row['max_slope_deg']:g} deg: "
+                  f"{row['successes']}/{row['tasks']} walked")
+        print(f"chosen: {report['chosen']}")
+    return 0
+
+
 def register(subparsers) -> None:
     """Adds ``experiment`` (capplanner-vs-astar) to the ``qz`` command."""
     experiment = subparsers.add_parser("experiment", help="long experiments that compare planners")
@@ -44,3 +80,17 @@ def register(subparsers) -> None:
     p.add_argument("--ray-address", default=None, help="run the tasks on this Ray cluster (host:port)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.set_defaults(func=run_fig9)
+
+    p = sub.add_parser("tune-astar", help="choose the A* baseline's thresholds on tuning worlds "
+                                          "(seeds from 1000, never the experiment's)")
+    p.add_argument("--out", required=True, help="tuning folder (one results folder per setting, tuning.json)")
+    p.add_argument("--tasks", type=int, default=2, help="tuning tasks per terrain and difficulty")
+    p.add_argument("--steps", default=None, help="comma-separated max step heights [m] (default 0.12,0.16,0.2,0.24)")
+    p.add_argument("--slopes", default=None, help="comma-separated max slopes [deg] (default 20,30)")
+    p.add_argument("--terrains", default=None, help="comma-separated: stairs,obstacles,both")
+    p.add_argument("--difficulties", default=None, help="comma-separated: simple,medium,hard")
+    p.add_argument("--scale", type=float, default=1.0, help="world scale (1: the experiment's worlds)")
+    p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    p.add_argument("--ray-address", default=None, help="run the tasks on this Ray cluster (host:port)")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_tune_astar)

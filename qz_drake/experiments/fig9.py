@@ -41,6 +41,11 @@ class ExperimentConfig:
     capability_model: str = ""
     # World scale (1: the experiment; smaller: tiny tasks for tests, see worlds.make_task).
     scale: float = 1.0
+    # The A* baseline's thresholds and safety weight (astar_baseline.AStarBaselineConfig),
+    # chosen by ``qz experiment tune-astar`` on worlds that are not the experiment's.
+    astar_max_step_height: float = 0.2
+    astar_max_slope_deg: float = 30.0
+    astar_safety_weight: float = 0.5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,7 +65,10 @@ def _astar(task, config):
     from qz_drake.experiments.astar_baseline import AStarBaselineConfig, astar_route
 
     route = astar_route(task.heightmap, task.start, task.goal,
-                        AStarBaselineConfig(waypoint_spacing=config.mission_length))
+                        AStarBaselineConfig(max_step_height=config.astar_max_step_height,
+                                            max_slope_deg=config.astar_max_slope_deg,
+                                            safety_weight=config.astar_safety_weight,
+                                            waypoint_spacing=config.mission_length))
     return route, "blc", route.waypoints
 
 
@@ -161,8 +169,11 @@ def summarise(records: list[dict]) -> list[dict]:
 
 def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficulties=DIFFICULTIES,
                    tasks: int = TASKS_PER_CELL, workers: int = 1, ray_address: str | None = None,
-                   config: ExperimentConfig = ExperimentConfig(), progress: bool = True) -> dict:
-    """Runs (or resumes) the comparison into ``out``; returns the summary."""
+                   config: ExperimentConfig = ExperimentConfig(), progress: bool = True,
+                   first_seed: int = 0) -> dict:
+    """Runs (or resumes) the comparison into ``out``; returns the summary. Task seeds are
+    ``first_seed`` to ``first_seed + tasks - 1`` (0-19: the experiment's; tuning uses
+    worlds.TUNING_SEED_START on)."""
     from qz_drake.capability.collect import LocalPool, RayPool, check_ray_address
 
     for p in planners:
@@ -192,7 +203,8 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
         raise bad_value("--out", str(out), "holds results of other experiment settings")
     settings.write_text(json.dumps(mine, indent=1))
     done = {r["key"] for r in read_results(out) if r.get("reason") != "error"}
-    specs = [TaskSpec(t, d, s, p) for t in terrains for d in difficulties for s in range(tasks) for p in planners]
+    seeds = range(int(first_seed), int(first_seed) + tasks)
+    specs = [TaskSpec(t, d, s, p) for t in terrains for d in difficulties for s in seeds for p in planners]
     todo = [s for s in specs if s.key not in done]
     clock = time.perf_counter()
     from rich.progress import Progress
@@ -230,3 +242,52 @@ def _write_csv(path: Path, records: list[dict]) -> None:
         writer.writeheader()
         for r in records:
             writer.writerow(r)
+
+
+# The grid ``tune_astar`` searches by default: blocking thresholds around paper 003's (a step
+# the robot's legs can take, Qingzhui's 0.26 m stair rise at most; slopes its feet hold).
+TUNING_STEP_HEIGHTS = (0.12, 0.16, 0.20, 0.24)
+TUNING_SLOPES_DEG = (20.0, 30.0)
+
+
+def tune_astar(out, *, step_heights=TUNING_STEP_HEIGHTS, slopes_deg=TUNING_SLOPES_DEG,
+               terrains=TERRAINS, difficulties=DIFFICULTIES, tasks: int = 2, workers: int = 1,
+               ray_address: str | None = None, config: ExperimentConfig = ExperimentConfig(),
+               progress: bool = True) -> dict:
+    """Tunes the A* baseline's thresholds as strongly as it honestly can be: every
+    (max step height, max slope) of the grid walks ``tasks`` tasks per terrain and difficulty
+    on tuning worlds (seeds from worlds.TUNING_SEED_START, never the experiment's 0-19), each
+    in its own resumable folder under ``out``; the kept setting has the most successes (ties:
+    the smaller mean displacement ratio, then the first in the grid). Writes ``tuning.json``."""
+    from qz_drake.experiments.worlds import TUNING_SEED_START
+
+    for name, values in (("--steps", step_heights), ("--slopes", slopes_deg)):
+        if not values or any(not (isinstance(v, (int, float)) and v > 0) for v in values):
+            raise bad_value(name, list(values), "expected positive numbers")
+    out = Path(out)
+    results = []
+    for step in step_heights:
+        for slope in slopes_deg:
+            trial = dataclasses.replace(config, astar_max_step_height=float(step),
+                                        astar_max_slope_deg=float(slope))
+            folder = out / f"step{float(step):.2f}_slope{float(slope):g}"
+            summary = run_experiment(folder, planners=("astar",), terrains=terrains,
+                                     difficulties=difficulties, tasks=tasks, workers=workers,
+                                     ray_address=ray_address, config=trial, progress=progress,
+                                     first_seed=TUNING_SEED_START)
+            rows = summary["rows"]
+            done = sum(r["tasks"] for r in rows)
+            ok = sum(r["successes"] for r in rows)
+            ratios = [r["displacement_ratio"] for r in rows if r["displacement_ratio"] is not None]
+            results.append({"max_step_height": float(step), "max_slope_deg": float(slope),
+                            "tasks": done, "successes": ok, "success_rate": ok / done if done else None,
+                            "displacement_ratio": float(np.mean(ratios)) if ratios else None,
+                            "rows": rows, "folder": str(folder)})
+    best = max(enumerate(results), key=lambda item: (item[1]["successes"],
+                                                     -(item[1]["displacement_ratio"] or np.inf),
+                                                     -item[0]))[1]
+    report = {"chosen": {"max_step_height": best["max_step_height"], "max_slope_deg": best["max_slope_deg"]},
+              "grid": results, "tasks_per_cell": tasks, "first_seed": TUNING_SEED_START}
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "tuning.json").write_text(json.dumps(report, indent=1))
+    return report
