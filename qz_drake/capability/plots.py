@@ -106,37 +106,53 @@ def plot_capability_map(heightmap, capability_map, path, *, topology: str | None
 
 
 def plot_plan(heightmap, plan, path, *, title: str = "") -> Path:
-    """Paper 000 Fig. 6(a): the utility of every cell (best over headings and topologies,
-    warmer is higher) over the heightmap, and the most likely path from the start to the goal
-    (markers where the topology changes)."""
+    """Paper 000 Fig. 6(a) in two panels: left, the terrain (height colours, hill-shaded) with
+    the most likely path; right, the utility of every cell (best over headings and
+    topologies, brighter is better) under height contours, with the same path. Markers: start,
+    goal, and where the topology changes (named)."""
     mdp = plan.mdp
     xmin, xmax, ymin, ymax = heightmap.bounds
     r = heightmap.resolution / 2
-    fig, ax = plt.subplots(figsize=(8, 7 * (ymax - ymin + 2 * r) / max(xmax - xmin + 2 * r, 1e-9) + 1.0))
-    ax.imshow(heightmap.heights, origin="lower", cmap="Greys_r", extent=(xmin - r, xmax + r, ymin - r, ymax + r))
+    extent = (xmin - r, xmax + r, ymin - r, ymax + r)
+    aspect = (ymax - ymin + 2 * r) / max(xmax - xmin + 2 * r, 1e-9)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(13, 5.2 * aspect + 0.8), sharex=True, sharey=True)
+    h = np.asarray(heightmap.heights)
+    gy, gx = np.gradient(h, heightmap.resolution)
+    shade = np.clip(0.5 + 0.5 * (-gx - gy) / np.sqrt(2), 0.0, 1.0)
+    terrain = left.imshow(h, origin="lower", extent=extent, cmap="terrain", interpolation="nearest")
+    left.imshow(shade, origin="lower", extent=extent, cmap="gray", alpha=0.3, interpolation="nearest")
+    fig.colorbar(terrain, ax=left, fraction=0.046, pad=0.02, label="height [m]")
     half = mdp.config.cell_size / 2
     utility = plan.utility_map()
-    # The goal cell's states have arrived (V = 0 there): left transparent, the star marks it.
+    # The goal cell's states have arrived (V = 0 there): left blank, the star marks it.
     utility[mdp.goal_cell[1], mdp.goal_cell[0]] = np.nan
-    im = ax.imshow(utility, origin="lower", cmap="jet", alpha=0.55,
-                   extent=(mdp.xs[0] - half, mdp.xs[-1] + half, mdp.ys[0] - half, mdp.ys[-1] + half))
-    fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02, label="utility V (best heading and topology)")
+    im = right.imshow(utility, origin="lower", cmap="viridis", interpolation="nearest",
+                      extent=(mdp.xs[0] - half, mdp.xs[-1] + half, mdp.ys[0] - half, mdp.ys[-1] + half))
+    levels = np.linspace(np.nanmin(h), np.nanmax(h), 8)[1:-1]
+    if np.ptp(h) > 1e-6:
+        right.contour(h, levels=levels, origin="lower", extent=extent, colors="w", linewidths=0.5, alpha=0.6)
+    fig.colorbar(im, ax=right, fraction=0.046, pad=0.02, label="utility V (best heading and topology)")
     cells = plan.cells
-    if len(cells):
-        ax.plot(cells[:, 0], cells[:, 1], "w-", lw=2.5)
-        ax.plot(cells[:, 0], cells[:, 1], "k-", lw=1)
-        ax.plot(*cells[0], "wo", ms=9, mec="k", label="start")
-    gx, gy = mdp.goal_cell
-    ax.plot(mdp.xs[gx], mdp.ys[gy], "w*", ms=16, mec="k", label="goal")
+    gxi, gyi = mdp.goal_cell
     changes = [(s.x, s.y, s.action_topology) for s in plan.steps if s.topology != s.action_topology]
-    for x, y, name in changes:
-        ax.plot(x, y, "ms", ms=7, mec="k")
-        ax.annotate(name, (x, y), textcoords="offset points", xytext=(5, 5), fontsize=8, color="m")
-    ax.legend(loc="upper left", fontsize=8)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
+    for ax in (left, right):
+        if len(cells):
+            ax.plot(cells[:, 0], cells[:, 1], "w-", lw=3)
+            ax.plot(cells[:, 0], cells[:, 1], "r-", lw=1.5, label="most likely path")
+            ax.plot(*cells[0], "wo", ms=9, mec="k", label="start")
+        ax.plot(mdp.xs[gxi], mdp.ys[gyi], "y*", ms=16, mec="k", label="goal")
+        for x, y, name in changes:
+            ax.plot(x, y, "ms", ms=7, mec="k")
+            ax.annotate(name, (x, y), textcoords="offset points", xytext=(5, 5), fontsize=8, color="m",
+                        fontweight="bold")
+        ax.set_xlabel("x [m]")
+        ax.set_aspect("equal")
+    left.set_ylabel("y [m]")
+    left.legend(loc="upper left", fontsize=8, framealpha=0.8)
+    left.set_title("terrain and the planned path")
     outcome = f"P(success) {plan.success_probability:.2f}" if plan.reaches_goal else "goal not reached"
-    ax.set_title(title or f"value iteration: {plan.solution.iterations} iterations, {len(plan.steps)} actions, "
-                          f"{outcome}")
-    ax.set_aspect("equal")
+    right.set_title(f"value iteration: {plan.solution.iterations} iterations, {len(plan.steps)} actions, {outcome}")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
     return _save(fig, path)
