@@ -50,6 +50,9 @@ def test_the_fig9_pipeline_runs_a_tiny_task_per_planner(synthetic_model_dir, tmp
         assert r["success"] == (r["reason"] == "")
     rows = summary["rows"]
     assert {r["planner"] for r in rows} == {"astar", "capplanner"} and all(r["tasks"] == 1 for r in rows)
+    for r in records:  # the first task of each planner is recorded
+        html = tmp_path / "recordings" / r["key"] / "recording.html"
+        assert html.is_file() and html.stat().st_size > 100_000
     again = run_experiment(tmp_path, terrains=("obstacles",), difficulties=("simple",), tasks=1, config=config,
                            progress=False)
     assert again["ran"] == 0 and (tmp_path / "results.csv").is_file()

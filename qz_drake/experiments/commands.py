@@ -22,7 +22,7 @@ def run_fig9(args) -> int:
                              terrains=_names(args.terrains, "--terrains", TERRAINS),
                              difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
                              tasks=args.tasks, workers=args.workers, ray_address=args.ray_address, config=config,
-                             progress=not args.json and sys.stderr.isatty())
+                             progress=not args.json and sys.stderr.isatty(), recordings=args.recordings)
     png = plot_fig9(summary["rows"], f"{args.out}/fig9.png", title="CapPlanner's TLC against A* (same BLC)")
     summary["figure"] = str(png)
     print(json.dumps(summary, indent=None if args.json else 2))
@@ -76,6 +76,8 @@ def register(subparsers) -> None:
     p.add_argument("--planners", default=None, help="comma-separated: capplanner,astar (default both)")
     p.add_argument("--model", default=None, help="CapPlanner's capability model folder (default: shipped)")
     p.add_argument("--scale", type=float, default=1.0, help="world scale (1: the experiment's worlds)")
+    p.add_argument("--recordings", type=int, default=1,
+                   help="record the first N tasks of every terrain, difficulty and planner (out/recordings/)")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--ray-address", default=None, help="run the tasks on this Ray cluster (host:port)")
     p.add_argument("--json", action="store_true", help="print one JSON line")

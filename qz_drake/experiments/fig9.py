@@ -54,6 +54,8 @@ class TaskSpec:
     difficulty: str
     seed: int
     planner: str
+    # A folder for the walk's recording (recording.html, metrics.json, plots); empty: none.
+    record_dir: str = ""
 
     @property
     def key(self) -> str:
@@ -115,6 +117,7 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
                                         capability_model=config.capability_model,
                                         route=[Waypoint(x=x, y=y, yaw=a, topology=t) for x, y, a, t in waypoints]))
         result = walk(scenario, heightmap=task.heightmap, stop_on_failure=True,
+                      out_dir=spec.record_dir or None,
                       blc_params=BlcParameters(max_iterations=config.blc_max_iterations,
                                                time_limit=config.blc_time_limit))
         m = result.metrics
@@ -170,10 +173,11 @@ def summarise(records: list[dict]) -> list[dict]:
 def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficulties=DIFFICULTIES,
                    tasks: int = TASKS_PER_CELL, workers: int = 1, ray_address: str | None = None,
                    config: ExperimentConfig = ExperimentConfig(), progress: bool = True,
-                   first_seed: int = 0) -> dict:
+                   first_seed: int = 0, recordings: int = 1) -> dict:
     """Runs (or resumes) the comparison into ``out``; returns the summary. Task seeds are
     ``first_seed`` to ``first_seed + tasks - 1`` (0-19: the experiment's; tuning uses
-    worlds.TUNING_SEED_START on)."""
+    worlds.TUNING_SEED_START on). The first ``recordings`` tasks of every terrain, difficulty
+    and planner are recorded under ``out/recordings/<task>/``."""
     from qz_drake.capability.collect import LocalPool, RayPool, check_ray_address
 
     for p in planners:
@@ -203,8 +207,17 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
         raise bad_value("--out", str(out), "holds results of other experiment settings")
     settings.write_text(json.dumps(mine, indent=1))
     done = {r["key"] for r in read_results(out) if r.get("reason") != "error"}
+    if isinstance(recordings, bool) or recordings < 0:
+        raise bad_value("--recordings", recordings, "must be a whole number, 0 or more")
     seeds = range(int(first_seed), int(first_seed) + tasks)
-    specs = [TaskSpec(t, d, s, p) for t in terrains for d in difficulties for s in seeds for p in planners]
+
+    def record_dir(t, d, s, p):
+        if s >= int(first_seed) + recordings:
+            return ""
+        return str(out / "recordings" / TaskSpec(t, d, s, p).key)
+
+    specs = [TaskSpec(t, d, s, p, record_dir(t, d, s, p))
+             for t in terrains for d in difficulties for s in seeds for p in planners]
     todo = [s for s in specs if s.key not in done]
     clock = time.perf_counter()
     from rich.progress import Progress
@@ -274,7 +287,7 @@ def tune_astar(out, *, step_heights=TUNING_STEP_HEIGHTS, slopes_deg=TUNING_SLOPE
             summary = run_experiment(folder, planners=("astar",), terrains=terrains,
                                      difficulties=difficulties, tasks=tasks, workers=workers,
                                      ray_address=ray_address, config=trial, progress=progress,
-                                     first_seed=TUNING_SEED_START)
+                                     first_seed=TUNING_SEED_START, recordings=0)
             rows = summary["rows"]
             done = sum(r["tasks"] for r in rows)
             ok = sum(r["successes"] for r in rows)
