@@ -360,6 +360,7 @@ class MapInputs:
 def sample_map_inputs(heightmap, topologies, *, cell_size: float = P.CELL_SIZE, anchor=None) -> MapInputs:
     """Patches (once per kind: they do not depend on the topology) and each topology's nominal
     feet for every cell and heading, vectorised over all of them (built on patches.py)."""
+    from qz_drake.capability.map_sampling import sample_patches_fast
     from qz_drake.robot.params import DEFAULT_PARAMS
     from qz_drake.robot.topology import get_topology
 
@@ -371,8 +372,8 @@ def sample_map_inputs(heightmap, topologies, *, cell_size: float = P.CELL_SIZE, 
     even = k % 2 == 0
     move_patches = np.empty(k.shape + (P.PATCH_SIZE, P.PATCH_SIZE), np.float32)
     for kind, mask in (("orthogonal", even), ("diagonal", ~even)):
-        move_patches[mask] = P.sample_patches(heightmap, gx[mask], gy[mask], yaw[mask], kind, ground[mask])
-    turn_patches = P.sample_patches(heightmap, gx, gy, yaw, "turn", ground)
+        move_patches[mask] = sample_patches_fast(heightmap, gx[mask], gy[mask], yaw[mask], kind, ground[mask])
+    turn_patches = sample_patches_fast(heightmap, gx, gy, yaw, "turn", ground)
     feet = {t: P.feet_in_heading_frame(P.nominal_feet_W(heightmap, gx, gy, yaw, get_topology(t),
                                                         DEFAULT_PARAMS.foot_radius), gx, gy, yaw, ground)
             for t in topologies}

@@ -226,3 +226,25 @@ def test_default_model_missing_is_a_clear_error(tmp_path, monkeypatch):
     args = _parser().parse_args(["evaluate", "--dataset", "ds", "--json"])
     with pytest.raises(QzError, match="no model has been shipped yet"):
         args.func(args)
+
+
+@pytest.mark.parametrize("kind", ["orthogonal", "diagonal", "turn"])
+def test_the_compiled_map_sampler_gives_exactly_the_training_patches(kind):
+    """Planning samples whole maps with a compiled kernel; the networks were trained on
+    patches.sample_patches. The two must agree to the bit, inside the map and off its edges."""
+    from qz_drake.capability.map_sampling import sample_patches_fast
+    from qz_drake.terrain import make_terrain
+
+    heightmap = make_terrain("long_range", seed=3)
+    xmin, xmax, ymin, ymax = heightmap.bounds
+    rng = np.random.default_rng(1)
+    n = 500
+    x = rng.uniform(xmin - 2, xmax + 2, n)
+    y = rng.uniform(ymin - 2, ymax + 2, n)
+    yaw = rng.integers(0, 8, n) * np.pi / 4 + rng.normal(0, 0.01, n)
+    ground = rng.uniform(-0.2, 0.2, n)
+    expected = P.sample_patches(heightmap, x, y, yaw, kind, ground)
+    got = sample_patches_fast(heightmap, x.reshape(20, 25), y.reshape(20, 25), yaw.reshape(20, 25), kind,
+                              ground.reshape(20, 25))
+    assert got.dtype == np.float32 and got.shape == (20, 25, 20, 20)
+    assert np.array_equal(got.reshape(n, 20, 20), expected)
