@@ -53,8 +53,9 @@ def sample_patches_fast(heightmap, x, y, yaw, kind: str, ground) -> np.ndarray:
         cx, cy, spacing = x + half * np.cos(yaw), y + half * np.sin(yaw), P.MOVE_PATCH_SPACING
     offsets = (np.arange(P.PATCH_SIZE) - (P.PATCH_SIZE - 1) / 2.0) * spacing
     flat = [np.ascontiguousarray(a.reshape(-1)) for a in (cx, cy, np.cos(yaw), np.sin(yaw), ground)]
-    out = np.empty((flat[0].size, P.PATCH_SIZE, P.PATCH_SIZE), dtype=np.float64)
+    # Written as float32 element by element: the same rounding as casting the float64 patch.
+    out = np.empty((flat[0].size, P.PATCH_SIZE, P.PATCH_SIZE), dtype=np.float32)
     h = np.ascontiguousarray(heightmap.heights, dtype=float)
     _bilinear_patches(h, float(heightmap.origin[0]), float(heightmap.origin[1]),
                       float(heightmap.resolution), *flat[:4], offsets, flat[4], out)
-    return out.astype(np.float32).reshape(shape + (P.PATCH_SIZE, P.PATCH_SIZE))
+    return out.reshape(shape + (P.PATCH_SIZE, P.PATCH_SIZE))
