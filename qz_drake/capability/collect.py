@@ -244,40 +244,43 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
     clock = time.perf_counter()
     parts = fingerprints(config)
     store = TrialStore(out, seed=seed, settings=settings_dict(config), parts=parts, command=command)
-    specs = trial_specs(seed, scenes, topologies=topologies, kinds=kinds,
-                        headings_per_scene=config.headings_per_scene)
-    done = store.done_indices()
-    todo = [s for s in specs if s.index not in done]
-    if limit is not None:
-        todo = todo[:limit]
-    buffer: list[dict] = []
-    counts = {"ran": 0, "errors": 0, "invalid": 0}
-    monitor = _Progress(len(todo), enabled=progress)
-
-    def on_record(record):
-        buffer.append(record)
-        counts["ran"] += 1
-        counts["errors"] += record["status"] == "error"
-        counts["invalid"] += record["status"] == "invalid"
-        monitor.update(record)
-        if len(buffer) >= shard_size:
-            store.append(buffer)
-            buffer.clear()
-
-    pool = None
-    previous = _raise_on_sigterm()
     try:
-        if todo:
-            pool = RayPool(ray_address, config, max_retries) if ray_address else \
-                LocalPool(min(workers, len(todo)), config, max_retries)
-            pool.run(todo, on_record)
+        specs = trial_specs(seed, scenes, topologies=topologies, kinds=kinds,
+                            headings_per_scene=config.headings_per_scene)
+        done = store.done_indices()
+        todo = [s for s in specs if s.index not in done]
+        if limit is not None:
+            todo = todo[:limit]
+        buffer: list[dict] = []
+        counts = {"ran": 0, "errors": 0, "invalid": 0}
+        monitor = _Progress(len(todo), enabled=progress)
+
+        def on_record(record):
+            buffer.append(record)
+            counts["ran"] += 1
+            counts["errors"] += record["status"] == "error"
+            counts["invalid"] += record["status"] == "invalid"
+            monitor.update(record)
+            if len(buffer) >= shard_size:
+                store.append(buffer)
+                buffer.clear()
+
+        pool = None
+        previous = _raise_on_sigterm()
+        try:
+            if todo:
+                pool = RayPool(ray_address, config, max_retries) if ray_address else \
+                    LocalPool(min(workers, len(todo)), config, max_retries)
+                pool.run(todo, on_record)
+        finally:
+            # Whatever finished is kept, also when the run is interrupted.
+            store.append(buffer)
+            monitor.close()
+            if pool is not None:
+                pool.close()
+            _restore_sigterm(previous)
     finally:
-        # Whatever finished is kept, also when the run is interrupted.
-        store.append(buffer)
-        monitor.close()
-        if pool is not None:
-            pool.close()
-        _restore_sigterm(previous)
+        store.close()  # the folder's lock
     return CollectionSummary(out=str(out), planned=len(specs), already_done=len(done), ran=counts["ran"],
                              errors=counts["errors"], invalid_starts=counts["invalid"],
                              retries=pool.retries if pool else 0,
@@ -414,11 +417,7 @@ def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "") ->
     stored record exactly. A change that alters only trials outside the sample can pass
     unnoticed; a change meant to alter labels needs a new collection, not this.
     """
-    from datetime import datetime, timezone
-
-    from qz_drake.capability.dataset import (combined_fingerprint, differing_fields, load_records,
-                                             read_manifest, records_to_arrays, write_manifest)
-    from qz_drake.capability.trials import TIME_FIELDS
+    from qz_drake.capability.dataset import DatasetLock, read_manifest
 
     clock = time.perf_counter()
     if isinstance(sample, bool) or not isinstance(sample, int) or sample < 1:
@@ -426,6 +425,20 @@ def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "") ->
     if workers < 1:
         raise bad_value("--workers", workers, "must be at least 1")
     manifest = read_manifest(path)
+    lock = DatasetLock(path, field="dataset")  # no collection may write it meanwhile
+    try:
+        return _recertify(path, manifest, sample, workers, command, clock)
+    finally:
+        lock.release()
+
+
+def _recertify(path, manifest, sample, workers, command, clock) -> Recertification:
+    from datetime import datetime, timezone
+
+    from qz_drake.capability.dataset import (combined_fingerprint, differing_fields, load_records,
+                                             records_to_arrays, write_manifest)
+    from qz_drake.capability.trials import TIME_FIELDS
+
     settings = dict(manifest.get("settings", {}))
     try:
         config = TrialConfig(**settings)

@@ -154,21 +154,65 @@ def _atomic_write(path: Path, write) -> None:
     os.replace(tmp, path)
 
 
+LOCK = "collect.lock"
+
+
+class DatasetLock:
+    """An exclusive lock on a dataset folder (``collect.lock``, fcntl.flock), held by the one
+    process that may write it: two collections into one folder would number their shards alike
+    and overwrite each other. The operating system releases it when the process ends, however
+    it ends, so a killed collection never leaves the folder locked."""
+
+    def __init__(self, path, field: str = "--out"):
+        import fcntl
+
+        self.path = Path(path) / LOCK
+        self._file = open(self.path, "a+")
+        try:
+            fcntl.flock(self._file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self._file.seek(0)
+            holder = self._file.read().strip() or "another process"
+            self._file.close()
+            raise bad_value(field, str(Path(path)), f"is being written by {holder} (collect.lock); "
+                                                    "wait for it to finish or stop it") from None
+        self._file.seek(0)
+        self._file.truncate()
+        self._file.write(f"process {os.getpid()}\n")
+        self._file.flush()
+
+    def release(self) -> None:
+        if not self._file.closed:
+            self._file.close()  # closing the descriptor releases the flock
+
+
 class TrialStore:
-    """A dataset folder being collected into (one writer: the collection's driver)."""
+    """A dataset folder being collected into (one writer: the collection's driver, which holds
+    the folder's DatasetLock until ``close``)."""
 
     def __init__(self, path, *, seed: int, settings: dict, parts: dict[str, str], command: str = ""):
         self.path = Path(path)
         if self.path.exists() and not self.path.is_dir():
             raise bad_value("--out", str(path), "is a file, not a dataset folder")
         self.path.mkdir(parents=True, exist_ok=True)
+        self.lock = DatasetLock(self.path)
+        try:
+            self._open(seed, settings, parts, command)
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def close(self) -> None:
+        self.lock.release()
+
+    def _open(self, seed: int, settings: dict, parts: dict[str, str], command: str) -> None:
         manifest_path = self.path / MANIFEST
         if manifest_path.exists():
             manifest = read_manifest(self.path)
-            check_same(manifest, seed=seed, settings=settings, parts=parts, where=str(path))
+            check_same(manifest, seed=seed, settings=settings, parts=parts, where=str(self.path))
         else:
             if any(self.path.glob("shard-*.npz")):
-                raise bad_value("--out", str(path), "holds shards but no manifest.json")
+                raise bad_value("--out", str(self.path), "holds shards but no manifest.json")
             manifest = {"format": FORMAT, "seed": int(seed), "settings": settings,
                         "fingerprints": parts, "fingerprint": combined_fingerprint(parts),
                         "commands": [], "shards": []}

@@ -172,3 +172,19 @@ def test_the_fingerprint_covers_the_code_a_trial_runs():
     everything = [m for names in modules.values() for m in names]
     assert len(everything) == len(set(everything))
     assert not any(m.startswith(("qz_drake.viz", "qz_drake.cli", "qz_drake.planning")) for m in everything)
+
+
+def test_a_folder_being_collected_into_is_locked_against_a_second_writer(reference, tmp_path):
+    from qz_drake.capability.dataset import DatasetLock
+
+    copy = tmp_path / "busy"
+    shutil.copytree(reference, copy)
+    lock = DatasetLock(copy)  # as a running collection holds it
+    try:
+        with pytest.raises(ConfigError, match="collect.lock"):
+            collect(copy, workers=1, **SMALL)
+        with pytest.raises(ConfigError, match="dataset.*collect.lock"):
+            recertify(copy, sample=1)
+    finally:
+        lock.release()
+    assert collect(copy, workers=1, **SMALL).ran == 0  # free again once the writer is gone
