@@ -219,10 +219,11 @@ class RayPool:
 def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=None,
             config: TrialConfig = TrialConfig(), workers: int = 1, ray_address: str | None = None,
             shard_size: int = 100, max_retries: int = 2, progress: bool = True,
-            command: str = "", limit: int | None = None) -> CollectionSummary:
+            command: str = "", limit: int | None = None, log_every: float = 0.0) -> CollectionSummary:
     """Collects (or resumes) the trials of ``scenes`` scenes into the dataset folder ``out``.
 
-    ``limit`` stops after that many new trials (the rest is left for a later resume).
+    ``limit`` stops after that many new trials (the rest is left for a later resume);
+    ``log_every`` > 0 prints a plain progress line on stderr at most that often (seconds).
     """
     from qz_drake.capability.patches import KINDS
     from qz_drake.robot.topology import TOPOLOGY_NAMES
@@ -253,7 +254,7 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
             todo = todo[:limit]
         buffer: list[dict] = []
         counts = {"ran": 0, "errors": 0, "invalid": 0}
-        monitor = _Progress(len(todo), enabled=progress)
+        monitor = _Progress(len(todo), enabled=progress, log_every=log_every)
 
         def on_record(record):
             buffer.append(record)
@@ -313,9 +314,10 @@ class _Progress:
     """A rich progress bar with trials per second, ETA and the success rate so far per
     topology and kind."""
 
-    def __init__(self, total: int, enabled: bool):
+    def __init__(self, total: int, enabled: bool, log_every: float = 0.0):
         self.enabled = enabled and total > 0
         self.rates: dict[tuple[str, str], list[int]] = {}
+        self.log = _ProgressLog(total, log_every, self.rates) if log_every > 0 and total > 0 else None
         if not self.enabled:
             return
         from rich.console import Group
@@ -353,6 +355,8 @@ class _Progress:
             entry = self.rates.setdefault((record["topology"], record["kind"]), [0, 0])
             entry[0] += bool(record["success"])
             entry[1] += 1
+        if self.log is not None:
+            self.log.update()
         if not self.enabled:
             return
         elapsed = max(time.perf_counter() - self._start, 1e-9)
@@ -363,6 +367,33 @@ class _Progress:
     def close(self) -> None:
         if self.enabled:
             self._live.stop()
+
+
+class _ProgressLog:
+    """One plain line on stderr at most every ``every`` seconds (a background run's log): trials
+    done, rate, ETA and the success rate so far."""
+
+    def __init__(self, total: int, every: float, rates: dict):
+        self.total, self.every, self.rates = total, float(every), rates
+        self.start = self.last = time.perf_counter()
+        self.done = 0
+
+    def update(self) -> None:
+        import sys
+
+        self.done += 1
+        now = time.perf_counter()
+        if now - self.last < self.every and self.done < self.total:
+            return
+        self.last = now
+        rate = self.done / max(now - self.start, 1e-9)
+        ok = sum(v[0] for v in self.rates.values())
+        executed = sum(v[1] for v in self.rates.values())
+        eta = (self.total - self.done) / rate if rate > 0 else float("inf")
+        success = f"{100 * ok / executed:.0f} % of {executed} executed" if executed else "none executed"
+        print(f"trials {self.done}/{self.total} ({100 * self.done / self.total:.1f} %), "
+              f"{3600 * rate:.0f}/h, ETA {eta / 3600:.1f} h, success {success}",
+              file=sys.stderr, flush=True)
 
 
 @dataclasses.dataclass

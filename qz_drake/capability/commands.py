@@ -32,6 +32,8 @@ def run_collect(args) -> int:
         raise bad_value("--workers", args.workers, "must be at least 1")
     if args.headings < 1:
         raise bad_value("--headings", args.headings, "must be at least 1")
+    if not args.log_every >= 0:
+        raise bad_value("--log-every", args.log_every, "must be 0 (off) or a number of seconds")
     config = TrialConfig(headings_per_scene=args.headings)
     summary = collect(args.out, seed=args.seed, scenes=args.scenes,
                       topologies=parse_names(args.topologies, "--topologies", TOPOLOGY_NAMES),
@@ -39,7 +41,7 @@ def run_collect(args) -> int:
                       workers=args.workers, ray_address=args.ray_address, shard_size=args.shard_size,
                       progress=not args.json and sys.stderr.isatty() or args.progress,
                       command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
-                      limit=args.limit)
+                      limit=args.limit, log_every=args.log_every)
     print(json.dumps(dataclasses.asdict(summary), indent=None if args.json else 2))
     return 0
 
@@ -196,6 +198,8 @@ def register(subparsers) -> None:
     p.add_argument("--shard-size", type=int, default=100, help="records per shard file")
     p.add_argument("--limit", type=int, default=None, help="stop after this many new trials")
     p.add_argument("--progress", action="store_true", help="show the progress display even when not on a terminal")
+    p.add_argument("--log-every", type=float, default=0.0, metavar="SECONDS",
+                   help="print a plain progress line on stderr at most this often (background runs)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.set_defaults(func=run_collect)
 

@@ -119,6 +119,7 @@ def test_recertify_moves_a_dataset_to_code_that_reproduces_it_and_refuses_one_th
     (["--kinds", "jump"], "--kinds"),
     (["--scenes", "0"], "--scenes"),
     (["--ray-address", "127.0.0.1:9"], "--ray-address"),
+    (["--log-every", "-1"], "--log-every"),
 ])
 def test_bad_collect_input_is_one_line_exit_2(tmp_path, args, field):
     run = subprocess.run(QZ + ["capability", "collect", "--out", str(tmp_path / "d"), "--scenes", "1"] + args,
@@ -188,3 +189,9 @@ def test_a_folder_being_collected_into_is_locked_against_a_second_writer(referen
     finally:
         lock.release()
     assert collect(copy, workers=1, **SMALL).ran == 0  # free again once the writer is gone
+
+
+def test_a_background_collection_logs_plain_progress_lines(tmp_path, capsys):
+    collect(tmp_path / "logged", workers=1, limit=1, log_every=1e-6, **SMALL)
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("trials ")]
+    assert lines and lines[-1].startswith("trials 1/1 (100.0 %)") and "ETA" in lines[-1]
