@@ -15,6 +15,8 @@ outside the hip-foot line, ``-1`` ("in") inside it, towards the trunk.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from qz_drake.errors import KinematicsError, bad_value
@@ -122,7 +124,19 @@ def all_shank_rotations(q: np.ndarray, params: QingzhuiParams = DEFAULT_PARAMS) 
 
 def all_leg_rotations(params: QingzhuiParams = DEFAULT_PARAMS) -> np.ndarray:
     """R_BL of the six legs, (6, 3, 3)."""
-    return np.stack([params.R_BL(i) for i in range(NUM_LEGS)])
+    return _leg_constants(params)[1].copy()
+
+
+@functools.lru_cache(maxsize=16)
+def _leg_constants(params: QingzhuiParams):
+    """(hips (6, 3), R_BL (6, 3, 3), joint lower (3,), upper (3,)) of a parameter set, computed
+    once (the tracker's IK runs hundreds of times per simulated second); read-only arrays."""
+    hips = np.array(params.hip_positions, dtype=float)
+    R = np.stack([params.R_BL(i) for i in range(NUM_LEGS)])
+    lower, upper = params.joint_limits()
+    for a in (hips, R, lower, upper):
+        a.flags.writeable = False
+    return hips, R, lower, upper
 
 
 def _rx_rz(m: np.ndarray) -> np.ndarray:
@@ -184,8 +198,7 @@ def all_legs_inverse_kinematics(p_BF: np.ndarray, bends, params: QingzhuiParams 
 
     The same solution as :func:`leg_inverse_kinematics` leg by leg, vectorised across legs
     (the tracker calls it hundreds of times per simulated second)."""
-    hips = np.array(params.hip_positions, dtype=float)
-    R = all_leg_rotations(params)
+    hips, R, lower, upper = _leg_constants(params)
     signs = np.array([bend_sign(b) for b in bends], dtype=float)
     l1, l2 = params.thigh_length, params.shank_length
     p_L = np.einsum("...li,lij->...lj", np.asarray(p_BF, dtype=float) - hips, R)
@@ -199,7 +212,6 @@ def all_legs_inverse_kinematics(p_BF: np.ndarray, bends, params: QingzhuiParams 
     m1 = np.arctan2(planar, x) - signs * beta
     m2 = np.arctan2(planar - l1 * np.sin(m1), x - l1 * np.cos(m1))
     q = np.stack([np.arctan2(z, y), m1, m2 - m1], axis=-1)
-    lower, upper = params.joint_limits()
     ok &= np.all((q >= lower - 1e-9) & (q <= upper + 1e-9), axis=-1)
     return q, ok
 

@@ -30,7 +30,8 @@ class BlcPlan:
         return self  # immutable; Drake copies abstract values often
 
     def _local(self, t: float) -> float:
-        return float(np.clip(t - self.start_time, 0.0, self.solution.duration))
+        # min(max()) is np.clip for a scalar, without its array machinery (called per update).
+        return float(min(max(float(t) - self.start_time, 0.0), float(self.solution.duration)))
 
     def base_rpy(self, t: float) -> np.ndarray:
         return self.solution.body_rpy.value(self._local(t)).ravel()

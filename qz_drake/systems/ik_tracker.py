@@ -54,6 +54,11 @@ def _rotation_vectors(R: np.ndarray) -> np.ndarray:
     return vee * scale[..., None]
 
 
+def _clamp(t, low, high) -> float:
+    """float(np.clip(t, low, high)) for scalars, without numpy's array machinery."""
+    return float(min(max(float(t), float(low)), float(high)))
+
+
 def _leg_ik(trajectory, t, topology, params):
     R_WB = RollPitchYaw(trajectory.base_rpy(t)).ToRotationMatrix().matrix()
     p_BF = (trajectory.foot_positions(t) - trajectory.base_position(t)) @ R_WB
@@ -74,7 +79,7 @@ def joint_reference(trajectory: BodyFeetTrajectory, t: float, topology: Topology
     since touchdown, so the rolling lands the body where it was planned. ``cache`` (a dict the
     caller keeps per plan) saves the touchdown IK between calls.
     """
-    t = float(np.clip(t, trajectory.start_time, trajectory.end_time))
+    t = _clamp(t, trajectory.start_time, trajectory.end_time)
     q, ok, R_WB, p_BF = _leg_ik(trajectory, t, topology, params)
     if roll_compensation and hasattr(trajectory, "stance_start"):
         legs, q_td, R_WB_td = [], [], []
@@ -168,7 +173,7 @@ class InverseKinematicsTracker(LeafSystem):
         # A plan may carry its own topology (missions can change it), per leg and time while
         # the robot switches topology (topology_at), and joint-space references for legs it
         # moves in joint space (joint_override, NaN elsewhere); else the tracker's topology.
-        tc = float(np.clip(t, plan.start_time, plan.end_time))
+        tc = _clamp(t, plan.start_time, plan.end_time)
         if hasattr(plan, "topology_at"):
             topology = plan.topology_at(tc)
         else:
@@ -194,7 +199,7 @@ class InverseKinematicsTracker(LeafSystem):
         q1 = self._reference(plan, t + self._dt)
         self._ahead = (plan, t + self._dt, q1)
         v = (q1 - q0) / self._dt if t + self._dt <= plan.end_time else np.zeros(NUM_JOINTS)
-        tc = float(np.clip(t, plan.start_time, plan.end_time))
+        tc = _clamp(t, plan.start_time, plan.end_time)
         contact = plan.contact(tc)
         forces = np.where(contact[:, None], plan.foot_forces(tc), 0.0)
         discrete_state.set_value(self._held, np.concatenate([q0, v, forces.reshape(-1), contact.astype(float)]))

@@ -68,24 +68,34 @@ class ContactSchedule:
 
     def phase_boundaries(self, leg: int) -> np.ndarray:
         """Times at which foot ``leg``'s phases start and end, (num_phases + 1,). [s]"""
-        b = np.concatenate([[0.0], np.cumsum(self.phase_durations[leg])])
-        b[-1] = self.duration  # exact end, free of summation round-off
-        return b
+        return self._boundaries()[leg].copy()
+
+    def _boundaries(self) -> list[np.ndarray]:
+        # Computed once per schedule (it is immutable): trackers ask for them at every update.
+        cached = self.__dict__.get("_cached_boundaries")
+        if cached is None:
+            cached = []
+            for durations in self.phase_durations:
+                b = np.concatenate([[0.0], np.cumsum(durations)])
+                b[-1] = self.duration  # exact end, free of summation round-off
+                b.flags.writeable = False
+                cached.append(b)
+            object.__setattr__(self, "_cached_boundaries", cached)
+        return cached
 
     def stance_intervals(self, leg: int) -> list[tuple[float, float]]:
-        b = self.phase_boundaries(leg)
+        b = self._boundaries()[leg]
         return [(float(b[i]), float(b[i + 1])) for i in range(0, len(b) - 1, 2)]
 
     def swing_intervals(self, leg: int) -> list[tuple[float, float]]:
-        b = self.phase_boundaries(leg)
+        b = self._boundaries()[leg]
         return [(float(b[i]), float(b[i + 1])) for i in range(1, len(b) - 1, 2)]
 
     def in_contact(self, t) -> np.ndarray:
         """(n, L) contact flags at times t; a foot is in stance on [touchdown, liftoff)."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
         out = np.zeros((len(t), self.num_legs), dtype=bool)
-        for leg in range(self.num_legs):
-            b = self.phase_boundaries(leg)
+        for leg, b in enumerate(self._boundaries()):
             phase = np.clip(np.searchsorted(b, t, side="right") - 1, 0, len(b) - 2)
             out[:, leg] = phase % 2 == 0
         return out
