@@ -15,7 +15,7 @@ from qz_drake.terrain import make_terrain
 from qz_drake.trajopt.parameters import BlcParameters
 from qz_drake.trajopt.robot_model import qingzhui
 from qz_drake.trajopt.solver import BlcTask, solve_blc
-from tests.trajopt.npz_checks import assert_plan_holds
+from tests.trajopt.npz_checks import assert_plan_holds, body_rate, rotation
 
 SLOPE_DEG = 10.0
 
@@ -45,22 +45,6 @@ def _bilinear_height_and_gradient(data, x, y):
     hx = ((1 - t) * (h10 - h00) + t * (h11 - h01)) / res
     hy = ((1 - s) * (h01 - h00) + s * (h11 - h10)) / res
     return h, hx, hy
-
-
-def _rotation(rpy):
-    r, p, y = rpy
-    Rx = np.array([[1, 0, 0], [0, math.cos(r), -math.sin(r)], [0, math.sin(r), math.cos(r)]])
-    Ry = np.array([[math.cos(p), 0, math.sin(p)], [0, 1, 0], [-math.sin(p), 0, math.cos(p)]])
-    Rz = np.array([[math.cos(y), -math.sin(y), 0], [math.sin(y), math.cos(y), 0], [0, 0, 1]])
-    return Rz @ Ry @ Rx
-
-
-def _body_rate(rpy, rpy_dot):
-    """Body-frame angular velocity of roll-pitch-yaw rates."""
-    r, p, _ = rpy
-    E = np.array([[1, 0, -math.sin(p)], [0, math.cos(r), math.sin(r) * math.cos(p)],
-                  [0, -math.sin(r), math.cos(r) * math.cos(p)]])
-    return E @ rpy_dot
 
 
 def test_solved_uphill_walk_reaches_the_goal(uphill):
@@ -104,10 +88,10 @@ def test_saved_samples_satisfy_single_rigid_body_dynamics(uphill):
     assert checked > 0.8 * t[-1] / params.linear_dynamics_dt
     def angular_residual(k):
         f, p = data["foot_force"][k], data["foot_pos"][k]
-        w = [_body_rate(rpy[j], (rpy[j + 1] - rpy[j - 1]) / (2 * dt)) for j in (k - 1, k, k + 1)]
+        w = [body_rate(rpy[j], (rpy[j + 1] - rpy[j - 1]) / (2 * dt)) for j in (k - 1, k, k + 1)]
         w_dot = (w[2] - w[0]) / (2 * dt)
         torque_W = np.cross(p - r[k], f).sum(axis=0)
-        return inertia @ w_dot + np.cross(w[1], inertia @ w[1]) - _rotation(rpy[k]).T @ torque_W
+        return inertia @ w_dot + np.cross(w[1], inertia @ w[1]) - rotation(rpy[k]).T @ torque_W
 
     for ts in np.arange(0.5 * params.dynamics_dt, t[-1], params.dynamics_dt):
         k = int(np.floor(ts / dt + 1e-9))
@@ -174,7 +158,7 @@ def test_feet_stay_in_their_kinematic_boxes(uphill):
     _, data = uphill
     robot = qingzhui()
     for k in range(0, len(data["t"]), 4):  # the 0.04 s samples
-        R = _rotation(data["base_rpy"][k])
+        R = rotation(data["base_rpy"][k])
         local = (data["foot_pos"][k] - data["base_pos"][k]) @ R - robot.nominal_footholds
         assert np.all(np.abs(local) <= robot.box_half_sizes + 1e-3), data["t"][k]
 
