@@ -66,10 +66,11 @@ def _module_file(name: str) -> Path | None:
     return Path(spec.origin) if spec is not None and spec.origin and spec.origin.endswith(".py") else None
 
 
-def _imported_modules(name: str, tree: ast.AST) -> set[str]:
-    """qz_drake modules a module's code imports (anywhere in it)."""
+def _imported_modules(name: str, tree: ast.AST, is_package: bool = False) -> set[str]:
+    """qz_drake modules a module's code imports (anywhere in it); relative imports resolve
+    against the module's package (the module itself for a package's __init__)."""
     found = set()
-    package = name if name.endswith("__init__") else name.rpartition(".")[0]
+    package = name if is_package else name.rpartition(".")[0]
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             found.update(a.name for a in node.names if a.name.startswith("qz_drake"))
@@ -95,7 +96,7 @@ def fingerprinted_modules() -> dict[str, list[str]]:
         if file is None:
             continue
         seen.add(name)
-        queue.extend(_imported_modules(name, ast.parse(file.read_text())))
+        queue.extend(_imported_modules(name, ast.parse(file.read_text()), file.name == "__init__.py"))
         parent = name.rpartition(".")[0]
         if parent.startswith("qz_drake"):
             queue.append(parent)  # a package's __init__ runs before its modules

@@ -195,3 +195,15 @@ def test_a_background_collection_logs_plain_progress_lines(tmp_path, capsys):
     collect(tmp_path / "logged", workers=1, limit=1, log_every=1e-6, **SMALL)
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("trials ")]
     assert lines and lines[-1].startswith("trials 1/1 (100.0 %)") and "ETA" in lines[-1]
+
+
+def test_relative_imports_resolve_against_the_importing_package():
+    import ast
+
+    from qz_drake.capability.dataset import _imported_modules
+
+    tree = ast.parse("from . import a\nfrom ..x import y\nimport qz_drake.z\nimport numpy")
+    assert _imported_modules("qz_drake.pkg.mod", tree) == {
+        "qz_drake.pkg", "qz_drake.pkg.a", "qz_drake.x", "qz_drake.x.y", "qz_drake.z"}
+    assert _imported_modules("qz_drake.pkg", tree, is_package=True) == {
+        "qz_drake.pkg", "qz_drake.pkg.a", "qz_drake.x", "qz_drake.x.y", "qz_drake.z"}
