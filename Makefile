@@ -9,7 +9,7 @@ OUT ?= out/demo
 PYTEST_MARK ?= not slow
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test test-all test-fast bench urdf clean
+.PHONY: setup demo test test-all test-fast bench urdf clean collect
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -37,6 +37,14 @@ bench: $(STAMP)
 	# pyastar2d, the C++ A* that `qz bench astar` compares against.
 	$(PY) -m pip install -q -e '.[bench]'
 	$(VENV)/bin/qz bench all --json
+
+# The capability dataset (hours; resumable): re-certify the folder if fingerprinted code
+# changed without changing behaviour (a no-op otherwise; it stops here if behaviour changed),
+# then continue the collection, one progress line every 5 minutes.
+collect: $(STAMP)
+	$(VENV)/bin/qz capability recertify data/capability --workers 2
+	nice -n 19 $(VENV)/bin/qz capability collect --out data/capability --scenes 1200 --workers 2 \
+		--shard-size 50 --json --log-every 300
 
 urdf: $(STAMP)
 	$(PY) scripts/make_urdf.py
