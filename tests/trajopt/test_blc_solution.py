@@ -15,7 +15,7 @@ from qz_drake.terrain import make_terrain
 from qz_drake.trajopt.parameters import BlcParameters
 from qz_drake.trajopt.robot_model import qingzhui
 from qz_drake.trajopt.solver import BlcTask, solve_blc
-from tests.trajopt.npz_checks import assert_plan_holds, body_rate, rotation
+from tests.trajopt.npz_checks import assert_plan_holds, bilinear, body_rate, rotation
 
 SLOPE_DEG = 10.0
 
@@ -33,18 +33,7 @@ def uphill(tmp_path_factory):
 
 def _bilinear_height_and_gradient(data, x, y):
     """Height and its gradient from the saved map (bilinear; exact on a uniform incline)."""
-    H = data["heightmap"]
-    res = float(data["resolution"])
-    u = (x - data["origin"][0]) / res
-    v = (y - data["origin"][1]) / res
-    i = np.clip(np.floor(u).astype(int), 0, H.shape[1] - 2)
-    j = np.clip(np.floor(v).astype(int), 0, H.shape[0] - 2)
-    s, t = u - i, v - j
-    h00, h10, h01, h11 = H[j, i], H[j, i + 1], H[j + 1, i], H[j + 1, i + 1]
-    h = (1 - s) * (1 - t) * h00 + s * (1 - t) * h10 + (1 - s) * t * h01 + s * t * h11
-    hx = ((1 - t) * (h10 - h00) + t * (h11 - h01)) / res
-    hy = ((1 - s) * (h01 - h00) + s * (h11 - h10)) / res
-    return h, hx, hy
+    return bilinear(data, x, y)[:3]
 
 
 def test_solved_uphill_walk_reaches_the_goal(uphill):
