@@ -193,10 +193,13 @@ class AngularDynamicsConstraint(SampledConstraint):
     name = "dynamics"
     rows_per_sample = 3
 
-    def __init__(self, variables, times, inertia_over_weight: np.ndarray):
+    def __init__(self, variables, times, inertia_over_weight: np.ndarray, scales=None):
+        """``scales``: per sample, the index of its phase's time scale rho (free phase
+        durations, timing.py; times are then nominal and rates are divided by rho)."""
         v = variables
         self.times = t = np.atleast_1d(np.asarray(times, dtype=float))
         n, L = len(t), v.num_legs
+        self.scales = None if scales is None else _scale_samples(scales)
         self.inertia = np.asarray(inertia_over_weight, dtype=float)
         self.lower = np.zeros(3 * n)
         self.upper = np.zeros(3 * n)
@@ -215,13 +218,19 @@ class AngularDynamicsConstraint(SampledConstraint):
         self.forces = _stack_legs(forces)
         rows = np.arange(3 * n).reshape(n, 3)
         leg_rows = np.tile(rows, (L, 1))
-        self._set_blocks([_Block(rows, self.rpy[0]), _Block(rows, self.rpy[1]),
-                          _Block(rows, self.rpy[2]), _Block(rows, self.com),
-                          _Block(leg_rows, self.feet), _Block(leg_rows, self.forces)])
+        blocks = [_Block(rows, self.rpy[0]), _Block(rows, self.rpy[1]),
+                  _Block(rows, self.rpy[2]), _Block(rows, self.com),
+                  _Block(leg_rows, self.feet), _Block(leg_rows, self.forces)]
+        if self.scales is not None:
+            blocks.append(_Block(rows, self.scales))
+        self._set_blocks(blocks)
 
     def _compute(self, x, with_partials):
         n, L = len(self.times), self.num_legs
         rpy, rate, acc = (s.value(x) for s in self.rpy)
+        if self.scales is not None:
+            rho = self.scales.value(x)  # (n, 1)
+            rate, acc = rate / rho, acc / (rho * rho)
         r = self.com.value(x)
         p = self.feet.value(x).reshape(L, n, 3)
         F = self.forces.value(x).reshape(L, n, 3)
@@ -275,7 +284,99 @@ class AngularDynamicsConstraint(SampledConstraint):
         d_com = -Rt @ skew_F.sum(axis=0)
         d_feet = (Rt[None] @ skew_F).reshape(L * n, 3, 3)
         d_forces = -(Rt[None] @ skew(lever)).reshape(L * n, 3, 3)
-        return g, [d_rpy, d_rate, d_acc, d_com, d_feet, d_forces]
+        if self.scales is None:
+            return g, [d_rpy, d_rate, d_acc, d_com, d_feet, d_forces]
+        # Rates and accelerations in real time are rate / rho and acc / rho^2 of the sampled
+        # (nominal-time) ones: chain rule through both, and their derivative in rho.
+        d_rho = -(_matvec(d_rate, rate) + 2.0 * _matvec(d_acc, acc)) / rho
+        return g, [d_rpy, d_rate / rho[:, :, None], d_acc / (rho * rho)[:, :, None], d_com,
+                   d_feet, d_forces, d_rho[:, :, None]]
+
+
+def _scale_samples(scale_index) -> LinearSamples:
+    """The time scale rho of each sample as LinearSamples (n, 1, 1)."""
+    idx = np.asarray(scale_index, dtype=np.int64).reshape(-1, 1, 1)
+    return LinearSamples(np.ones(idx.shape), idx)
+
+
+class ScaledLinearDynamicsConstraint(SampledConstraint):
+    """The linear-momentum half of Eq. 2 with free phase durations (timing.py), divided by
+    m g: r''_tau / (g rho^2) - sum_i F_i + e_z = 0 at nominal sample times, rho the scale of the
+    sample's phase. (With fixed durations it is the linear equality of
+    ``linear_dynamics_matrix``.)"""
+
+    name = "dynamics/linear"
+    rows_per_sample = 3
+
+    def __init__(self, variables, times, gravity: float, scales):
+        v = variables
+        self.times = t = np.atleast_1d(np.asarray(times, dtype=float))
+        n, L = len(t), v.num_legs
+        self.gravity = float(gravity)
+        self.num_legs = L
+        self.lower = np.zeros(3 * n)
+        self.upper = np.zeros(3 * n)
+        self.acc = v.base_position.sample(t, 2)
+        self.forces = _stack_legs([v.foot_force[leg].sample(t, 0) for leg in range(L)])
+        self.scales = _scale_samples(scales)
+        rows = np.arange(3 * n).reshape(n, 3)
+        self._set_blocks([_Block(rows, self.acc), _Block(np.tile(rows, (L, 1)), self.forces),
+                          _Block(rows, self.scales)])
+
+    def _compute(self, x, with_partials):
+        n, L = len(self.times), self.num_legs
+        acc = self.acc.value(x)
+        F = self.forces.value(x).reshape(L, n, 3)
+        rho = self.scales.value(x)  # (n, 1)
+        scale = 1.0 / (self.gravity * rho * rho)
+        g = acc * scale - F.sum(axis=0) + np.array([0.0, 0.0, 1.0])
+        g = g.reshape(-1)
+        if not with_partials:
+            return g, None
+        eye = np.eye(3)
+        d_acc = eye[None] * scale[:, :, None]
+        d_forces = -np.broadcast_to(eye, (L * n, 3, 3))
+        d_rho = (-2.0 * acc * scale / rho)[:, :, None]
+        return g, [d_acc, d_forces, d_rho]
+
+
+class PhaseContinuityConstraint(SampledConstraint):
+    """The body's velocity (order 1) or acceleration (order 2) continuous across the global
+    phase boundaries of free phase durations (timing.py): there the body node has a rate per
+    side, each in its own phase's nominal time, so
+    (q_left / rho_left^k - q_right / rho_right^k) h^k = 0, h the body node spacing (rows O(1)
+    in the node values, as ``acceleration_continuity_matrix``'s)."""
+
+    rows_per_sample = 3
+
+    def __init__(self, spline, times, order: int, left_scales, right_scales, spacing: float,
+                 name: str):
+        self.name = name
+        self.times = t = np.atleast_1d(np.asarray(times, dtype=float))
+        n = len(t)
+        self.order = int(order)
+        self.h = float(spacing) ** self.order
+        self.lower = np.zeros(3 * n)
+        self.upper = np.zeros(3 * n)
+        self.left = spline.sample(t, self.order, side="left")
+        self.right = spline.sample(t, self.order, side="right")
+        self.rho_left = _scale_samples(left_scales)
+        self.rho_right = _scale_samples(right_scales)
+        rows = np.arange(3 * n).reshape(n, 3)
+        self._set_blocks([_Block(rows, self.left), _Block(rows, self.right),
+                          _Block(rows, self.rho_left), _Block(rows, self.rho_right)])
+
+    def _compute(self, x, with_partials):
+        k, h = self.order, self.h
+        ql, qr = self.left.value(x), self.right.value(x)
+        rl, rr = self.rho_left.value(x), self.rho_right.value(x)
+        g = (h * (ql / rl ** k - qr / rr ** k)).reshape(-1)
+        if not with_partials:
+            return g, None
+        eye = np.eye(3)
+        return g, [eye[None] * (h / rl ** k)[:, :, None], -eye[None] * (h / rr ** k)[:, :, None],
+                   (-k * h * ql / rl ** (k + 1))[:, :, None],
+                   (k * h * qr / rr ** (k + 1))[:, :, None]]
 
 
 def linear_dynamics_matrix(variables, times, gravity: float):
@@ -290,11 +391,11 @@ def linear_dynamics_matrix(variables, times, gravity: float):
     return sp.csr_matrix(A), b
 
 
-def acceleration_continuity_matrix(variables):
+def acceleration_continuity_matrix(variables, times=None):
     """Sparse A with A x = 0 iff the body's linear and angular accelerations are continuous at
-    every interior node (TOWR's BaseAcc constraint)."""
+    every interior node (TOWR's BaseAcc constraint), or at the given node times."""
     v = variables
-    t = v.base_breaks[1:-1]
+    t = v.base_breaks[1:-1] if times is None else np.asarray(times, dtype=float)
     if len(t) == 0:
         return None
     parts = []

@@ -22,7 +22,8 @@ from pydrake.solvers import MathematicalProgram
 
 from qz_drake.trajopt import costs as cost_terms
 from qz_drake.trajopt.constraints import (AngularDynamicsConstraint, ForceConstraint,
-                                          KinematicsConstraint, SampledConstraint,
+                                          KinematicsConstraint, PhaseContinuityConstraint,
+                                          SampledConstraint, ScaledLinearDynamicsConstraint,
                                           TerrainConstraint, acceleration_continuity_matrix,
                                           linear_dynamics_matrix)
 from qz_drake.trajopt.splines import LinearSamples
@@ -67,11 +68,18 @@ class BlcFormulation:
         extra_samples: more sample times per sampled constraint ("dynamics",
             "linear_dynamics", "kinematics"), e.g. where a dense check found the plan
             violating it (solver.py's check-and-refine loop). [s]
+        layout: a timing.PhaseLayout of the schedule: the phase durations are decision
+            variables (the program is written in the schedule's nominal time).
+        realized: (layout, global phase boundaries) of a plan whose durations were optimised:
+            the variables of that layout at those durations, for the verdict and the
+            trajectories; no constraints are built.
     """
 
     def __init__(self, robot, terrain, params, schedule, *, start_position, start_rpy, start_feet,
-                 target, start_velocity=(0.0, 0.0, 0.0), extra_samples: dict | None = None):
+                 target, start_velocity=(0.0, 0.0, 0.0), extra_samples: dict | None = None,
+                 layout=None, realized=None):
         self.robot, self.terrain, self.params, self.schedule = robot, terrain, params, schedule
+        self.layout = layout
         self.start_position = np.asarray(start_position, dtype=float).reshape(3)
         self.start_rpy = np.asarray(start_rpy, dtype=float).reshape(3)
         self.start_feet = np.asarray(start_feet, dtype=float).reshape(robot.num_legs, 3)
@@ -80,11 +88,22 @@ class BlcFormulation:
         self.target = np.array([target[0], target[1], 0.0])
         # The equivalent of the target yaw nearest the start yaw: turn the short way round.
         self.target_yaw = self.start_rpy[2] + math.remainder(target[2] - self.start_rpy[2], 2 * math.pi)
-        self.variables = v = BlcVariables(schedule, params)
+        if realized is not None:
+            self.variables = v = BlcVariables(schedule, params, realized[0], realized[1])
+        else:
+            self.variables = v = BlcVariables(schedule, params, layout)
         T = v.duration
         self.dynamics_times = np.arange(0.5 * params.dynamics_dt, T, params.dynamics_dt)
         self.linear_dynamics_times = np.arange(0.5 * params.linear_dynamics_dt, T,
                                                params.linear_dynamics_dt)
+        if v.layout is not None:
+            # Body segments are shorter than base_node_spacing where it does not divide a
+            # phase: samples at fixed fractions of every segment, as dense as the dt asks for
+            # (a uniform grid left some segments with one sample, and the plan's residual
+            # between samples at 1.8 body weights).
+            b = np.unique(v.base_breaks)
+            self.dynamics_times = _segment_samples(b, params.dynamics_dt)
+            self.linear_dynamics_times = _segment_samples(b, params.linear_dynamics_dt)
         kin = np.arange(0.0, T - 1e-9, params.kinematics_dt)
         self.kinematics_times = np.append(kin, T)
         self.extra_samples = {k: np.asarray(t, dtype=float) for k, t in (extra_samples or {}).items()}
@@ -97,7 +116,8 @@ class BlcFormulation:
         self.nonlinear: list[SampledConstraint] = []
         self.linear: list[LinearConstraintTerm] = []
         self._build_bounds()
-        self._build_constraints()
+        if realized is None:
+            self._build_constraints()
 
     # -- bounds (Eq. 6 and the body's attitude range) ----------------------------------------
     def _build_bounds(self) -> None:
@@ -114,6 +134,9 @@ class BlcFormulation:
                             (self.target_yaw, v.base_ang[end, 0, 2]), (0.0, v.base_ang[end, 1])):
             lo[idx] = values
             hi[idx] = values
+        if v.layout is not None:
+            lo[v.phase_scale] = v.layout.scale_lower
+            hi[v.phase_scale] = v.layout.scale_upper
 
     def fix_start(self, x: np.ndarray) -> None:
         """Writes the start state (body pose and rates, start footholds) into x."""
@@ -129,12 +152,14 @@ class BlcFormulation:
     def _build_constraints(self) -> None:
         v, p, robot, terrain = self.variables, self.params, self.robot, self.terrain
         weight = robot.weight
-        if p.enabled("dynamics"):
+        if self.layout is not None:
+            self._build_timed_dynamics()
+        elif p.enabled("dynamics"):
             A, b = linear_dynamics_matrix(v, self.linear_dynamics_times, robot.gravity)
             self.linear.append(LinearConstraintTerm("dynamics/linear", A, b, b))
             self.nonlinear.append(AngularDynamicsConstraint(v, self.dynamics_times,
                                                             robot.inertia_matrix / weight))
-        if p.enabled("base_acceleration"):
+        if p.enabled("base_acceleration") and self.layout is None:
             A = acceleration_continuity_matrix(v)
             if A is not None:
                 self.linear.append(LinearConstraintTerm("base_acceleration", A, 0.0, 0.0))
@@ -148,7 +173,11 @@ class BlcFormulation:
                 self.nonlinear.append(TerrainConstraint(
                     LinearSamples.concatenate(stance), terrain, robot.foot_radius, 0.0, 0.0,
                     name="terrain/stance"))
-            clearance = self._swing_samples(p.swing_clearance_fractions, p.swing_clearance_dt)
+            dt = p.swing_clearance_dt
+            if self.layout is not None:
+                # Nominal time: a swing stretched by rho has its samples rho dt apart.
+                dt = dt / float(self.layout.scale_upper.max())
+            clearance = self._swing_samples(p.swing_clearance_fractions, dt)
             if clearance is not None:
                 self.nonlinear.append(TerrainConstraint(
                     clearance, terrain, robot.foot_radius, 0.0, np.inf, name="terrain/swing"))
@@ -180,6 +209,40 @@ class BlcFormulation:
                     LinearSamples.concatenate(forces), LinearSamples.concatenate(footholds),
                     terrain, p.friction_coefficient, np.concatenate(lows),
                     np.concatenate(limits), segments=segments))
+
+    def _build_timed_dynamics(self) -> None:
+        """Eq. 2 and the body's continuity with free phase durations (timing.py): samples in
+        nominal time, rates scaled by their phase's rho; the durations sum to T."""
+        v, p, robot, layout = self.variables, self.params, self.robot, self.layout
+        rho = v.phase_scale
+        A, b = layout.duration_sum_row(v.num_vars, rho)
+        self.linear.append(LinearConstraintTerm("phase_durations", A, b, b))
+        if p.enabled("dynamics"):
+            t = self.linear_dynamics_times
+            self.nonlinear.append(ScaledLinearDynamicsConstraint(
+                v, t, robot.gravity, rho[layout.phase_of(t)]))
+            t = self.dynamics_times
+            self.nonlinear.append(AngularDynamicsConstraint(
+                v, t, robot.inertia_matrix / robot.weight, scales=rho[layout.phase_of(t)]))
+        G = layout.nominal_boundaries
+        breaks = v.base_breaks
+        boundary = np.isin(np.round(breaks, 9), np.round(G[1:-1], 9))
+        interior = np.unique(breaks[1:-1][~boundary[1:-1]])
+        if p.enabled("base_acceleration") and len(interior):
+            A = acceleration_continuity_matrix(v, interior)
+            self.linear.append(LinearConstraintTerm("base_acceleration", A, 0.0, 0.0))
+        # At the global boundaries the body node has a rate per side: velocity always
+        # continuous there, acceleration too with base_acceleration.
+        t = G[1:-1]
+        if len(t):
+            left, right = rho[layout.phase_of(t, "left")], rho[layout.phase_of(t, "right")]
+            h = float(np.min(np.diff(np.unique(breaks))))
+            orders = (1, 2) if p.enabled("base_acceleration") else (1,)
+            for order in orders:
+                for label, spline in (("position", v.base_position), ("rpy", v.base_rpy)):
+                    self.nonlinear.append(PhaseContinuityConstraint(
+                        spline, t, order, left, right, h,
+                        name=f"phase_continuity/{label}/{'velocity' if order == 1 else 'acceleration'}"))
 
     def _foothold_samples(self, leg: int, stance: int) -> LinearSamples:
         idx = self.variables.footholds[leg][stance]
@@ -242,6 +305,12 @@ class BlcFormulation:
         keep = np.ones((len(segments), 4), dtype=bool)
         # A polynomial's first point is its predecessor's last (the same node).
         keep[1:, 0] = segments[1:] != segments[:-1] + 1
+        if v.layout is not None:
+            # ... or the same value across a global boundary (a node per side, one value).
+            vi = spline.value_index[:, 0, 0]
+            keep[1:, 0] &= ~((segments[1:] == segments[:-1] + 2)
+                             & (vi[segments[1:]] == vi[segments[:-1] + 1])
+                             & (spline.value_coef[segments[1:], 0, 0] != 0))
         keep = keep.reshape(-1)
         # Points that are structurally zero (nodes pinned by zero_force_at_touchdown) carry no
         # constraint (the cone holds trivially; f_min does not apply there).
@@ -337,6 +406,15 @@ class BlcFormulation:
             if s.start <= index < s.stop:
                 return name
         return "?"
+
+
+def _segment_samples(breaks: np.ndarray, dt: float) -> np.ndarray:
+    """Midpoints of ceil(h / dt) equal parts of every segment between breaks."""
+    out = []
+    for a, b in zip(breaks[:-1], breaks[1:]):
+        n = max(1, int(math.ceil((b - a) / dt - 1e-9)))
+        out.append(a + (np.arange(n) + 0.5) * (b - a) / n)
+    return np.concatenate(out)
 
 
 def _describe_row(c: SampledConstraint, row: int) -> str:

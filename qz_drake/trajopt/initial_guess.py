@@ -96,10 +96,18 @@ def straight_line_guess(formulation) -> np.ndarray:
     _, ds, _ = swing_profile(breaks / T)
     pos, rpy = straight_line_body(f)
     z, roll, pitch, yaw = pos[:, 2], rpy[:, 0], rpy[:, 1], rpy[:, 2]
-    # Node rates: exact for the cubic in x, y, yaw; differences for the fitted z, roll, pitch.
-    pos_rate = np.column_stack([np.outer(ds / T, target[:2] - start[:2]),
-                                np.gradient(z, breaks)])
-    rpy_rate = np.column_stack([np.gradient(roll, breaks), np.gradient(pitch, breaks),
+    # Node rates: exact for the cubic in x, y, yaw; differences for the fitted z, roll, pitch
+    # (over distinct node times: with free phase durations a node at a phase boundary is
+    # there twice, once per side).
+    distinct, first, node = np.unique(breaks, return_index=True, return_inverse=True)
+
+    def gradient(values):
+        if len(distinct) == len(breaks):
+            return np.gradient(values, breaks)
+        return np.gradient(values[first], distinct)[node]
+
+    pos_rate = np.column_stack([np.outer(ds / T, target[:2] - start[:2]), gradient(z)])
+    rpy_rate = np.column_stack([gradient(roll), gradient(pitch),
                                 ds / T * (f.target_yaw - f.start_rpy[2])])
     x0[v.base_lin[:, 0]] = pos
     x0[v.base_lin[:, 1]] = pos_rate
@@ -128,6 +136,8 @@ def straight_line_guess(formulation) -> np.ndarray:
             x0[v.apex_heights[leg]] = ground + 1.5 * params.swing_apex_height
     f.fix_start(x0)
     _share_weight(f, x0)
+    if v.layout is not None:
+        x0[v.phase_scale] = 1.0  # the nominal durations
     return x0
 
 

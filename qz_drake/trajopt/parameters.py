@@ -148,6 +148,13 @@ class BlcParameters:
     # Ipopt's initial barrier parameter for such a re-solve (its default 0.1 first pushes the
     # converged point away from its active bounds).
     refine_mu_init: float = 1e-4
+    # Phase durations as decision variables (paper 000 Eq. 3, trajopt/timing.py): every global
+    # phase of the gait but the stands at both ends gets a time scale within
+    # phase_duration_bounds of its nominal length, the scales summing to the task's T. Off by
+    # default: the capability dataset labels the BLC with fixed timing (see BENCHMARKS "blc").
+    optimize_phase_durations: bool = False
+    # Least and largest ratio of an optimised phase duration to its nominal one.
+    phase_duration_bounds: tuple[float, float] = (0.5, 2.0)
     # Ipopt iteration limit.
     max_iterations: int = 3000
     # Ipopt linear solver (the pip wheel of Drake ships SPRAL only).
@@ -202,6 +209,17 @@ class BlcParameters:
             if not 0 < f < 1:
                 raise bad_value("blc.swing_clearance_fractions", self.swing_clearance_fractions,
                                 "fractions must lie strictly between 0 and 1")
+        if self.optimize_phase_durations:
+            from qz_drake.trajopt.timing import check_duration_bounds
+
+            self.phase_duration_bounds = check_duration_bounds(self.phase_duration_bounds)
+            if self.costs:
+                raise bad_value("blc.costs", self.costs, "costs on body accelerations and force "
+                                "rates are not defined with optimize_phase_durations",
+                                ConfigError)
+            if int(self.max_refinements) > 0:
+                raise bad_value("blc.max_refinements", self.max_refinements,
+                                "must be 0 with optimize_phase_durations", ConfigError)
         self.constraints = tuple(self.constraints)
         for c in self.constraints:
             if c not in CONSTRAINT_REASONS:

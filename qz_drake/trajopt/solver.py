@@ -32,6 +32,7 @@ from qz_drake.trajopt.robot_model import RobotModel, qingzhui
 from qz_drake.trajopt.solution import BlcSolution
 from qz_drake.trajopt.terrain import as_terrain
 from qz_drake.trajopt.threads import blas_threads
+from qz_drake.trajopt.timing import PhaseLayout
 from qz_drake.trajopt.verdict import dense_check
 
 # Seconds of the time limit kept back from Ipopt for its last iteration and the verdict.
@@ -197,9 +198,10 @@ def solve_blc(task: BlcTask, robot: RobotModel | None = None, terrain=None,
     robot = robot or qingzhui(task.topology)
     terrain = as_terrain(terrain)
     start, rpy, feet, target, schedule = _resolve(task, robot, terrain, params)
+    layout = PhaseLayout(schedule, params) if params.optimize_phase_durations else None
     formulation = BlcFormulation(robot, terrain, params, schedule, start_position=start,
                                  start_rpy=rpy, start_feet=feet, target=target,
-                                 start_velocity=task.start_velocity)
+                                 start_velocity=task.start_velocity, layout=layout)
     if initial_guess is None:
         x0 = straight_line_guess(formulation)
     elif isinstance(initial_guess, BlcSolution):
@@ -254,16 +256,42 @@ def solve_blc(task: BlcTask, robot: RobotModel | None = None, terrain=None,
     return solution
 
 
+def realize(formulation: BlcFormulation, x: np.ndarray) -> tuple[BlcFormulation, np.ndarray]:
+    """A formulation with free phase durations and its point -> the plan at the optimised
+    durations: its (constraint-free) formulation and decision vector (timing.py). Others are
+    returned as they are."""
+    layout = formulation.layout
+    if layout is None:
+        return formulation, x
+    v = formulation.variables
+    scales = np.nan_to_num(np.asarray(x, dtype=float)[v.phase_scale], nan=1.0)
+    durations = layout.durations(scales)
+    f = formulation
+    realized = BlcFormulation(f.robot, f.terrain, f.params, layout.schedule(durations),
+                              start_position=f.start_position, start_rpy=f.start_rpy,
+                              start_feet=f.start_feet,
+                              target=(f.target[0], f.target[1], f.target_yaw),
+                              start_velocity=f.start_velocity,
+                              realized=(layout, layout.boundaries(durations)))
+    x_real = np.asarray(x, dtype=float).copy()
+    x_real[v.phase_scale] = durations / layout.nominal_durations
+    return realized, layout.realize(v, x_real)
+
+
 def _verdict(formulation: BlcFormulation, x: np.ndarray, status: str, iterations: int,
              clock: float, ipopt_time: float) -> BlcSolution:
     params, robot = formulation.params, formulation.robot
-    v = formulation.variables
     finite = bool(np.all(np.isfinite(x)))
     if finite:
         violations = formulation.violations(x)
         name, worst, where = max(violations, key=lambda item: item[1])
     else:
         violations, name, worst, where = [], "decision vector", math.inf, "non-finite values"
+    num_constraints = formulation.num_constraints
+    # With free phase durations the constraints are those of the program in nominal time; the
+    # dense check and the trajectories are those of the plan at the optimised durations.
+    formulation, x = realize(formulation, x)
+    v = formulation.variables
     converged = status in CONVERGED
     feasible = worst <= params.violation_tolerance
     reasons = []
@@ -286,7 +314,7 @@ def _verdict(formulation: BlcFormulation, x: np.ndarray, status: str, iterations
     return BlcSolution(
         success=converged and feasible and dense_passed, status=status, reason="; ".join(reasons),
         solve_time=elapsed, iterations=iterations, max_violation=float(worst),
-        num_variables=v.num_vars, num_constraints=formulation.num_constraints,
+        num_variables=v.num_vars, num_constraints=num_constraints,
         duration=v.duration,
         body_position=v.base_position.to_piecewise_polynomial(xs),
         body_rpy=v.base_rpy.to_piecewise_polynomial(xs),

@@ -34,19 +34,41 @@ from qz_drake.trajopt.splines import NodeSpline
 class BlcVariables:
     """Layout of the decision vector and the splines it parameterises."""
 
-    def __init__(self, schedule: ContactSchedule, params: BlcParameters):
+    def __init__(self, schedule: ContactSchedule, params: BlcParameters, layout=None,
+                 boundaries: np.ndarray | None = None):
+        """With ``layout`` (a timing.PhaseLayout), the phase-aligned layout of free phase
+        durations: body nodes subdividing every global phase (``boundaries``, default the
+        layout's nominal ones) with one rate per side at a global boundary, force polynomials
+        per global phase, and the phase scales rho (block ``phase_scale``)."""
         self.schedule = schedule
         self.duration = T = schedule.duration
         self.num_legs = L = schedule.num_legs
         self.blocks: dict[str, slice] = {}
         self.num_vars = 0
+        self.layout = layout
+        # Rate variables (in nominal time with a layout) and the global phase of each.
+        self._rates: list[tuple[np.ndarray, int]] = []
 
-        num_segments = max(1, int(math.ceil(T / params.base_node_spacing - 1e-9)))
-        self.base_breaks = np.linspace(0.0, T, num_segments + 1)
-        num_nodes = num_segments + 1
-        # (nodes, value/rate, xyz) indices.
-        self.base_lin = self._allocate("base_lin", (num_nodes, 2, 3))
-        self.base_ang = self._allocate("base_ang", (num_nodes, 2, 3))
+        if layout is None:
+            num_segments = max(1, int(math.ceil(T / params.base_node_spacing - 1e-9)))
+            self.base_breaks = np.linspace(0.0, T, num_segments + 1)
+            num_nodes = num_segments + 1
+            # (nodes, value/rate, xyz) indices.
+            self.base_lin = self._allocate("base_lin", (num_nodes, 2, 3))
+            self.base_ang = self._allocate("base_ang", (num_nodes, 2, 3))
+            self.phase_boundaries = None
+        else:
+            G = layout.nominal_boundaries if boundaries is None else np.asarray(boundaries, float)
+            self.phase_boundaries = G
+            counts = layout.base_segments
+            self.base_breaks = np.concatenate([np.linspace(G[j], G[j + 1], n + 1)
+                                               for j, n in enumerate(counts)])
+            node_phase = np.repeat(np.arange(len(counts)), counts + 1)
+            # Node k of phase j shares its value with the last node of phase j - 1 (k = 0).
+            unique = np.concatenate([np.arange(n + 1) + counts[:j].sum()
+                                     for j, n in enumerate(counts)])
+            self.base_lin = self._base_nodes("base_lin", unique, node_phase)
+            self.base_ang = self._base_nodes("base_ang", unique, node_phase)
         self.base_position = NodeSpline.from_variables(
             self.base_breaks, self.base_lin[:, 0], self.base_lin[:, 1])
         self.base_rpy = NodeSpline.from_variables(
@@ -72,9 +94,25 @@ class BlcVariables:
             self.footholds.append(stance)
             self.apex_heights.append(apex)
             self.swing_midpoints.append(mid)
-            self.foot_position.append(self._foot_spline(b, stance, apex, mid))
-            self.foot_force.append(self._force_spline(leg, b, P, params.zero_force_at_touchdown,
-                                                      params.min_force_polynomial_duration))
+            if layout is not None:
+                idx = layout.leg_boundaries[leg]
+                b = self.phase_boundaries[idx]
+                if mid is not None:
+                    for s in range(num_stances - 1):  # the swing is global phase idx[2s + 1]
+                        self._rates.append((mid[s, 1].reshape(-1), int(idx[2 * s + 1])))
+                self.foot_position.append(self._foot_spline(b, stance, apex, mid))
+                self.foot_force.append(self._aligned_force_spline(
+                    leg, idx, self.phase_boundaries, layout.force_polynomials,
+                    params.zero_force_at_touchdown))
+            else:
+                self.foot_position.append(self._foot_spline(b, stance, apex, mid))
+                self.foot_force.append(self._force_spline(
+                    leg, b, P, params.zero_force_at_touchdown,
+                    params.min_force_polynomial_duration))
+        if layout is not None:
+            self.phase_scale = self._allocate("phase_scale", (layout.num_phases,))
+            self.rate_index = np.concatenate([r for r, _ in self._rates])
+            self.rate_phase = np.concatenate([np.full(len(r), j) for r, j in self._rates])
 
     # -- layout -----------------------------------------------------------------------------
     def _allocate(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -83,6 +121,15 @@ class BlcVariables:
         idx = np.arange(self.num_vars, self.num_vars + size).reshape(shape)
         self.num_vars += size
         return idx
+
+    def _base_nodes(self, name: str, unique: np.ndarray, node_phase: np.ndarray) -> np.ndarray:
+        # (nodes, value/rate, xyz) indices; a node at a global boundary appears twice, with one
+        # value and a rate per side.
+        values = self._allocate(f"{name}_value", (int(unique.max()) + 1, 3))
+        rates = self._allocate(f"{name}_rate", (len(unique), 3))
+        for k, j in enumerate(node_phase):
+            self._rates.append((rates[k], int(j)))
+        return np.stack([values[unique], rates], axis=1)
 
     def _foot_spline(self, b: np.ndarray, stance: np.ndarray, apex: np.ndarray,
                      mid: np.ndarray | None = None) -> NodeSpline:
@@ -156,6 +203,56 @@ class BlcVariables:
                 value_idx.append(zero)
                 deriv_idx.append(zero)
                 eval_times.append(t1)
+        return self._force_nodes_spline(times, value_idx, deriv_idx, eval_times, counts)
+
+    def _aligned_force_spline(self, leg: int, idx: np.ndarray, G: np.ndarray,
+                              counts: np.ndarray, zero_at_boundaries: bool) -> NodeSpline:
+        # As _force_spline, but a stance's polynomials are counted per global phase it spans
+        # and never straddle a global boundary: there the force keeps its value (one variable)
+        # and has a rate per side, each in its own phase's nominal time.
+        num_stances = len(idx) // 2
+        times, value_idx, deriv_idx, eval_times, per_stance = [], [], [], [], []
+        zero = -np.ones(3, dtype=np.int64)
+        for s in range(num_stances):
+            g0, g1 = int(idx[2 * s]), int(idx[2 * s + 1])
+            t0, t1 = G[g0], G[g1]
+            if s > 0:
+                times.append(t0)
+                value_idx.append(zero)
+                deriv_idx.append(zero)
+                eval_times.append(t0)
+            shared = None
+            per_stance.append(int(counts[g0:g1].sum()))
+            for j in range(g0, g1):
+                P = int(counts[j])
+                for n, t in enumerate(np.linspace(G[j], G[j + 1], P + 1)):
+                    first, last = j == g0 and n == 0, j == g1 - 1 and n == P
+                    fixed = zero_at_boundaries and ((first and s > 0)
+                                                    or (last and s < num_stances - 1))
+                    if fixed:
+                        value, rate = zero, zero
+                    elif n == 0 and j > g0:
+                        value = shared
+                        rate = self._allocate(f"force_rate_{leg}_{s}_{j}", (3,))
+                    else:
+                        node = self._allocate(f"force_{leg}_{s}_{j}_{n}", (2, 3))
+                        value, rate = node[0], node[1]
+                    if rate[0] >= 0:
+                        self._rates.append((rate, j))
+                    value_idx.append(value)
+                    deriv_idx.append(rate)
+                    times.append(t)
+                    eval_times.append(min(max(t, t0 + 1e-9), t1 - 1e-9))
+                    if n == P:
+                        shared = value
+            if s + 1 < num_stances:
+                times.append(t1)
+                value_idx.append(zero)
+                deriv_idx.append(zero)
+                eval_times.append(t1)
+        return self._force_nodes_spline(times, value_idx, deriv_idx, eval_times, per_stance)
+
+    def _force_nodes_spline(self, times, value_idx, deriv_idx, eval_times, counts) -> NodeSpline:
         nodes = np.stack([np.array(value_idx), np.array(deriv_idx)], axis=1)
         self.force_nodes.append(nodes)
         self.force_node_times.append(np.array(eval_times))
