@@ -73,6 +73,53 @@ def choose_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_yaw: flo
     return np.array([x[k], y[k], h[k] + robot.foot_radius])
 
 
+def choose_stance_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_yaw: np.ndarray,
+                           plane_z: float, previous_z: float = -np.inf) -> np.ndarray:
+    """A foothold for the guess that the foot can keep through its whole stance: body poses
+    at the stance's start and end (``body_xy`` (2, 2), ``body_yaw`` (2,)); candidates over the
+    union of the two kinematic boxes' footprints, scored by how far the ground around them
+    (the point and four points a foot diameter away) is from the body's terrain plane, then by
+    how far they leave either box, then by their distance from the nominal foothold at
+    mid-stance. Unlike ``choose_foothold`` (the box around mid-stance only) it looks past a
+    gap or an edge that fills that box, which the optimiser cannot cross (the foothold's
+    height constraint pulls it into the gap)."""
+    box = robot.box_half_sizes[leg]
+    nominal = robot.nominal_footholds[leg, :2]
+    c, s = np.cos(body_yaw), np.sin(body_yaw)
+    corners = []
+    for k in range(2):
+        for du in (-box[0], box[0]):
+            for dv in (-box[1], box[1]):
+                u, w = nominal[0] + du, nominal[1] + dv
+                corners.append((body_xy[k, 0] + c[k] * u - s[k] * w,
+                                body_xy[k, 1] + s[k] * u + c[k] * w))
+    corners = np.array(corners)
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    X, Y = np.meshgrid(np.linspace(lo[0], hi[0], 25), np.linspace(lo[1], hi[1], 9))
+    x, y = X.ravel(), Y.ravel()
+    r = 2 * robot.foot_radius + 0.01
+    # The body's plane sags over a hole that most feet straddle: the reference is the highest
+    # of it, the upper quartile of the ground in the window and the foot's previous foothold
+    # (sole height).
+    plane_z = max(plane_z, float(np.percentile(terrain.height(x, y), 75)), previous_z)
+    rough = np.zeros_like(x)
+    for dx, dy in ((0, 0), (r, 0), (-r, 0), (0, r), (0, -r)):
+        rough = np.maximum(rough, np.abs(terrain.height(x + dx, y + dy) - plane_z))
+    excess = np.zeros_like(x)
+    for k in range(2):  # distance outside each box, in its body frame
+        dx, dy = x - body_xy[k, 0], y - body_xy[k, 1]
+        u = c[k] * dx + s[k] * dy - nominal[0]
+        w = -s[k] * dx + c[k] * dy - nominal[1]
+        excess = np.maximum(excess, np.hypot(np.maximum(np.abs(u) - box[0], 0),
+                                             np.maximum(np.abs(w) - box[1], 0)))
+    mid = body_xy.mean(axis=0)
+    cm, sm = np.cos(body_yaw.mean()), np.sin(body_yaw.mean())
+    target = mid + np.array([cm * nominal[0] - sm * nominal[1], sm * nominal[0] + cm * nominal[1]])
+    score = rough + 0.3 * excess + 0.05 * np.hypot(x - target[0], y - target[1])
+    k = int(np.argmin(score))
+    return np.array([x[k], y[k], terrain.height(x[k], y[k]) + robot.foot_radius])
+
+
 def straight_line_body(formulation) -> tuple[np.ndarray, np.ndarray]:
     """The straight-line body at the base nodes: positions (n, 3) and roll, pitch, yaw (n, 3)."""
     f = formulation
@@ -125,9 +172,19 @@ def straight_line_guess(formulation) -> np.ndarray:
         stances = schedule.stance_intervals(leg)
         mids = np.array([0.5 * (a + b) for a, b in stances])
         body, body_yaw = body_at(mids)
-        footholds = np.array([
-            choose_foothold(robot, terrain, leg, body[k, :2], body_yaw[k], body[k, 2] + feet_z[leg])
-            for k in range(len(mids))])
+        if params.foothold_guess == "stance":
+            ends, end_yaw = body_at(np.array(stances).reshape(-1))
+            footholds = [f.start_feet[leg]]
+            for k in range(1, len(mids)):
+                footholds.append(choose_stance_foothold(
+                    robot, terrain, leg, ends[2 * k:2 * k + 2, :2], end_yaw[2 * k:2 * k + 2],
+                    body[k, 2] + feet_z[leg], footholds[-1][2] - robot.foot_radius))
+            footholds = np.array(footholds)
+        else:
+            footholds = np.array([
+                choose_foothold(robot, terrain, leg, body[k, :2], body_yaw[k],
+                                body[k, 2] + feet_z[leg])
+                for k in range(len(mids))])
         x0[v.footholds[leg]] = footholds
         if len(stances) > 1:
             mid = 0.5 * (footholds[:-1] + footholds[1:])

@@ -155,6 +155,11 @@ class BlcParameters:
     optimize_phase_durations: bool = False
     # Least and largest ratio of an optimised phase duration to its nominal one.
     phase_duration_bounds: tuple[float, float] = (0.5, 2.0)
+    # Footholds of the straight-line guess (initial_guess.py): "mid", the best point of the
+    # kinematic box around the nominal foothold at mid-stance; "stance", the best point of the
+    # boxes at the stance's start and end, with the ground around it level (looks past a gap
+    # that fills the mid-stance box).
+    foothold_guess: str = "mid"
     # Ipopt iteration limit.
     max_iterations: int = 3000
     # Ipopt linear solver (the pip wheel of Drake ships SPRAL only).
@@ -202,6 +207,8 @@ class BlcParameters:
         if not self.swing_clearance_dt >= 0:
             raise bad_value("blc.swing_clearance_dt", self.swing_clearance_dt,
                             "must be non-negative")
+        if self.foothold_guess not in ("mid", "stance"):
+            raise bad_value("blc.foothold_guess", self.foothold_guess, "expected 'mid' or 'stance'")
         if self.force_points not in ("bernstein", "samples"):
             raise bad_value("blc.force_points", self.force_points,
                             "expected 'bernstein' or 'samples'")
