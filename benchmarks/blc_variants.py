@@ -1,0 +1,104 @@
+"""BLC variants side by side (issue 11): the bench cases, or a spread sample of stored
+capability trials re-run in Drake, with BlcParameters variants against the defaults.
+
+    python benchmarks/blc_variants.py cases [CASE_SUBSTRING ...]
+    python benchmarks/blc_variants.py trials --dataset data/capability --per-kind 30 \
+        --variant stance --out out/variants/stance.jsonl
+
+``cases`` solves every bench case once per variant, interleaved, and prints a JSON line per
+case. ``trials`` re-runs ``--per-kind`` executed trials of each kind (drawn with a fixed seed
+from the dataset's records) with one variant and appends a JSON line per trial (resumable):
+the stored label (the dataset's BLC) beside the new outcome.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+VARIANTS = {
+    "default": {},
+    "stance": {"foothold_guess": "stance"},
+    "stance_free": {"foothold_guess": "stance", "optimize_phase_durations": True},
+}
+
+
+def run_cases(only: list[str]) -> None:
+    from bench_blc import all_cases
+
+    from qz_drake.trajopt.parameters import BlcParameters
+    from qz_drake.trajopt.solver import solve_blc
+
+    for name, (robot, terrain, task) in all_cases().items():
+        if only and not any(o in name for o in only):
+            continue
+        row = {"case": name}
+        for label, extra in VARIANTS.items():
+            s = solve_blc(task, robot, terrain, BlcParameters(**extra))
+            row[label] = [bool(s.success), round(s.solve_time, 2), s.iterations, s.reason[:120]]
+        print(json.dumps(row), flush=True)
+
+
+def run_trials(dataset: str, per_kind: int, variant: str, out: Path, seed: int = 7) -> None:
+    from qz_drake.capability import trials
+    from qz_drake.capability.dataset import load_records
+    from qz_drake.trajopt.parameters import BlcParameters
+
+    extra = VARIANTS[variant]
+    # run_trial asks this module-level function for the BLC's parameters.
+    trials.trial_blc_parameters = lambda c: BlcParameters(
+        max_iterations=c.blc_max_iterations, time_limit=c.blc_time_limit, **extra)
+    arrays, manifest = load_records(dataset)
+    executed = np.flatnonzero(arrays["status"] == "executed")
+    rng = np.random.default_rng(seed)
+    chosen = []
+    for kind in ("orthogonal", "diagonal", "turn"):
+        pool = executed[arrays["kind"][executed] == kind]
+        chosen += sorted(rng.choice(pool, min(per_kind, len(pool)), replace=False).tolist())
+    out.parent.mkdir(parents=True, exist_ok=True)
+    done = {json.loads(line)["index"] for line in out.open()} if out.exists() else set()
+    with out.open("a") as f:
+        for k in chosen:
+            index = int(arrays["index"][k])
+            if index in done:
+                continue
+            spec = trials.TrialSpec(manifest["seed"], index, int(arrays["scene"][k]),
+                                    int(arrays["heading_sample"][k]), str(arrays["topology"][k]),
+                                    str(arrays["kind"][k]))
+            r = trials.run_trial(spec)
+            f.write(json.dumps({
+                "index": index, "kind": spec.kind, "topology": spec.topology,
+                "scene_kind": str(arrays["scene_kind"][k]), "status": r["status"],
+                "stored_success": bool(arrays["success"][k]), "success": bool(r["success"]),
+                "stored_blc": bool(arrays["blc_success"][k]), "blc": bool(r["blc_success"]),
+                "stored_iterations": int(arrays["blc_iterations"][k]),
+                "iterations": int(r["blc_iterations"]), "reason": r["reason"],
+                "time_solve": r["time_solve_s"], "time_total": r["time_total_s"]}) + "\n")
+            f.flush()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="mode", required=True)
+    cases = sub.add_parser("cases")
+    cases.add_argument("only", nargs="*")
+    tr = sub.add_parser("trials")
+    tr.add_argument("--dataset", default="data/capability")
+    tr.add_argument("--per-kind", type=int, default=30)
+    tr.add_argument("--variant", choices=sorted(VARIANTS), required=True)
+    tr.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args()
+    if args.mode == "cases":
+        run_cases(args.only)
+    else:
+        run_trials(args.dataset, args.per_kind, args.variant, args.out)
+
+
+if __name__ == "__main__":
+    main()
