@@ -172,7 +172,9 @@ def run_recertify(args) -> int:
         print(f"{result.dataset}: the code's fingerprints are the dataset's; nothing to certify")
     elif result.identical:
         print(f"{result.dataset}: {', '.join(result.changed)} changed; {result.rerun} trials re-run, "
-              f"every record identical: the manifest now names this code ({result.fingerprint_after})")
+              f"every record the same (labels equal, measurements within a relative "
+              f"{result.largest_relative_difference:.1e}): the manifest now names this code "
+              f"({result.fingerprint_after})")
     else:
         first = result.mismatches[0]
         print(f"{result.dataset}: {', '.join(result.changed)} changed; {len(result.mismatches)} of "

@@ -299,8 +299,10 @@ def records_to_arrays(records: list[dict]) -> dict[str, np.ndarray]:
     return out
 
 
-def differing_fields(a: dict, b: dict, skip=()) -> list[str]:
-    """The fields where two sets of record arrays differ (NaN equals NaN), in a's order."""
+def differing_fields(a: dict, b: dict, skip=(), rtol: float = 0.0, atol: float = 0.0) -> list[str]:
+    """The fields where two sets of record arrays differ (NaN equals NaN), in a's order; with
+    a tolerance, floating-point fields count as equal within it (np.isclose) and every other
+    field must still be equal."""
     out = []
     for key in a:
         if key in skip:
@@ -310,7 +312,12 @@ def differing_fields(a: dict, b: dict, skip=()) -> list[str]:
             continue
         x, y = np.asarray(a[key]), np.asarray(b[key])
         nan_aware = x.dtype.kind in "fc" and y.dtype.kind in "fc"
-        if x.shape != y.shape or not np.array_equal(x, y, equal_nan=nan_aware):
+        if x.shape != y.shape:
+            out.append(key)
+        elif nan_aware and (rtol > 0 or atol > 0):
+            if not np.all(np.isclose(x, y, rtol=rtol, atol=atol, equal_nan=True)):
+                out.append(key)
+        elif not np.array_equal(x, y, equal_nan=nan_aware):
             out.append(key)
     return out + [key for key in b if key not in a and key not in skip]
 

@@ -207,3 +207,21 @@ def test_relative_imports_resolve_against_the_importing_package():
         "qz_drake.pkg", "qz_drake.pkg.a", "qz_drake.x", "qz_drake.x.y", "qz_drake.z"}
     assert _imported_modules("qz_drake.pkg", tree, is_package=True) == {
         "qz_drake.pkg", "qz_drake.pkg.a", "qz_drake.x", "qz_drake.x.y", "qz_drake.z"}
+
+
+def test_recertification_compares_labels_exactly_and_measurements_to_a_tolerance():
+    """Across processors the same code reproduces labels but not the last bits of measured
+    floats (1e-10 apart, seen between two machines): recertification accepts that, not a
+    changed label or a measurement that moved."""
+    from qz_drake.capability.collect import RECERTIFY_ATOL, RECERTIFY_RTOL
+
+    stored = {"success": np.array([True]), "reason": np.array([""]),
+              "blc_iterations": np.array([8]), "final_xy_error_m": np.array([0.0078108275326827])}
+    noisy = dict(stored, final_xy_error_m=np.array([0.0078108275323259]))
+    tol = dict(rtol=RECERTIFY_RTOL, atol=RECERTIFY_ATOL)
+    assert differing_fields(stored, noisy) == ["final_xy_error_m"]  # bit for bit: differs
+    assert differing_fields(stored, noisy, **tol) == []
+    moved = dict(stored, final_xy_error_m=np.array([0.0091]))
+    assert differing_fields(stored, moved, **tol) == ["final_xy_error_m"]
+    flipped = dict(noisy, success=np.array([False]), blc_iterations=np.array([9]))
+    assert differing_fields(stored, flipped, **tol) == ["success", "blc_iterations"]
