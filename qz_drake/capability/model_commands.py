@@ -85,7 +85,7 @@ def run_train(args) -> int:
         card = network.card
         logistic, boosting = card["baselines"]["logistic"], card["baselines"]["gradient_boosting"]
         rows.append({"topology": topology, "kind": kind, **{k: card["test"][k] for k in SUMMARY_KEYS[2:]},
-                     "loss": card["loss"], "logistic_auc": logistic["auc"], "logistic_brier": logistic["brier"],
+                     "loss": card.get("run", card["loss"]), "logistic_auc": logistic["auc"], "logistic_brier": logistic["brier"],
                      "boosting_auc": boosting["auc"], "boosting_brier": boosting["brier"],
                      "base_rate_brier": card["baselines"]["base_rate"]["brier"],
                      "beats_baselines": card["beats_baselines"]})

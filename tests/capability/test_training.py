@@ -144,3 +144,22 @@ def test_patch_features_see_each_patch_alone(monkeypatch):
     assert np.allclose(ev.patch_features(many, "turn"), whole, atol=1e-6)
     X = ev.baseline_inputs(np.stack([flat, step]), np.array([0, 1]), "turn")
     assert X.shape == (2, 5) and list(X[:, -1]) == [0, 1]
+
+
+def test_pooled_initialisation_fine_tunes_a_network_trained_on_all_topologies():
+    """With initialisations scratch and pooled, each loss is also trained from the weights of
+    one network of the kind trained on every topology's training trials; the card names the
+    run kept, chosen by validation Brier score among all four."""
+    arrays, manifest = synthetic_arrays(scenes=24, headings=6, topologies=("nominal", "split_up"),
+                                        kinds=("orthogonal",), seed=5)
+    config = small_config(max_epochs=8, patience=4, min_train_trials=10, min_train_per_class=1,
+                          initialisations=["scratch", "pooled"], networks=["split_up/orthogonal"])
+    result = train_networks(arrays, fingerprint="f", config=config)
+    card = result.networks[("split_up", "orthogonal")].card
+    assert set(card["runs"]) == {"mse", "bce", "mse+pooled", "bce+pooled"}
+    runs = card["runs"]
+    best = min(runs, key=lambda r: runs[r]["validation"]["brier"])
+    assert card["run"] == best and card["initialisation"] == runs[best]["initialisation"]
+    assert card["loss"] == runs[best]["loss"]
+    with pytest.raises(QzError, match="training.initialisations"):
+        TrainingConfig(initialisations=["warm"]).check()
