@@ -44,3 +44,27 @@ def test_impossible_task_is_a_failed_result(capsys):
     code = main(["blc", "--distance", "5.0", "--duration", "1.0", "--json"])
     result = json.loads(capsys.readouterr().out)
     assert code == 1 and not result["success"] and result["reason"]
+
+
+def test_blc_params_from_the_command_line(capsys):
+    """--blc-param sets BlcParameters fields (free durations, the stance guess); a misspelt
+    field or a value of the wrong type is one line naming it, exit 2."""
+    code = main(["blc", "--distance", "1.0", "--duration", "2.0", "--json",
+                 "--blc-param", "optimize_phase_durations=true", "--blc-param", "foothold_guess=stance",
+                 "--blc-param", "phase_duration_bounds=[0.6, 1.8]"])
+    result = json.loads(capsys.readouterr().out)
+    assert code == 0 and result["success"], result
+    swings = [d for leg in result["phase_durations"] for d in leg[1:-1:2]]
+    nominal = 1.6 / 5  # five 0.32 s swing slots between the 0.2 s stands
+    assert all(0.6 * nominal - 1e-6 <= d <= 1.8 * nominal + 1e-6 for d in swings)
+    assert max(abs(d - nominal) for d in swings) > 1e-3  # optimised, not the nominal ones
+    for bad, field in ((["optimise_phase_durations=true"], "--blc-param = 'optimise_phase_durations'"),
+                       (["time_limit=soon"], "--blc-param time_limit"),
+                       (["optimize_phase_durations=3"], "--blc-param optimize_phase_durations"),
+                       (["foothold_guess=guess"], "blc.foothold_guess")):
+        args = ["blc", "--distance", "1", "--duration", "2"]
+        for item in bad:
+            args += ["--blc-param", item]
+        assert main(args) == 2
+        err = capsys.readouterr().err
+        assert field in err and len(err.strip().splitlines()) == 1, err
