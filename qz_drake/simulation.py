@@ -262,6 +262,10 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
             return _unplanned(scenario, out, None, reason=f"goal unreachable: {source.log.unreachable}",
                               code="unreachable", extra=source.counts())
         missions = _BlcMissions(builder, station, info, targets, control, blc_params, route_source=source)
+        if meshcat is not None:  # the guidance path in the recording, replaced at each replan
+            from qz_drake.viz.guidance_path import add_guidance_visualizer
+
+            add_guidance_visualizer(builder, source.GetOutputPort("guidance"), meshcat, info.heightmap)
     else:
         missions = _PlannerMissions(builder, station, info, targets, control, scenario.robot.initial_yaw)
         if missions.first_failure:

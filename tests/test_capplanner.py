@@ -2,7 +2,9 @@
 plans round a wall and the robot walks it in Drake under the strict verdict; the Fig. 9
 pipeline runs one tiny task per planner; qz plan's outputs and bad input."""
 
+import base64
 import json
+import re
 import subprocess
 import sys
 
@@ -15,7 +17,7 @@ QZ = [sys.executable, "-m", "qz_drake.cli"]
 
 
 @pytest.mark.slow
-def test_capplanner_walks_round_a_wall_to_the_goal(synthetic_model_dir):
+def test_capplanner_walks_round_a_wall_to_the_goal(synthetic_model_dir, tmp_path):
     sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent / "systems"))
     from test_capability_planner import GOAL, START, _world
 
@@ -26,10 +28,16 @@ def test_capplanner_walks_round_a_wall_to_the_goal(synthetic_model_dir):
                                                     route=[Waypoint(x=GOAL[0], y=GOAL[1])]))
     from qz_drake.trajopt.parameters import BlcParameters
 
-    result = walk(scenario, heightmap=_world(), blc_params=BlcParameters(max_iterations=60, time_limit=60))
+    result = walk(scenario, heightmap=_world(), blc_params=BlcParameters(max_iterations=60, time_limit=60),
+                  out_dir=tmp_path)
     m = result.metrics
     assert m["success"], m
     assert m["missions"] >= 4 and m["replans"] >= 3
+    # The recording holds the guidance path, each replan's shown over time.
+    html = (tmp_path / "recording.html").read_bytes()
+    payloads = [base64.b64decode(p) for p in re.findall(rb"base64,([A-Za-z0-9+/=]+)", html)]
+    assert sum(b"capplanner/guidance/" in p and b"set_object" in p[:64] for p in payloads) >= 2
+    assert any(b"set_animation" in p[:64] and b"guidance" in p for p in payloads)
     # It went round the wall (north of y = 1 m), never over it.
     near = (result.states[:, 4] > -0.6) & (result.states[:, 4] < 1.1)
     assert near.any() and result.states[near, 5].min() > 1.0
