@@ -26,7 +26,7 @@ from pydrake.math import RollPitchYaw
 
 from qz_drake.errors import ConfigError, bad_value
 from qz_drake.robot import kinematics
-from qz_drake.robot.params import DEFAULT_PARAMS, NUM_LEGS, TRIPOD_A, TRIPOD_B, QingzhuiParams
+from qz_drake.robot.params import DEFAULT_PARAMS, LEG_NAMES, NUM_LEGS, TRIPOD_A, TRIPOD_B, QingzhuiParams
 from qz_drake.robot.topology import Topology
 
 GRAVITY = 9.81
@@ -139,8 +139,11 @@ class TopologySwitchPlan:
             for i in np.flatnonzero(low):
                 lift, move, place, _ = self._windows[i]
                 if move <= t <= place:
-                    raise bad_value(f"topology switch leg {i}", f"t = {t - self.start_time:.2f} s",
-                                    "the foot would pass too close to the terrain", ConfigError)
+                    raise ConfigError(
+                        f"topology switch leg {i} ({LEG_NAMES[i]}): the foot would pass "
+                        f"{100 * (feet[i, 2] - ground[i]):.1f} cm over the terrain "
+                        f"{t - self.start_time:.2f} s into the switch (at least "
+                        f"{100 * min_clearance:.1f} cm needed)")
 
     # -- sampling ----------------------------------------------------------------------------
     def _phase(self, leg: int, t: float) -> tuple[str, float]:

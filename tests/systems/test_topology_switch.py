@@ -79,3 +79,19 @@ def test_the_robot_switches_through_three_topologies_standing_and_the_blc_plans_
     # kinematic boxes (+-0.1 m): measured, a 0.6 m mission rose 7 cm in its middle and ended
     # 4 cm low (Eq. 1-6 is a feasibility problem; issue 11's notes).
     assert np.ptp(result.states[:, 6]) < 0.15
+
+
+def test_a_switch_whose_foot_would_graze_a_ridge_is_refused_with_the_clearance():
+    """A 0.2 m ridge between MF's nominal (x = 0.75 m) and split_up (0.83 m) footholds: the
+    lifted foot would pass it by less than the required clearance; the refusal names the leg,
+    the clearance and when."""
+    from qz_drake.terrain.heightmap import HeightMap
+
+    ground = flat()
+    heights = np.array(ground.heights, copy=True)
+    xs = ground.origin[0] + np.arange(heights.shape[1]) * ground.resolution
+    heights[:, (xs > 0.77) & (xs < 0.81)] = 0.2
+    ridge = HeightMap(heights=heights, resolution=ground.resolution, origin=ground.origin)
+    with pytest.raises(ConfigError, match=r"topology switch leg 0 \(MF\): the foot would pass "
+                                          r"[0-9.]+ cm over the terrain [0-9.]+ s into the switch"):
+        _plan("split_up", heightmap=ridge)
