@@ -70,7 +70,8 @@ def test_the_fig9_pipeline_runs_a_tiny_task_per_planner(synthetic_model_dir, tmp
 def test_astar_is_tuned_on_worlds_that_are_not_the_experiments(tmp_path):
     from qz_drake.experiments.fig9 import ExperimentConfig, read_results, tune_astar
 
-    report = tune_astar(tmp_path, step_heights=(0.05, 0.24), slopes_deg=(30.0,), terrains=("obstacles",),
+    report = tune_astar(tmp_path, step_heights=(0.05, 0.24), slopes_deg=(30.0,), body_radii=(0.7,),
+                        terrains=("obstacles",),
                         difficulties=("simple",), tasks=1, config=ExperimentConfig(scale=0.3), progress=False)
     grid = report["grid"]
     assert [g["max_step_height"] for g in grid] == [0.05, 0.24] and all(g["tasks"] == 1 for g in grid)
@@ -82,15 +83,39 @@ def test_astar_is_tuned_on_worlds_that_are_not_the_experiments(tmp_path):
     assert chosen["max_slope_deg"] == 30.0
     assert [g for g in grid if g["max_step_height"] == chosen["max_step_height"]][0]["successes"] == best
     assert json.loads((tmp_path / "tuning.json").read_text())["chosen"] == chosen
+    # The experiment takes the chosen setting from the tuning.
+    from qz_drake.experiments.fig9 import astar_settings
+
+    assert astar_settings(tmp_path) == {"astar_max_step_height": chosen["max_step_height"],
+                                        "astar_max_slope_deg": 30.0, "astar_body_radius": 0.7}
 
 
 @pytest.mark.parametrize("args, field", [(["--steps", "0.1,x"], "--steps"), (["--slopes", "-5"], "--slopes"),
-                                         (["--tasks", "0"], "--tasks")])
+                                         (["--radii", "0"], "--radii"), (["--tasks", "0"], "--tasks")])
 def test_tune_astar_bad_input_is_one_line_exit_2(tmp_path, args, field):
     run = subprocess.run(QZ + ["experiment", "tune-astar", "--out", str(tmp_path)] + args,
                          capture_output=True, text=True, timeout=120)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1 and field in lines[0], run.stderr
+
+
+def test_experiment_takes_a_tuning_and_refuses_a_missing_or_foreign_one(tmp_path):
+    from qz_drake.errors import QzError
+    from qz_drake.experiments.fig9 import ExperimentConfig, astar_settings
+
+    (tmp_path / "tuning.json").write_text(json.dumps(
+        {"chosen": {"max_step_height": 0.16, "max_slope_deg": 20.0, "body_radius": 0.9}}))
+    settings = astar_settings(tmp_path / "tuning.json")
+    config = ExperimentConfig(**settings)
+    assert (config.astar_max_step_height, config.astar_max_slope_deg, config.astar_body_radius) == (0.16, 20.0, 0.9)
+    (tmp_path / "other.json").write_text(json.dumps({"rows": []}))
+    with pytest.raises(QzError, match="--astar-tuning"):
+        astar_settings(tmp_path / "other.json")
+    run = subprocess.run(QZ + ["experiment", "capplanner-vs-astar", "--out", str(tmp_path / "x"),
+                               "--astar-tuning", str(tmp_path / "missing")], capture_output=True, text=True,
+                         timeout=120)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1 and "--astar-tuning" in lines[0], run.stderr
 
 
 def test_qz_plan_writes_the_utility_map_and_names_bad_input(synthetic_model_dir, tmp_path):

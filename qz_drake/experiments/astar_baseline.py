@@ -29,6 +29,11 @@ class AStarBaselineConfig:
     safety_weight: float = 0.5
     # Longest distance between two waypoints of the route handed to the missions. [m]
     waypoint_spacing: float = 1.0
+    # Radius of the disc whose terrain makes a cell's body features (slope, roughness, step
+    # height): paper 003's body footprint. 0.7 m covers Qingzhui's trunk (half-diagonal 0.72 m);
+    # about 0.9 m covers its legs' reach too (the middle feet stand 0.75 m out, their boxes
+    # 0.15 m further): the legs then keep clear of steps the trunk passes. Tuned. [m]
+    body_radius: float = 0.7
 
 
 @dataclasses.dataclass
@@ -47,10 +52,11 @@ def astar_route(heightmap, start, goal, config: AStarBaselineConfig = AStarBasel
     import time
 
     from qz_drake.planning.astar import AStarConfig, astar
-    from qz_drake.terrain.features import BodyCostConfig, CostMapConfig, build_cost_map
+    from qz_drake.terrain.features import BodyCostConfig, BodyFeatureConfig, CostMapConfig, build_cost_map
 
     clock = time.perf_counter()
-    cost_config = CostMapConfig(body_cost=BodyCostConfig(max_step_height=config.max_step_height))
+    cost_config = CostMapConfig(body_features=BodyFeatureConfig(radius=config.body_radius),
+                                body_cost=BodyCostConfig(max_step_height=config.max_step_height))
     cost_map = build_cost_map(heightmap, config=cost_config)
     slope = np.asarray(cost_map.body.slope)
     blocked = slope > math.radians(config.max_slope_deg)

@@ -17,7 +17,10 @@ def run_fig9(args) -> int:
     from qz_drake.experiments.plots import plot_fig9
     from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS
 
-    config = ExperimentConfig(capability_model=args.model or "", scale=args.scale)
+    from qz_drake.experiments.fig9 import astar_settings
+
+    tuned = astar_settings(args.astar_tuning) if args.astar_tuning else {}
+    config = ExperimentConfig(capability_model=args.model or "", scale=args.scale, **tuned)
     summary = run_experiment(args.out, planners=_names(args.planners, "--planners", tuple(PLANNERS)),
                              terrains=_names(args.terrains, "--terrains", TERRAINS),
                              difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
@@ -41,7 +44,8 @@ def _numbers(text, field) -> tuple[float, ...] | None:
 
 
 def run_tune_astar(args) -> int:
-    from qz_drake.experiments.fig9 import TUNING_SLOPES_DEG, TUNING_STEP_HEIGHTS, ExperimentConfig, tune_astar
+    from qz_drake.experiments.fig9 import (TUNING_BODY_RADII, TUNING_SLOPES_DEG, TUNING_STEP_HEIGHTS,
+                                           ExperimentConfig, tune_astar)
     from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS
 
     if args.tasks < 1:
@@ -50,6 +54,7 @@ def run_tune_astar(args) -> int:
         raise bad_value("--tasks", args.tasks, "must be a positive whole number")
     report = tune_astar(args.out, step_heights=_numbers(args.steps, "--steps") or TUNING_STEP_HEIGHTS,
                         slopes_deg=_numbers(args.slopes, "--slopes") or TUNING_SLOPES_DEG,
+                        body_radii=_numbers(args.radii, "--radii") or TUNING_BODY_RADII,
                         terrains=_names(args.terrains, "--terrains", TERRAINS),
                         difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
                         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
@@ -58,7 +63,8 @@ def run_tune_astar(args) -> int:
         print(json.dumps(report))
     else:
         for row in report["grid"]:
-            print(f"step {row['max_step_height']:.2f} m, slope {row['max_slope_deg']:g} deg: "
+            print(f"step {row['max_step_height']:.2f} m, slope {row['max_slope_deg']:g} deg, "
+                  f"body radius {row['body_radius']:.2f} m: "
                   f"{row['successes']}/{row['tasks']} walked")
         print(f"chosen: {report['chosen']}")
     return 0
@@ -75,6 +81,9 @@ def register(subparsers) -> None:
     p.add_argument("--difficulties", default=None, help="comma-separated: simple,medium,hard")
     p.add_argument("--planners", default=None, help="comma-separated: capplanner,astar (default both)")
     p.add_argument("--model", default=None, help="CapPlanner's capability model folder (default: shipped)")
+    p.add_argument("--astar-tuning", default=None,
+                   help="tuning.json (or its folder) of qz experiment tune-astar: A*'s chosen thresholds "
+                        "(default: the untuned defaults)")
     p.add_argument("--scale", type=float, default=1.0, help="world scale (1: the experiment's worlds)")
     p.add_argument("--recordings", type=int, default=1,
                    help="record the first N tasks of every terrain, difficulty and planner (out/recordings/)")
@@ -89,6 +98,8 @@ def register(subparsers) -> None:
     p.add_argument("--tasks", type=int, default=2, help="tuning tasks per terrain and difficulty")
     p.add_argument("--steps", default=None, help="comma-separated max step heights [m] (default 0.12,0.16,0.2,0.24)")
     p.add_argument("--slopes", default=None, help="comma-separated max slopes [deg] (default 20,30)")
+    p.add_argument("--radii", default=None,
+                   help="comma-separated body-disc radii of the cost map [m] (default 0.7,0.9)")
     p.add_argument("--terrains", default=None, help="comma-separated: stairs,obstacles,both")
     p.add_argument("--difficulties", default=None, help="comma-separated: simple,medium,hard")
     p.add_argument("--scale", type=float, default=1.0, help="world scale (1: the experiment's worlds)")

@@ -46,6 +46,7 @@ class ExperimentConfig:
     astar_max_step_height: float = 0.2
     astar_max_slope_deg: float = 30.0
     astar_safety_weight: float = 0.5
+    astar_body_radius: float = 0.7
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,6 +71,7 @@ def _astar(task, config):
                         AStarBaselineConfig(max_step_height=config.astar_max_step_height,
                                             max_slope_deg=config.astar_max_slope_deg,
                                             safety_weight=config.astar_safety_weight,
+                                            body_radius=config.astar_body_radius,
                                             waypoint_spacing=config.mission_length))
     return route, "blc", route.waypoints
 
@@ -261,45 +263,69 @@ def _write_csv(path: Path, records: list[dict]) -> None:
 # the robot's legs can take, Qingzhui's 0.26 m stair rise at most; slopes its feet hold).
 TUNING_STEP_HEIGHTS = (0.12, 0.16, 0.20, 0.24)
 TUNING_SLOPES_DEG = (20.0, 30.0)
+# The trunk alone, and the trunk with the legs' reach (astar_baseline.AStarBaselineConfig). [m]
+TUNING_BODY_RADII = (0.7, 0.9)
+
+
+def astar_settings(path) -> dict:
+    """The ExperimentConfig fields of a tuning's chosen A* setting (``tuning.json`` of
+    ``tune_astar``, or its folder): astar_max_step_height, astar_max_slope_deg,
+    astar_body_radius."""
+    path = Path(path)
+    file = path / "tuning.json" if path.is_dir() else path
+    try:
+        chosen = json.loads(file.read_text())["chosen"]
+        return {"astar_max_step_height": float(chosen["max_step_height"]),
+                "astar_max_slope_deg": float(chosen["max_slope_deg"]),
+                "astar_body_radius": float(chosen.get("body_radius", ExperimentConfig.astar_body_radius))}
+    except FileNotFoundError:
+        raise bad_value("--astar-tuning", str(path), "no tuning.json there (run qz experiment tune-astar)") from None
+    except (ValueError, KeyError, TypeError):
+        raise bad_value("--astar-tuning", str(file), "not a tuning.json of qz experiment tune-astar") from None
 
 
 def tune_astar(out, *, step_heights=TUNING_STEP_HEIGHTS, slopes_deg=TUNING_SLOPES_DEG,
+               body_radii=TUNING_BODY_RADII,
                terrains=TERRAINS, difficulties=DIFFICULTIES, tasks: int = 2, workers: int = 1,
                ray_address: str | None = None, config: ExperimentConfig = ExperimentConfig(),
                progress: bool = True) -> dict:
     """Tunes the A* baseline's thresholds as strongly as it honestly can be: every
-    (max step height, max slope) of the grid walks ``tasks`` tasks per terrain and difficulty
+    (max step height, max slope, body radius) of the grid walks ``tasks`` tasks per terrain and difficulty
     on tuning worlds (seeds from worlds.TUNING_SEED_START, never the experiment's 0-19), each
     in its own resumable folder under ``out``; the kept setting has the most successes (ties:
     the smaller mean displacement ratio, then the first in the grid). Writes ``tuning.json``."""
     from qz_drake.experiments.worlds import TUNING_SEED_START
 
-    for name, values in (("--steps", step_heights), ("--slopes", slopes_deg)):
+    for name, values in (("--steps", step_heights), ("--slopes", slopes_deg), ("--radii", body_radii)):
         if not values or any(not (isinstance(v, (int, float)) and v > 0) for v in values):
             raise bad_value(name, list(values), "expected positive numbers")
     out = Path(out)
     results = []
-    for step in step_heights:
-        for slope in slopes_deg:
-            trial = dataclasses.replace(config, astar_max_step_height=float(step),
-                                        astar_max_slope_deg=float(slope))
-            folder = out / f"step{float(step):.2f}_slope{float(slope):g}"
-            summary = run_experiment(folder, planners=("astar",), terrains=terrains,
-                                     difficulties=difficulties, tasks=tasks, workers=workers,
-                                     ray_address=ray_address, config=trial, progress=progress,
-                                     first_seed=TUNING_SEED_START, recordings=0)
-            rows = summary["rows"]
-            done = sum(r["tasks"] for r in rows)
-            ok = sum(r["successes"] for r in rows)
-            ratios = [r["displacement_ratio"] for r in rows if r["displacement_ratio"] is not None]
-            results.append({"max_step_height": float(step), "max_slope_deg": float(slope),
-                            "tasks": done, "successes": ok, "success_rate": ok / done if done else None,
-                            "displacement_ratio": float(np.mean(ratios)) if ratios else None,
-                            "rows": rows, "folder": str(folder)})
+    for radius in body_radii:
+        for step in step_heights:
+            for slope in slopes_deg:
+                trial = dataclasses.replace(config, astar_max_step_height=float(step),
+                                            astar_max_slope_deg=float(slope),
+                                            astar_body_radius=float(radius))
+                folder = out / f"step{float(step):.2f}_slope{float(slope):g}_radius{float(radius):.2f}"
+                summary = run_experiment(folder, planners=("astar",), terrains=terrains,
+                                         difficulties=difficulties, tasks=tasks, workers=workers,
+                                         ray_address=ray_address, config=trial, progress=progress,
+                                         first_seed=TUNING_SEED_START, recordings=0)
+                rows = summary["rows"]
+                done = sum(r["tasks"] for r in rows)
+                ok = sum(r["successes"] for r in rows)
+                ratios = [r["displacement_ratio"] for r in rows if r["displacement_ratio"] is not None]
+                results.append({"max_step_height": float(step), "max_slope_deg": float(slope),
+                                "body_radius": float(radius), "tasks": done, "successes": ok,
+                                "success_rate": ok / done if done else None,
+                                "displacement_ratio": float(np.mean(ratios)) if ratios else None,
+                                "rows": rows, "folder": str(folder)})
     best = max(enumerate(results), key=lambda item: (item[1]["successes"],
                                                      -(item[1]["displacement_ratio"] or np.inf),
                                                      -item[0]))[1]
-    report = {"chosen": {"max_step_height": best["max_step_height"], "max_slope_deg": best["max_slope_deg"]},
+    report = {"chosen": {"max_step_height": best["max_step_height"], "max_slope_deg": best["max_slope_deg"],
+                         "body_radius": best["body_radius"]},
               "grid": results, "tasks_per_cell": tasks, "first_seed": TUNING_SEED_START}
     out.mkdir(parents=True, exist_ok=True)
     (out / "tuning.json").write_text(json.dumps(report, indent=1))
