@@ -107,3 +107,16 @@ def test_a_blc_mission_into_a_wall_is_a_reported_failure(tmp_path, capsys):
     assert metrics["reasons"][0] in ("blc_infeasible", "blc_time_limit") and "BLC" in metrics["reason"]
     assert metrics["blc_failures"] == 1 and metrics["blc_solves"] == 2
     assert metrics["trunk_terrain_contacts"] == 0
+
+
+def test_a_blc_mission_turns_90_deg_in_place():
+    """A mission of a 90 deg turn in place gets two tripod cycles per 45 deg (in the 1.2 s of a
+    45 deg turn the feet could not stay in their boxes and the BLC failed the mission); the
+    robot turns on the spot."""
+    scenario = Scenario(name="turn90", terrain=TerrainConfig(kind="flat", params={"size_x": 6.0}),
+                        controller=ControllerConfig(kind="walk", planner="blc",
+                                                    route=[Waypoint(x=0.0, y=0.0, yaw=np.pi / 2)]))
+    scenario.simulation.duration = 10.0
+    m = simulate(scenario).metrics
+    assert m["success"], m
+    assert m["blc_failures"] == 0 and m["final_xy_error_m"] < 0.05

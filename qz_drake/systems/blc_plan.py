@@ -89,9 +89,16 @@ def blc_mission_planner(heightmap, params, control, blc_params=None):
         c1, s1 = math.cos(target[2]), math.sin(target[2])
         com_target = (target[0] + c1 * com_B[0] - s1 * com_B[1], target[1] + s1 * com_B[0] + c1 * com_B[1], target[2])
         dist = math.hypot(target[0] - x0, target[1] - y0)
-        duration = max(dist / control.speed, 1.2)
         # Round to whole tripod cycles of two phases.
         cycle = 2 * control.phase_duration
+        duration = max(dist / control.speed, 1.2)
+        # A turn of more than 60 deg gets two tripod cycles per 45 deg: a 90 deg turn in place
+        # in the 1.2 s of a 45 deg one left the feet 0.17 m outside their boxes (a CapPlanner
+        # walk's first mission failed on it). Up to 60 deg (the capability trials turn 45 deg,
+        # a little more as measured) missions keep the timing they were labelled with.
+        turn = abs(math.remainder(target[2] - yaw0, 2 * math.pi))
+        if turn > math.radians(60.0):
+            duration = max(duration, turn / (math.pi / 4) * 2 * cycle)
         duration = cycle * max(1, round(duration / cycle))
         # Both tripods must step at least once between the BLC's stands at start and end.
         duration = max(duration, 2 * stand_duration + cycle)
