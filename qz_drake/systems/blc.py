@@ -196,10 +196,10 @@ class TrajectoryOptimizationBLC(LeafSystem):
         state.get_mutable_abstract_state(self._robot_topology).set_value(topology)
         if topology != robot_topology:
             from qz_drake.robot.topology import get_topology
-            from qz_drake.systems.topology_switch import TopologySwitchPlan
+            from qz_drake.systems.topology_switch import plan_topology_switch
 
             try:
-                switch = TopologySwitchPlan(heightmap=heightmap, start=start,
+                switch = plan_topology_switch(heightmap=heightmap, start=start,
                                             from_topology=get_topology(robot_topology, self._params),
                                             to_topology=get_topology(topology, self._params),
                                             start_time=start.time, params=self._params)

@@ -58,6 +58,29 @@ def _is_bent_out(m) -> bool:
     return m[1] < m[2]
 
 
+# Foot lifts a switch tries, lowest first: a foot whose joint-space move would graze the terrain
+# (a ridge or a slope under the moving leg) may clear it lifted higher; above 0.2 m the lifted
+# foot leaves Qingzhui's reach. [m]
+LIFT_HEIGHTS = (0.12, 0.16, 0.2)
+
+
+def plan_topology_switch(*, lift_heights=LIFT_HEIGHTS, timing: "SwitchTiming | None" = None,
+                         **kwargs) -> "TopologySwitchPlan":
+    """The first TopologySwitchPlan (same arguments) whose feet clear the terrain, trying the
+    foot lifts in order; ConfigError (the lowest lift's reason) when none does."""
+    timing = timing or SwitchTiming()
+    first = None
+    for height in lift_heights:
+        try:
+            return TopologySwitchPlan(timing=dataclasses.replace(timing, lift_height=float(height)),
+                                      **kwargs)
+        except ConfigError as e:
+            first = first or e
+    if len(lift_heights) > 1:
+        raise ConfigError(f"{first} (and with foot lifts up to {max(lift_heights):.2f} m)")
+    raise first
+
+
 class TopologySwitchPlan:
     """The switch from ``from_topology`` to ``to_topology`` of a robot standing at ``start``
     (a MissionStart: base pose and feet), beginning at ``start_time``.

@@ -95,3 +95,33 @@ def test_a_switch_whose_foot_would_graze_a_ridge_is_refused_with_the_clearance()
     with pytest.raises(ConfigError, match=r"topology switch leg 0 \(MF\): the foot would pass "
                                           r"[0-9.]+ cm over the terrain [0-9.]+ s into the switch"):
         _plan("split_up", heightmap=ridge)
+
+
+def test_a_switch_lifts_its_feet_higher_to_clear_a_ridge_and_says_when_nothing_clears():
+    """plan_topology_switch tries higher foot lifts: the 0.2 m ridge that the default 0.12 m
+    lift grazes is cleared at 0.2 m; a ridge no lift clears is refused with the lowest lift's
+    reason and the lifts tried."""
+    from qz_drake.systems.topology_switch import plan_topology_switch
+    from qz_drake.terrain.heightmap import HeightMap
+
+    ground = flat()
+    xs = ground.origin[0] + np.arange(ground.heights.shape[1]) * ground.resolution
+
+    def ridge(height):
+        heights = np.array(ground.heights, copy=True)
+        heights[:, (xs > 0.77) & (xs < 0.81)] = height
+        return HeightMap(heights=heights, resolution=ground.resolution, origin=ground.origin)
+
+    def switch(heightmap):
+        x0 = standing_state(heightmap, get_topology("nominal"), (0.0, 0.0), 0.0)
+        return plan_topology_switch(heightmap=heightmap, start=measured_start(x0, 0.0, DEFAULT_PARAMS),
+                                    from_topology=get_topology("nominal"), to_topology=get_topology("split_up"),
+                                    start_time=1.0)
+
+    plan = switch(ridge(0.2))
+    assert plan.timing.lift_height > 0.12
+    times = np.linspace(plan.start_time, plan.end_time, 300)
+    feet = np.array([plan.foot_positions(t) for t in times])
+    np.testing.assert_allclose(feet[-1, 0, :2], [0.83, 0.0], atol=0.02)  # MF on its split_up foothold
+    with pytest.raises(ConfigError, match=r"topology switch leg 0 \(MF\).*foot lifts up to 0.20 m"):
+        switch(ridge(0.4))
