@@ -68,13 +68,21 @@ class CapabilityMdpConfig:
     epsilon: float = 0.01
     # Most value iterations (the paper's 20 m map converged in about 60).
     max_iter: int = 5000
+    # Where the robot may change topology: only on level ground under its body (the least-
+    # squares slope and the roughness of the terrain within 0.7 m of the cell centre). The
+    # switch moves legs through fixed high joint-space poses; on a long_range walk a switch
+    # on a 15 deg slope would have passed a foot 0.5 cm over the ground and was refused, which
+    # ended the walk. The MDP gives a topology change elsewhere no success. [deg], [m]
+    switch_max_slope_deg: float = 8.0
+    switch_max_roughness: float = 0.03
     # Grid cell. [m]
     cell_size: float = P.CELL_SIZE
     # Topologies the robot may use; empty: all six.
     topologies: list[str] = dataclasses.field(default_factory=list)
 
     def check(self) -> "CapabilityMdpConfig":
-        for name in ("goal_reward", "action_cost", "topology_change_cost"):
+        for name in ("goal_reward", "action_cost", "topology_change_cost", "switch_max_slope_deg",
+                     "switch_max_roughness"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise bad_value(f"capability_mdp.{name}", getattr(self, name), "must be finite and >= 0")
         if not (np.isfinite(self.failure_reward) and self.failure_reward <= 0):
@@ -149,8 +157,37 @@ class CapabilityMdp:
         return (int(np.clip(np.floor(fx), 0, len(self.xs) - 1)), int(np.clip(np.floor(fy), 0, len(self.ys) - 1)))
 
 
-def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | None = None) -> CapabilityMdp:
-    """The MDP of a CapabilityMap (qz_drake.capability.model.predict_map) and a goal position."""
+# The ground a topology switch needs level: Qingzhui's trunk half-diagonal. [m]
+SWITCH_RADIUS = 0.7
+SWITCH_SPACING = 0.1  # [m]
+
+
+def switchable_cells(heightmap, xs, ys, config: CapabilityMdpConfig | None = None) -> np.ndarray:
+    """(ny, nx) True where the robot may change topology: the terrain around the cell centre
+    (xs, ys) is level and smooth enough (``switch_max_slope_deg``, ``switch_max_roughness``)."""
+    config = config or CapabilityMdpConfig()
+    # The terrain on a disc of SWITCH_RADIUS around each cell centre, sampled every
+    # SWITCH_SPACING (paper 003's body features, Eq. 7-8, at the cells only: on a 100 m map the
+    # whole-map features took 2.9 s, these 0.14 s).
+    step = np.arange(-SWITCH_RADIUS, SWITCH_RADIUS + 1e-9, SWITCH_SPACING)
+    dx, dy = np.meshgrid(step, step)
+    inside = dx ** 2 + dy ** 2 <= SWITCH_RADIUS ** 2
+    dx, dy = dx[inside], dy[inside]
+    X, Y = np.meshgrid(np.asarray(xs, dtype=float), np.asarray(ys, dtype=float))
+    z = np.asarray(heightmap.height(X[..., None] + dx, Y[..., None] + dy), dtype=float)
+    # Least-squares plane over a symmetric disc: slopes sum(d z) / sum(d^2) along x and y.
+    a = (z * dx).sum(axis=-1) / (dx ** 2).sum()
+    b = (z * dy).sum(axis=-1) / (dy ** 2).sum()
+    slope = np.arctan(np.hypot(a, b))
+    roughness = z.std(axis=-1)
+    return (slope <= np.radians(config.switch_max_slope_deg)) & (roughness <= config.switch_max_roughness)
+
+
+def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | None = None,
+                         switchable: np.ndarray | None = None) -> CapabilityMdp:
+    """The MDP of a CapabilityMap (qz_drake.capability.model.predict_map) and a goal position;
+    ``switchable`` (ny, nx): where a topology change can succeed (:func:`switchable_cells`;
+    None: everywhere)."""
     import scipy.sparse as sp
 
     config = (config or CapabilityMdpConfig()).check()
@@ -185,6 +222,8 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
         for m, (p, nxt) in enumerate(motions):
             a = 3 * t + m
             p = np.clip(np.asarray(p, dtype=float), 0.0, 1.0)
+            if switchable is not None:  # a topology change where the robot cannot make one fails
+                p = np.where((t0 != t) & ~np.asarray(switchable, dtype=bool)[iy, ix], 0.0, p)
             reward = (-config.action_cost - config.topology_change_cost * (t0 != t)
                       + p * config.goal_reward * (nxt == goal) + (1.0 - p) * config.failure_reward)
             # A robot already in the goal cell (a start there) has arrived: any action ends it.
@@ -277,10 +316,10 @@ def most_likely_path(mdp: CapabilityMdp, solution: ValueIterationResult, start_s
 
 
 def plan_on_map(capability_map, start_xy, start_heading: int, goal_xy, *, start_topology: str = "nominal",
-                config: CapabilityMdpConfig | None = None) -> CapabilityPlan:
+                config: CapabilityMdpConfig | None = None, switchable: np.ndarray | None = None) -> CapabilityPlan:
     """Builds the MDP of a CapabilityMap, solves it by value iteration and extracts the most
     likely path from the start (x, y, heading index, topology) to the goal."""
-    mdp = build_capability_mdp(capability_map, goal_xy, config)
+    mdp = build_capability_mdp(capability_map, goal_xy, config, switchable)
     if start_topology not in mdp.topologies:
         raise bad_value("start_topology", start_topology, f"expected one of {', '.join(mdp.topologies)}")
     ix, iy = mdp.cell_of(*start_xy, field="start")
@@ -302,4 +341,5 @@ def plan(model, heightmap, start_xy, start_heading: int, goal_xy, *, start_topol
     capability_map = predict_map(model, heightmap, config.topologies or None, cell_size=config.cell_size,
                                  anchor=start_xy)
     return plan_on_map(capability_map, start_xy, start_heading, goal_xy, start_topology=start_topology,
-                       config=config)
+                       config=config, switchable=switchable_cells(heightmap, capability_map.xs,
+                                                                  capability_map.ys, config))

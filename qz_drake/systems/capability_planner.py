@@ -80,7 +80,7 @@ class CapabilityVIPlanner(LeafSystem):
                  plan_ahead: float = 0.0, check_period: float = 0.05):
         super().__init__()
         from qz_drake.capability.model import predict_map
-        from qz_drake.planning.capability_mdp import CapabilityMdpConfig, build_capability_mdp
+        from qz_drake.planning.capability_mdp import CapabilityMdpConfig, build_capability_mdp, switchable_cells
         from qz_drake.planning.value_iteration import value_iteration
 
         self.log = CapabilityPlannerLog()
@@ -94,7 +94,9 @@ class CapabilityVIPlanner(LeafSystem):
         # The grid is anchored on the start: the robot starts at a cell centre.
         self.capability_map = predict_map(model, heightmap, config.topologies or None, cell_size=config.cell_size,
                                           anchor=start[:2])
-        self.mdp = build_capability_mdp(self.capability_map, goal, config)
+        self.mdp = build_capability_mdp(self.capability_map, goal, config,
+                                        switchable_cells(heightmap, self.capability_map.xs,
+                                                         self.capability_map.ys, config))
         self.solution = value_iteration(self.mdp.P, self.mdp.R, config.discount, epsilon=config.epsilon,
                                         max_iter=config.max_iter)
         self.log.planning_time_s = time.perf_counter() - clock

@@ -124,3 +124,32 @@ def test_errors_name_the_field(corridors):
         build_capability_mdp(capability_map, GOAL, CapabilityMdpConfig(discount=1.0))
     with pytest.raises(QzError, match="start_topology"):
         plan_on_map(capability_map, START, 0, GOAL, start_topology="split_up")
+
+
+def test_topology_changes_only_where_the_robot_can_make_them(corridors):
+    """A topology change is given no success where the ground is not level (switchable_cells:
+    a 15 deg ramp is not, flat ground is); with changes allowed only near the start, the path
+    that climbs the ridge in front_bend switches there, and with none allowed it stays nominal
+    and goes round."""
+    from qz_drake.planning.capability_mdp import switchable_cells
+
+    x = corridors.origin[0] + corridors.resolution * np.arange(corridors.heights.shape[1])
+    ramp = np.broadcast_to(np.tan(np.radians(15)) * np.clip(x - 3.0, 0.0, 3.0), corridors.heights.shape)
+    tilted = HeightMap(np.array(ramp), corridors.resolution, corridors.origin)
+    xs, ys = 0.5 + np.arange(14.0), 0.5 + np.arange(12.0)
+    mask = switchable_cells(tilted, xs, ys)
+    assert mask[:, xs < 2.2].all() and not mask[:, (xs > 3.8) & (xs < 5.2)].any()
+    assert mask[:, xs > 6.8].all()  # level again on top
+
+    model = StubModel(thresholds={"front_bend": 0.1})  # only front_bend climbs the ridge
+    capability_map = predict_map(model, corridors, ["nominal", "front_bend"], anchor=START)
+    near_start = np.zeros((len(capability_map.ys), len(capability_map.xs)), dtype=bool)
+    near_start[:, capability_map.xs < 2.2] = True
+    result = plan_on_map(capability_map, START, 0, GOAL, switchable=near_start)
+    assert result.reaches_goal and result.topology_changes >= 1
+    for step in result.steps:
+        if step.action_topology != step.topology:
+            assert step.x < 2.2, step
+    assert np.all((crossing(result) > 4) & (crossing(result) < 7))  # over the ridge, in front_bend
+    nowhere = plan_on_map(capability_map, START, 0, GOAL, switchable=np.zeros_like(near_start))
+    assert nowhere.reaches_goal and nowhere.topology_changes == 0 and np.all(crossing(nowhere) > 9)
