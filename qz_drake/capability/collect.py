@@ -26,9 +26,10 @@ from qz_drake.errors import bad_value
 # to this relative (and absolute) tolerance; everything else exactly. On one machine trials are
 # bit for bit reproducible; on another processor the same code gave the same labels with
 # measurements 1e-10 apart (2026-12-02: 18 of 36 records of an earlier session's machine).
-# Chaotic seconds of contact simulation amplify the processors' rounding: 3.6e-7 was the
-# largest relative difference then; a change of behaviour moves them by 1e-3 and more.
-RECERTIFY_RTOL = 1e-4
+# Chaotic seconds of contact simulation amplify the processors' rounding: 3.6e-7 and 5.9e-5
+# were the largest relative differences of two recertifications (labels equal); a change of
+# behaviour moves a walk's measurements by a percent and more.
+RECERTIFY_RTOL = 1e-3
 RECERTIFY_ATOL = 1e-6
 # Test hook: "INDEX:FILE" makes the worker running trial INDEX kill itself once (FILE marks
 # that it did), the fault the collection must survive.
