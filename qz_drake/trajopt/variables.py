@@ -31,6 +31,15 @@ from qz_drake.trajopt.parameters import BlcParameters
 from qz_drake.trajopt.splines import NodeSpline
 
 
+def _zero_node(times, value_idx, deriv_idx, eval_times, t) -> None:
+    """Appends a force node pinned to zero at t (liftoff or touchdown: the force may jump)."""
+    zero = -np.ones(3, dtype=np.int64)
+    times.append(t)
+    value_idx.append(zero)
+    deriv_idx.append(zero)
+    eval_times.append(t)
+
+
 class BlcVariables:
     """Layout of the decision vector and the splines it parameterises."""
 
@@ -182,10 +191,7 @@ class BlcVariables:
             P = most if shortest <= 0 else min(most, max(1, int(np.floor((t1 - t0) / shortest + 1e-9))))
             counts.append(P)
             if s > 0:
-                times.append(t0)
-                value_idx.append(zero)
-                deriv_idx.append(zero)
-                eval_times.append(t0)
+                _zero_node(times, value_idx, deriv_idx, eval_times, t0)
             for n, t in enumerate(np.linspace(t0, t1, P + 1)):
                 fixed = zero_at_boundaries and ((n == 0 and s > 0) or (n == P and s < num_stances - 1))
                 if fixed:
@@ -199,10 +205,7 @@ class BlcVariables:
                 # Where the node's force acts: just inside its stance.
                 eval_times.append(min(max(t, t0 + 1e-9), t1 - 1e-9))
             if s + 1 < num_stances:
-                times.append(t1)
-                value_idx.append(zero)
-                deriv_idx.append(zero)
-                eval_times.append(t1)
+                _zero_node(times, value_idx, deriv_idx, eval_times, t1)
         return self._force_nodes_spline(times, value_idx, deriv_idx, eval_times, counts)
 
     def _aligned_force_spline(self, leg: int, idx: np.ndarray, G: np.ndarray,
@@ -217,10 +220,7 @@ class BlcVariables:
             g0, g1 = int(idx[2 * s]), int(idx[2 * s + 1])
             t0, t1 = G[g0], G[g1]
             if s > 0:
-                times.append(t0)
-                value_idx.append(zero)
-                deriv_idx.append(zero)
-                eval_times.append(t0)
+                _zero_node(times, value_idx, deriv_idx, eval_times, t0)
             shared = None
             per_stance.append(int(counts[g0:g1].sum()))
             for j in range(g0, g1):
@@ -246,10 +246,7 @@ class BlcVariables:
                     if n == P:
                         shared = value
             if s + 1 < num_stances:
-                times.append(t1)
-                value_idx.append(zero)
-                deriv_idx.append(zero)
-                eval_times.append(t1)
+                _zero_node(times, value_idx, deriv_idx, eval_times, t1)
         return self._force_nodes_spline(times, value_idx, deriv_idx, eval_times, per_stance)
 
     def _force_nodes_spline(self, times, value_idx, deriv_idx, eval_times, counts) -> NodeSpline:
