@@ -172,7 +172,8 @@ def run_recertify(args) -> int:
         print(f"{result.dataset}: the code's fingerprints are the dataset's; nothing to certify")
     elif result.identical:
         print(f"{result.dataset}: {', '.join(result.changed)} changed; {result.rerun} trials re-run, "
-              f"every record the same (labels equal, measurements within a relative "
+              f"every record the same (labels and inputs equal, successful walks' measurements "
+              f"within 2 %; largest relative difference of any measurement "
               f"{result.largest_relative_difference:.1e}): the manifest now names this code "
               f"({result.fingerprint_after})")
     else:

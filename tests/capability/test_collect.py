@@ -225,3 +225,11 @@ def test_recertification_compares_labels_exactly_and_measurements_to_a_tolerance
     assert differing_fields(stored, moved, **tol) == ["final_xy_error_m"]
     flipped = dict(noisy, success=np.array([False]), blc_iterations=np.array([9]))
     assert differing_fields(stored, flipped, **tol) == ["success", "blc_iterations"]
+    # A failed walk's measurements are not compared (where it was stopped moves with rounding),
+    # its label and the network inputs always are.
+    from qz_drake.capability.collect import MEASURED_FIELDS
+    from qz_drake.capability.trials import ARRAY_FIELDS, RECORD_FIELDS
+
+    assert set(MEASURED_FIELDS) <= set(RECORD_FIELDS)
+    assert not set(MEASURED_FIELDS) & {"status", "success", "reason", "blc_success", "blc_iterations",
+                                       "kind", "topology", "heading", *ARRAY_FIELDS}
