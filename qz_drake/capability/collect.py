@@ -22,11 +22,9 @@ from qz_drake.capability.dataset import TrialStore, fingerprints, settings_dict
 from qz_drake.capability.trials import TrialConfig, TrialSpec, run_trial, trial_specs
 from qz_drake.errors import bad_value
 
-# Recertification: measured floating-point fields of a re-run trial must match the stored ones
-# to this relative (and absolute) tolerance; everything else exactly. On one machine trials are
-# bit for bit reproducible; on another processor the same code gave the same labels with
-# measurements 1e-10 apart (2026-12-02: 18 of 36 records of an earlier session's machine).
-# Chaotic seconds of contact simulation amplify the processors' rounding: 3.6e-7 and 5.9e-5
+# Recertification tolerances. On one machine trials are bit for bit reproducible; on another
+# processor the same code gave the same labels with measurements 1e-10 apart (2026-12-02: 18 of
+# 36 records of an earlier session's machine). Chaotic seconds of contact simulation amplify the processors' rounding: 3.6e-7 and 5.9e-5
 # were the largest relative differences of two recertifications, and a walk that slipped
 # (trial 1429, collected on an earlier session's machine) came out here with its final yaw
 # error 0.312 against 0.286 deg and its tilt 7.242 against 7.229 deg, the same on this machine
