@@ -130,3 +130,45 @@ def grid_centres(heightmap, cell_size: float = CELL_SIZE, anchor=None) -> tuple[
     if counts.min() < 1:
         raise bad_value("heightmap.bounds", heightmap.bounds, f"smaller than one {cell_size} m grid cell")
     return (first[0] + np.arange(counts[0]) * cell_size, first[1] + np.arange(counts[1]) * cell_size)
+
+
+def mirror_legs(params=None) -> np.ndarray:
+    """The leg permutation of the robot's mirror image in its sagittal plane (y -> -y): leg i
+    of the mirrored robot is leg ``mirror_legs()[i]`` of the robot. Found from the hip
+    positions, so that it follows the robot's geometry (Qingzhui: MF and MB map to themselves,
+    RF <-> LF, RB <-> LB); a robot without that symmetry is an error."""
+    from qz_drake.robot.params import DEFAULT_PARAMS
+
+    hips = np.asarray((params or DEFAULT_PARAMS).hip_positions, dtype=float)
+    mirrored = hips * np.array([1.0, -1.0, 1.0])
+    distance = np.linalg.norm(mirrored[:, None, :] - hips[None, :, :], axis=-1)
+    permutation = distance.argmin(axis=1)
+    if distance.min(axis=1).max() > 1e-9 or len(set(permutation.tolist())) != len(hips):
+        raise bad_value("params.hip_positions", hips.tolist(), "not symmetric about the body's x-z plane")
+    return permutation
+
+
+def mirror_inputs(patches, feet, direction=None, kind: str = "orthogonal"):
+    """The network inputs of the same action on the mirror image of the terrain (y -> -y in
+    the heading frame): the patches flipped across the heading, the feet mirrored (y negated,
+    legs permuted by :func:`mirror_legs`) and, for a turn, the direction swapped (a left turn
+    on the mirrored terrain is the right turn on the terrain).
+
+    For a robot, topologies and gait that are all symmetric about the sagittal plane (tested
+    in tests/capability/test_training.py for Qingzhui's six topologies and the tripod), the
+    mirrored trial is the trial of the mirrored scene, with the same outcome: training on both
+    doubles the data at no cost. Returns (patches, feet, direction) as new arrays.
+    """
+    check_kind(kind)
+    patches = np.asarray(patches)
+    feet = np.asarray(feet)
+    # Entry [..., i, j] samples v = (j - (n - 1) / 2) * spacing across the heading: v -> -v.
+    flipped = patches[..., :, ::-1].copy()
+    mirrored_feet = feet[..., mirror_legs(), :].copy()
+    mirrored_feet[..., 1] *= -1
+    if direction is None:
+        return flipped, mirrored_feet, None
+    direction = np.asarray(direction)
+    if kind == "turn":
+        direction = np.where(direction == TURN_LEFT, TURN_RIGHT, TURN_LEFT).astype(direction.dtype)
+    return flipped, mirrored_feet, direction.copy()

@@ -163,3 +163,18 @@ def test_pooled_initialisation_fine_tunes_a_network_trained_on_all_topologies():
     assert card["loss"] == runs[best]["loss"]
     with pytest.raises(QzError, match="training.initialisations"):
         TrainingConfig(initialisations=["warm"]).check()
+
+
+def test_mirror_augmentation_doubles_the_training_rows_only():
+    arrays, manifest = synthetic_arrays(scenes=30, headings=4, kinds=("turn",), label_noise=0.0, seed=2)
+    runs = {}
+    for mirror in (False, True):
+        config = small_config(networks=["nominal/turn"], losses=["bce"], max_epochs=5, mirror=mirror)
+        runs[mirror] = train_networks(arrays, fingerprint=manifest["fingerprint"], config=config)
+    plain, mirrored = (runs[m].networks[("nominal", "turn")].card for m in (False, True))
+    assert plain["train_rows"] == plain["n"]["train"]
+    assert mirrored["train_rows"] == 2 * mirrored["n"]["train"]
+    # The held-out splits are the real trials only.
+    assert mirrored["test"]["n"] == plain["test"]["n"] == mirrored["n"]["test"]
+    with pytest.raises(QzError, match="training.mirror"):
+        train_networks(arrays, fingerprint=manifest["fingerprint"], config=small_config(mirror="yes"))
