@@ -61,14 +61,18 @@ def test_bad_walking_scenarios_name_the_field(text, field):
         load_scenario_text(text)
 
 
-def test_demo_writes_recording_picture_and_metrics(tmp_path):
+def test_demo_walks_capplanner_and_writes_recording_plan_and_metrics(tmp_path):
+    """The demo's pipeline (shipped model, TLC, BLC, tracking, recording, Fig. 6 picture) on a
+    nearer goal of the demo's world; the whole demo's walk is test_capplanner's slow test."""
     from qz_drake.demo import run_demo
 
-    summary = run_demo(tmp_path)
+    summary = run_demo(tmp_path, goal=(6.0, 6.0))
     assert summary["success"], summary
+    assert summary["missions"] >= 5 and summary["replans"] >= 4 and summary["blc_failures"] == 0
     assert recording_summary(tmp_path / "recording.html")["has_animation"]
-    assert (tmp_path / "world.png").stat().st_size > 10_000
-    assert json.loads((tmp_path / "metrics.json").read_text())["runs"]["walk_grid_map"]["success"]
+    assert (tmp_path / "plan.png").stat().st_size > 50_000
+    assert json.loads((tmp_path / "summary.json").read_text())["goal"] == [6.0, 6.0]
+    assert json.loads((tmp_path / "metrics.json").read_text())["planner"] == "capplanner"
 
 
 def test_walks_in_position_mode():

@@ -105,11 +105,12 @@ def plot_capability_map(heightmap, capability_map, path, *, topology: str | None
     return _save(fig, path)
 
 
-def plot_plan(heightmap, plan, path, *, title: str = "") -> Path:
+def plot_plan(heightmap, plan, path, *, title: str = "", walked_xy=None) -> Path:
     """Paper 000 Fig. 6(a) in two panels: left, the terrain (height colours, hill-shaded) with
     the most likely path; right, the utility of every cell (best over headings and
     topologies, brighter is better) under height contours, with the same path. Markers: start,
-    goal, and where the topology changes (named)."""
+    goal, and where the topology changes (named). ``walked_xy`` (n, 2): the path the robot's
+    trunk walked (paper 000 Fig. 6(b)), drawn over both panels. [m]"""
     mdp = plan.mdp
     xmin, xmax, ymin, ymax = heightmap.bounds
     r = heightmap.resolution / 2
@@ -140,6 +141,10 @@ def plot_plan(heightmap, plan, path, *, title: str = "") -> Path:
             ax.plot(cells[:, 0], cells[:, 1], "w-", lw=3)
             ax.plot(cells[:, 0], cells[:, 1], "r-", lw=1.5, label="most likely path")
             ax.plot(*cells[0], "wo", ms=9, mec="k", label="start")
+        if walked_xy is not None and len(walked_xy):
+            walked = np.asarray(walked_xy, dtype=float).reshape(-1, 2)
+            ax.plot(walked[:, 0], walked[:, 1], "k-", lw=2.5)
+            ax.plot(walked[:, 0], walked[:, 1], "c-", lw=1.2, label="walked path")
         ax.plot(mdp.xs[gxi], mdp.ys[gyi], "y*", ms=16, mec="k", label="goal")
         for x, y, name in changes:
             ax.plot(x, y, "ms", ms=7, mec="k")

@@ -6,8 +6,10 @@ whenever its local target (x, y, yaw) or topology input changes, over the height
 state on the ``state`` input (base pose and the feet from leg kinematics). If it is still
 running (the route side asked ahead, as paper 000 does so that the robot need not stand while
 the BLC solves), the new one starts where the current plan is expected to end, and takes over
-on the ``plan`` output at that time. A failed solve is recorded (``log.failures``) and the previous plan stays
-on the output, so the tracker holds the robot where that plan ended; nothing raises.
+on the ``plan`` output at that time. A failed solve is recorded and, with ``mission_retries``,
+solved again with one more tripod cycle per retry; a mission no solve could plan is a failure
+(``log.failures``) and the previous plan stays on the output, so the tracker holds the robot
+where that plan ended; nothing raises.
 
 Solving takes wall time but no simulated time: like paper 000's robot, which stands while the
 BLC solves, the plan starts at the simulated time of the update that asked for it.
@@ -46,10 +48,14 @@ class BlcLog:
     solves: list = dataclasses.field(default_factory=list)
     # Topology switches made before a mission: (start time, from, to).
     switches: list = dataclasses.field(default_factory=list)
+    # Indices into ``solves`` of the failed solves that were followed by a retry of the mission.
+    retried: list = dataclasses.field(default_factory=list)
 
     @property
     def failures(self) -> list:
-        return [s for s in self.solves if not s[3]]
+        """The failed solves no retry followed: one per mission that could not be planned."""
+        retried = set(self.retried)
+        return [s for i, s in enumerate(self.solves) if not s[3] and i not in retried]
 
     @property
     def solve_time_s(self) -> float:
@@ -100,12 +106,19 @@ class TrajectoryOptimizationBLC(LeafSystem):
             mission's). A mission in another topology than the robot's is preceded by a
             TopologySwitchPlan (qz_drake.systems.topology_switch) from the standing robot;
             the BLC then solves the mission from the switch's expected end.
+        mission_retries: how often a mission whose solve failed is solved again, each time
+            one tripod cycle longer (a different problem: other footholds and timing). 0 (the
+            capability trials' BLC, whose labels are first solves) or more (CapPlanner's
+            walks: the robot stands while the BLC solves, so a retry costs wall time only).
     """
 
     def __init__(self, *, params=DEFAULT_PARAMS, timing: MissionTiming | None = None, blc_params=None,
                  check_period: float = 0.05, settle_time: float = 0.0,
-                 initial_topology: str | None = None):
+                 initial_topology: str | None = None, mission_retries: int = 0):
         super().__init__()
+        if isinstance(mission_retries, bool) or not isinstance(mission_retries, int) or mission_retries < 0:
+            raise bad_value("mission_retries", mission_retries, "must be a whole number >= 0", ConfigError)
+        self._retries = mission_retries
         if not check_period > 0:
             raise bad_value("check_period", check_period, "must be positive", ConfigError)
         if not settle_time >= 0:
@@ -214,10 +227,17 @@ class TrajectoryOptimizationBLC(LeafSystem):
             current, ahead = switch, True
             start = expected_end(switch)
         planner = self._planner(heightmap)
-        plan, reason = planner(start, target, topology, start.time)
-        solution = planner.last_solution
-        self.log.solves.append((start.time, target, topology, plan is not None, solution.solve_time,
-                                reason, int(solution.iterations)))
+        attempt = 0
+        while True:
+            plan, reason = planner(start, target, topology, start.time, extra_cycles=attempt)
+            solution = planner.last_solution
+            self.log.solves.append((start.time, target, topology, plan is not None, solution.solve_time,
+                                    f"retry {attempt} (+{attempt} tripod cycles): {reason}" if attempt and reason else reason,
+                                    int(solution.iterations)))
+            if plan is not None or attempt >= self._retries:
+                break
+            self.log.retried.append(len(self.log.solves) - 1)
+            attempt += 1
         state.get_mutable_abstract_state(self._solution).set_value(solution)
         if plan is not None:
             state.get_mutable_abstract_state(self._next if ahead else self._plan).set_value(plan)

@@ -63,7 +63,8 @@ def blc_mission_planner(heightmap, params, control, blc_params=None):
     """A MissionSequencer planner that solves the BLC from the measured base pose and feet.
 
     ``control`` gives the mission timing (``speed`` [m/s], ``phase_duration`` [s]); blc_params
-    the solver's BlcParameters (None: defaults). The returned callable keeps its statistics in
+    the solver's BlcParameters (None: defaults); a call's ``extra_cycles`` lengthens the
+    mission by that many tripod cycles (a retry). The returned callable keeps its statistics in
     ``plan.stats`` and its latest BlcSolution (failed or not) in ``plan.last_solution``."""
     from qz_drake.robot.topology import get_topology
     from qz_drake.trajopt.robot_model import qingzhui
@@ -75,7 +76,7 @@ def blc_mission_planner(heightmap, params, control, blc_params=None):
     robots = {}
     stats = {"solves": 0, "failures": 0, "solve_time_s": 0.0}
 
-    def plan(start, target, topology, start_time):
+    def plan(start, target, topology, start_time, extra_cycles: int = 0):
         robot = robots.setdefault(topology, qingzhui(topology))
         x0, y0, yaw0 = start.xy_yaw
         com_B = np.asarray(robot.com_B, dtype=float)
@@ -102,6 +103,8 @@ def blc_mission_planner(heightmap, params, control, blc_params=None):
         duration = cycle * max(1, round(duration / cycle))
         # Both tripods must step at least once between the BLC's stands at start and end.
         duration = max(duration, 2 * stand_duration + cycle)
+        # A retry of a mission that failed to plan: the same mission, slower.
+        duration += extra_cycles * cycle
         task = BlcTask(target=com_target, start_position=tuple(com), start_rpy=rpy0,
                        start_feet=np.asarray(start.feet_W, dtype=float)[:NUM_LEGS], topology=topology,
                        duration=duration)

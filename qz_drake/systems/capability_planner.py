@@ -84,6 +84,8 @@ class CapabilityVIPlanner(LeafSystem):
         from qz_drake.planning.value_iteration import value_iteration
 
         self.log = CapabilityPlannerLog()
+        # The plan from the start (a CapabilityPlan, for drawing: capability.plots.plot_plan).
+        self.first_plan = None
         self._last_handed = False
         self._split = split_config
         self._min_success = float(min_route_success)
@@ -120,13 +122,15 @@ class CapabilityVIPlanner(LeafSystem):
 
     # -- planning ------------------------------------------------------------------------------
     def _replan(self, t: float, x: float, y: float, yaw: float, topology: str) -> list:
-        from qz_drake.planning.capability_mdp import most_likely_path
+        from qz_drake.planning.capability_mdp import CapabilityPlan, most_likely_path
 
         clock = time.perf_counter()
         ix, iy = self.mdp.cell_of(x, y, field="start", margin=self.mdp.config.cell_size)
         k = int(round(yaw / HEADING_STEP)) % 8
         start = self.mdp.state(ix, iy, k, topology)
         steps, reaches, probability = most_likely_path(self.mdp, self.solution, start)
+        if self.first_plan is None:
+            self.first_plan = CapabilityPlan(self.mdp, self.solution, steps, reaches, probability)
         missions = split_missions(steps, self._split, start_yaw=yaw) if reaches else []
         if missions:
             # The path ends at the goal cell's centre; the last mission goes to the goal itself

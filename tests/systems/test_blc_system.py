@@ -134,3 +134,65 @@ def test_a_mission_asked_ahead_starts_where_the_current_plan_ends():
                                first.base_position(first.end_time), atol=1e-6)
     np.testing.assert_allclose(second.foot_positions(second.start_time),
                                first.foot_positions(first.end_time), atol=1e-6)
+
+
+def _failing_first_attempt(blc, fail_when):
+    """Wraps the system's BLC planner: attempts for which ``fail_when(target, extra_cycles)``
+    is true are solved, then reported failed (as a dense check failing by a hair would be)."""
+    make = blc._planner
+    durations = []
+
+    def planner_for(heightmap):
+        inner = make(heightmap)
+
+        def plan(start, target, topology, start_time, extra_cycles=0):
+            result, reason = inner(start, target, topology, start_time, extra_cycles=extra_cycles)
+            plan.last_solution = inner.last_solution
+            durations.append(inner.last_solution.duration)
+            if fail_when(target, extra_cycles):
+                return None, "BLC: dense check: (a test's failure)"
+            return result, reason
+
+        return plan
+
+    blc._planner = planner_for
+    return durations
+
+
+def test_a_mission_that_failed_to_plan_is_retried_one_tripod_cycle_longer():
+    heightmap = make_terrain("flat")
+    state = standing_state(heightmap, get_topology("nominal"))
+    blc = TrajectoryOptimizationBLC(mission_retries=2)
+    durations = _failing_first_attempt(blc, lambda target, extra: target[0] > 0.5 and extra == 0)
+    context = _fixed(blc, heightmap, state, (0.3, 0.0, 0.0))
+    simulator = Simulator(blc, context)
+    simulator.Initialize()
+    first = blc.GetOutputPort("plan").Eval(context)
+    simulator.AdvanceTo(first.end_time + 0.05)
+    blc.GetInputPort("target").FixValue(context, np.array([1.0, 0.0, 0.0]))
+    simulator.AdvanceTo(first.end_time + 0.1)
+    # The failed attempt and its retry are both logged; the mission is planned, no failure.
+    assert [s[3] for s in blc.log.solves] == [True, False, True]
+    assert blc.log.retried == [1] and not blc.log.failures
+    assert durations[2] == pytest.approx(durations[1] + 2 * MissionTiming().phase_duration)
+    second = blc.GetOutputPort("plan").Eval(context)
+    assert second is not first
+    assert second.end_time - second.start_time == pytest.approx(durations[2])
+    np.testing.assert_allclose(second.base_position(second.end_time)[:2], [1.0, 0.0], atol=1e-3)
+
+
+def test_a_mission_no_retry_can_plan_is_one_failure_and_the_plan_is_kept():
+    heightmap = make_terrain("step", height=1.0, start_x=1.5)  # a 1 m wall
+    state = standing_state(heightmap, get_topology("nominal"))
+    blc = TrajectoryOptimizationBLC(mission_retries=1)
+    context = _fixed(blc, heightmap, state, (0.3, 0.0, 0.0))
+    simulator = Simulator(blc, context)
+    simulator.Initialize()
+    first = blc.GetOutputPort("plan").Eval(context)
+    blc.GetInputPort("target").FixValue(context, np.array([2.0, 0.0, 0.0]))
+    simulator.AdvanceTo(0.1)
+    assert [s[3] for s in blc.log.solves] == [True, False, False]
+    assert len(blc.log.failures) == 1 and blc.log.failures[0][5].startswith("retry 1 (+1 tripod cycles): BLC")
+    assert blc.GetOutputPort("plan").Eval(context) is first
+    with pytest.raises(QzError, match="mission_retries"):
+        TrajectoryOptimizationBLC(mission_retries=-1)
