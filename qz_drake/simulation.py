@@ -413,6 +413,11 @@ class _BlcMissions:
         builder.Connect(self.blc.GetOutputPort("plan"), self.targets.GetInputPort("plan"))
         if self.targets.HasInputPort("state"):
             builder.Connect(station.GetOutputPort("state"), self.targets.GetInputPort("state"))
+        # A route source that goes round missions the BLC could not plan (CapPlanner's TLC).
+        self.recovers = self.targets.HasInputPort("failed_missions")
+        if self.recovers:
+            for name in ("failed_missions", "robot_topology"):
+                builder.Connect(self.blc.GetOutputPort(name), self.targets.GetInputPort(name))
         self.plan_port = self.blc.GetOutputPort("plan")
 
     @property
@@ -427,14 +432,18 @@ class _BlcMissions:
     @property
     def log(self):
         log = self.targets.log
+        failures = self.blc.log.failures
+        if self.recovers:  # the ones the route source went round are not the walk's failures
+            failures = failures[len(log.recoveries):]
         # Failures as (mission index, reason): the index of the target the BLC was given.
-        log.failures = [(len(log.plans), s[5]) for s in self.blc.log.failures]
+        log.failures = [(len(log.plans), s[5]) for s in failures]
         return log
 
     @property
     def done(self) -> bool:
-        log = self.log
-        return bool(log.failures) or self.targets.done
+        if self.recovers:  # it says when it is done, or gives up (unreachable)
+            return self.targets.done
+        return bool(self.log.failures) or self.targets.done
 
     def counts(self) -> dict:
         log = self.blc.log

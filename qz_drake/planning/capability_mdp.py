@@ -242,6 +242,33 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
     return mdp
 
 
+def forbid_action(mdp: CapabilityMdp, state: int, action: int) -> None:
+    """Makes one action fail from one state, in place: what the TLC learns when the BLC could
+    not plan it from there (the robot stands where it was; the action leads to the failure
+    state from now on, and its reward is a failed action's)."""
+    if not (0 <= state < mdp.goal_state):
+        raise bad_value("state", state, f"expected a grid state 0..{mdp.goal_state - 1}")
+    if not (0 <= action < len(mdp.P)):
+        raise bad_value("action", action, f"expected an action 0..{len(mdp.P) - 1}")
+    matrix = mdp.P[action]
+    row = slice(matrix.indptr[state], matrix.indptr[state + 1])
+    matrix.data[row] = np.where(matrix.indices[row] == mdp.failure_state, 1.0, 0.0)
+    matrix.eliminate_zeros()
+    t0 = np.unravel_index(state, mdp.grid_shape)[0]
+    config = mdp.config
+    mdp.success[action, state] = 0.0
+    mdp.next_state[action, state] = mdp.failure_state
+    mdp.R[state, action] = (-config.action_cost - config.topology_change_cost * (t0 != action // len(MOTIONS))
+                            + config.failure_reward)
+
+
+def step_state_action(mdp: CapabilityMdp, step) -> tuple[int, int]:
+    """(state, action) of a PathStep of this MDP's grid."""
+    ix, iy = mdp.cell_of(step.x, step.y, field="step")
+    return (mdp.state(ix, iy, step.heading, step.topology),
+            mdp.topologies.index(step.action_topology) * len(MOTIONS) + MOTIONS.index(step.motion))
+
+
 @dataclasses.dataclass
 class PathStep:
     """One action of a planned path, from the state it starts in."""

@@ -88,12 +88,16 @@ class TrajectoryOptimizationBLC(LeafSystem):
         - solution
         - contact_schedule
         - desired_contact
+        - failed_missions
+        - robot_topology
 
     ``target`` is (x, y, yaw) of the base link; ``topology`` a topology name (abstract str);
     ``heightmap`` a HeightMap (abstract). ``plan`` is the BlcPlan the InverseKinematicsTracker
     follows (None before the first successful solve), ``solution`` the latest BlcSolution
     (failed ones too), ``contact_schedule`` its ContactSchedule and ``desired_contact`` (6) the
-    planned contact of each foot now (1 in contact).
+    planned contact of each foot now (1 in contact). ``failed_missions`` (1) counts the missions
+    no solve (nor retry) could plan and ``robot_topology`` (abstract str) is the topology the
+    robot is in or is switching to: a route source that reacts to failures reads them.
 
     Args:
         params: QingzhuiParams of the robot.
@@ -140,6 +144,8 @@ class TrajectoryOptimizationBLC(LeafSystem):
         self._solution = self.DeclareAbstractState(AbstractValue.Make(None))
         # The topology the robot is in (or will be in when the current plan ends).
         self._robot_topology = self.DeclareAbstractState(AbstractValue.Make(initial_topology))
+        # Missions no solve could plan, so far.
+        self._failed_missions = self.DeclareAbstractState(AbstractValue.Make(0))
         # Outputs depend on the state alone (no direct feedthrough: the loop through the
         # station and the route sequencer is not algebraic).
         state_only = {self.all_state_ticket()}
@@ -150,6 +156,16 @@ class TrajectoryOptimizationBLC(LeafSystem):
                                        self._calc_solution, prerequisites_of_calc=state_only)
         self.DeclareAbstractOutputPort("contact_schedule", lambda: AbstractValue.Make(None),
                                        self._calc_schedule, prerequisites_of_calc=state_only)
+        self.DeclareVectorOutputPort(
+            "failed_missions", 1,
+            lambda context, output: output.SetAtIndex(
+                0, context.get_abstract_state(self._failed_missions).get_value()),
+            prerequisites_of_calc=state_only)
+        self.DeclareAbstractOutputPort(
+            "robot_topology", lambda: AbstractValue.Make(""),
+            lambda context, output: output.set_value(
+                context.get_abstract_state(self._robot_topology).get_value() or ""),
+            prerequisites_of_calc=state_only)
         self.DeclareVectorOutputPort("desired_contact", BasicVector(NUM_LEGS), self._calc_contact,
                                      prerequisites_of_calc={self.all_state_ticket(),
                                                             self.time_ticket()})
@@ -218,6 +234,7 @@ class TrajectoryOptimizationBLC(LeafSystem):
                                             start_time=start.time, params=self._params)
             except ConfigError as e:
                 state.get_mutable_abstract_state(self._robot_topology).set_value(robot_topology)
+                self._count_failure(context, state)
                 self.log.solves.append((start.time, target, topology, False, 0.0,
                                         f"topology switch {robot_topology} -> {topology}: {e}", 0))
                 return
@@ -241,6 +258,12 @@ class TrajectoryOptimizationBLC(LeafSystem):
         state.get_mutable_abstract_state(self._solution).set_value(solution)
         if plan is not None:
             state.get_mutable_abstract_state(self._next if ahead else self._plan).set_value(plan)
+        else:
+            self._count_failure(context, state)
+
+    def _count_failure(self, context, state):
+        count = context.get_abstract_state(self._failed_missions).get_value()
+        state.get_mutable_abstract_state(self._failed_missions).set_value(count + 1)
 
     # -- outputs -----------------------------------------------------------------------------
     def _calc_plan(self, context, output):

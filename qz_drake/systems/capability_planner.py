@@ -38,6 +38,9 @@ class CapabilityPlannerLog(MissionLog):
     planning_time_s: float = 0.0
     value_iterations: int = 0
     unreachable: str = ""
+    # Missions the BLC could not plan that the planner went round: (time, target (x, y, yaw,
+    # topology), what it did: "split" into single actions or "forbade" the action and replanned).
+    recoveries: list = dataclasses.field(default_factory=list)
 
 
 class CapabilityVIPlanner(LeafSystem):
@@ -49,6 +52,8 @@ class CapabilityVIPlanner(LeafSystem):
         input_ports:
         - state
         - plan
+        - failed_missions (optional)
+        - robot_topology (optional)
         output_ports:
         - target
         - topology
@@ -56,7 +61,14 @@ class CapabilityVIPlanner(LeafSystem):
         - utility
 
     ``state`` is the station state, ``plan`` the BLC system's current
-    plan (to see a mission end); ``target`` (x, y, yaw) and ``topology`` feed
+    plan (to see a mission end); ``failed_missions`` and ``robot_topology``, when connected
+    (TrajectoryOptimizationBLC's outputs of the same names), tell it that the BLC could not
+    plan the mission it was given: the robot stands where the last plan ended, and the planner
+    goes round it, as a mature TLC must (a BLC failure is not a fall). A mission of several
+    actions is handed out again one action at a time; a single action that fails is forbidden
+    from that state (its transition leads to failure), value iteration is solved again, and
+    the planner replans from the measured state. After ``max_recoveries`` such failures (or
+    when no path remains) the goal is unreachable, with the reason; ``target`` (x, y, yaw) and ``topology`` feed
     TrajectoryOptimizationBLC; ``guidance`` is the current list of GuidedMissions and
     ``utility`` the (ny, nx) utility map with its cell centres (xs, ys), for drawing.
 
@@ -73,12 +85,19 @@ class CapabilityVIPlanner(LeafSystem):
             reachable.
         plan_ahead: hand out the next mission this long before the current plan ends. [s]
         check_period: how often the plan is looked at. [s]
+        max_recoveries: most missions the BLC could not plan that the planner goes round.
     """
 
     def __init__(self, *, model, heightmap, goal, start, initial_topology: str = "nominal", mdp_config=None,
                  split_config: MissionSplitConfig = MissionSplitConfig(), min_route_success: float = 0.05,
-                 plan_ahead: float = 0.0, check_period: float = 0.05):
+                 plan_ahead: float = 0.0, check_period: float = 0.05, max_recoveries: int = 4):
         super().__init__()
+        if isinstance(max_recoveries, bool) or not isinstance(max_recoveries, int) or max_recoveries < 0:
+            from qz_drake.errors import ConfigError, bad_value
+
+            raise bad_value("max_recoveries", max_recoveries, "must be a whole number >= 0", ConfigError)
+        self._max_recoveries = max_recoveries
+        self._failures_seen = 0
         from qz_drake.capability.model import predict_map
         from qz_drake.planning.capability_mdp import CapabilityMdpConfig, build_capability_mdp, switchable_cells
         from qz_drake.planning.value_iteration import value_iteration
@@ -106,6 +125,8 @@ class CapabilityVIPlanner(LeafSystem):
         self._goal = tuple(float(v) for v in goal)
         self._state = self.DeclareVectorInputPort("state", STATE_SIZE)
         self._plan = self.DeclareAbstractInputPort("plan", AbstractValue.Make(None))
+        self._failed = self.DeclareVectorInputPort("failed_missions", 1)
+        self._robot_topology = self.DeclareAbstractInputPort("robot_topology", AbstractValue.Make(""))
         # (missions, index of the current one); the missions of the latest replan.
         first = self._replan(0.0, float(start[0]), float(start[1]), float(start[2]), initial_topology)
         self._record(first, 0, 0.0)
@@ -159,6 +180,12 @@ class CapabilityVIPlanner(LeafSystem):
         return bool(self.log.unreachable) or self._last_handed
 
     def _update(self, context, state):
+        if self._failed.HasValue(context):
+            failed = int(round(self._failed.Eval(context)[0]))
+            if failed > self._failures_seen:
+                self._failures_seen = failed
+                self._recover(context, state)
+                return
         plan = self._plan.Eval(context)
         if plan is None or not getattr(plan, "is_mission", True):
             return
@@ -187,10 +214,56 @@ class CapabilityVIPlanner(LeafSystem):
         state.get_mutable_abstract_state(self._missions).set_value((new, 0))
         self._record(new, 0, context.get_time())
 
+    def _recover(self, context, state):
+        """The BLC could not plan the current mission: go round it (see the class docstring)."""
+        from qz_drake.planning.capability_mdp import forbid_action, step_state_action
+        from qz_drake.planning.value_iteration import value_iteration
+
+        missions, index = context.get_abstract_state(self._missions).get_value()
+        t = context.get_time()
+        failed = missions[index] if index < len(missions) else None
+        target = None
+        if len(self.log.targets) > len(self.log.plans):  # its plan never came: out of the log
+            target = self.log.targets.pop()
+            self.log.topologies.pop()
+            self.log.start_times.pop()
+        if failed is None or len(self.log.recoveries) >= self._max_recoveries:
+            self.log.unreachable = (f"the BLC could not plan {len(self.log.recoveries) + 1} missions, the last "
+                                    f"to {None if target is None else [round(v, 2) for v in target[:3]]}")
+            state.get_mutable_abstract_state(self._missions).set_value(([], 0))
+            return
+        x = self._state.Eval(context)
+        x0, y0, yaw = float(x[4]), float(x[5]), float(base_rpy(x)[2])
+        robot = self._robot_topology.Eval(context) if self._robot_topology.HasValue(context) else ""
+        topology = robot if robot in self.mdp.topologies else failed.steps[0].topology
+        if len(failed.steps) > 1:
+            # Shorter missions are easier for the BLC: the same actions, one mission each.
+            single = dataclasses.replace(self._split, min_success=1.0)
+            new = split_missions(failed.steps, single, start_yaw=yaw) + list(missions[index + 1:])
+            action = "split"
+        else:
+            s, a = step_state_action(self.mdp, failed.steps[0])
+            forbid_action(self.mdp, s, a)
+            clock = time.perf_counter()
+            config = self.mdp.config
+            self.solution = value_iteration(self.mdp.P, self.mdp.R, config.discount, epsilon=config.epsilon,
+                                            max_iter=config.max_iter, V0=self.solution.V)
+            self.log.planning_time_s += time.perf_counter() - clock
+            self.log.value_iterations += int(self.solution.iterations)
+            new = self._replan(t, x0, y0, yaw, topology)
+            action = "forbade"
+        self.log.recoveries.append((t, None if target is None else tuple(target), action))
+        state.get_mutable_abstract_state(self._missions).set_value((new, 0))
+        if not new:
+            self._last_handed = True
+            return
+        self._record(new, 0, t)
+
     def counts(self) -> dict:
         """The planner's numbers for the walk's metrics."""
         return {"planning_time_s": self.log.planning_time_s, "value_iterations": self.log.value_iterations,
-                "replans": max(len(self.log.replans) - 1, 0), "unreachable": self.log.unreachable}
+                "replans": max(len(self.log.replans) - 1, 0), "unreachable": self.log.unreachable,
+                "tlc_recoveries": len(self.log.recoveries)}
 
     # -- outputs -----------------------------------------------------------------------------
     def _current(self, context):

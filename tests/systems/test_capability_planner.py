@@ -81,3 +81,77 @@ def test_a_goal_behind_walls_is_reported_unreachable():
     planner = _planner(_world(enclosed=True))
     assert "predicted success" in planner.log.unreachable or "no path" in planner.log.unreachable
     assert planner.done
+
+
+def _standing(planner):
+    """The planner alone in a simulator, its inputs fixed: the robot standing at the start,
+    no plan yet, no failed mission."""
+    from pydrake.systems.analysis import Simulator
+
+    context = planner.CreateDefaultContext()
+    planner.GetInputPort("state").FixValue(context, make_state([*START, 0.55], [0, 0, 0], np.zeros(18)))
+    planner.GetInputPort("plan").FixValue(context, AbstractValue.Make(None))
+    planner.GetInputPort("failed_missions").FixValue(context, np.zeros(1))
+    planner.GetInputPort("robot_topology").FixValue(context, AbstractValue.Make("nominal"))
+    simulator = Simulator(planner, context)
+    simulator.Initialize()
+    return simulator, context
+
+
+def _blc_fails(planner, simulator, context, count):
+    planner.GetInputPort("failed_missions").FixValue(context, np.full(1, float(count)))
+    simulator.AdvanceTo(context.get_time() + 0.1)
+    return planner.GetOutputPort("guidance").Eval(context)
+
+
+def test_a_mission_the_blc_cannot_plan_is_split_then_its_action_forbidden_and_the_route_replanned():
+    from qz_drake.planning.capability_mdp import step_state_action
+
+    planner = _planner(_world())
+    simulator, context = _standing(planner)
+    first = planner.GetOutputPort("guidance").Eval(context)
+    assert len(first[0].steps) >= 2  # a merged mission
+    # The BLC could not plan it: the same actions come back one mission each.
+    split = _blc_fails(planner, simulator, context, 1)
+    assert [m.steps for m in split[:len(first[0].steps)]] == [[s] for s in first[0].steps]
+    np.testing.assert_allclose(planner.GetOutputPort("target").Eval(context), split[0].target)
+    assert planner.log.recoveries[-1][2] == "split" and len(planner.log.targets) == 1
+    # It could not plan the single action either: the action is forbidden from that state and
+    # the route replanned from where the robot stands; the new route does not start with it.
+    failed_step = split[0].steps[0]
+    s, a = step_state_action(planner.mdp, failed_step)
+    replanned = _blc_fails(planner, simulator, context, 2)
+    assert planner.log.recoveries[-1][2] == "forbade"
+    assert planner.mdp.success[a, s] == 0.0 and planner.mdp.P[a][s, planner.mdp.failure_state] == 1.0
+    assert replanned and step_state_action(planner.mdp, replanned[0].steps[0]) != (s, a)
+    assert not planner.log.unreachable and not planner.done
+    # The goal is still reached, round the wall.
+    np.testing.assert_allclose(replanned[-1].target[:2], GOAL)
+
+
+def test_after_max_recoveries_the_goal_is_unreachable_with_the_reason():
+    planner = CapabilityVIPlanner(model=WallModel(), heightmap=_world(), goal=GOAL, start=(*START, 0.0),
+                                  mdp_config=CapabilityMdpConfig(topologies=["nominal"]), max_recoveries=1)
+    simulator, context = _standing(planner)
+    _blc_fails(planner, simulator, context, 1)
+    assert not planner.done
+    assert _blc_fails(planner, simulator, context, 2) == []
+    assert planner.done and planner.log.unreachable.startswith("the BLC could not plan 2 missions")
+
+
+def test_forbid_action_sends_the_action_to_failure_with_a_failures_reward():
+    from qz_drake.planning.capability_mdp import forbid_action
+
+    planner = _planner(_world())
+    mdp = planner.mdp
+    s, a = mdp.state(0, len(mdp.ys) - 1, 0, "nominal"), 0  # far from the wall
+    assert mdp.success[a, s] > 0.9
+    forbid_action(mdp, s, a)
+    row = mdp.P[a][s].toarray().ravel()
+    assert row[mdp.failure_state] == 1.0 and row.sum() == 1.0
+    assert mdp.R[s, a] == -mdp.config.action_cost + mdp.config.failure_reward
+    import pytest
+
+    from qz_drake.errors import QzError
+    with pytest.raises(QzError, match="state"):
+        forbid_action(mdp, mdp.goal_state, a)
