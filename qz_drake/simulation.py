@@ -235,7 +235,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     ``heightmap`` replaces the map of the scenario's terrain section (see make_station). With
     ``stop_on_failure`` the run ends as soon as a contact or tracking check of the verdict has
     failed (capability trials: the rest of the walk cannot change the label). ``blc_params``
-    are the BLC's BlcParameters (None: the defaults). ``station_factory`` and
+    are the BLC's BlcParameters (None: the defaults; for CapPlanner, the capability trials'
+    iteration budget). ``station_factory`` and
     ``realtime_rate`` as in simulate()."""
     from qz_drake.systems.mission_sequencer import split_route
 
@@ -257,6 +258,13 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     if control.planner == "blc":
         missions = _BlcMissions(builder, station, info, targets, control, blc_params)
     elif control.planner == "capplanner":
+        if blc_params is None:
+            # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt
+            # iterations, not 5 s of wall time, which a loaded machine spends in fewer), so that
+            # a walk plans what the model predicts, whatever else the machine runs.
+            from qz_drake.capability.trials import TrialConfig, trial_blc_parameters
+
+            blc_params = trial_blc_parameters(TrialConfig())
         source = _capability_planner(scenario, info)
         if source.log.unreachable:
             return _unplanned(scenario, out, None, reason=f"goal unreachable: {source.log.unreachable}",
