@@ -193,13 +193,31 @@ def beats_baselines(network: dict, baselines: dict) -> bool | None:
 LABEL_COMPONENTS = ("robot", "blc", "controller", "verdict")
 
 
+def _label_lineage(manifest: dict) -> list[dict]:
+    """The label components' fingerprints the dataset's labels are certified for: the current
+    ones and, from the newest back, those each recertification moved the dataset from (a
+    recertification re-ran a sample of the stored trials under the new code and found them
+    the same, so labels of the old code are labels of the new)."""
+    lineage = [manifest.get("fingerprints") or {}]
+    for certification in reversed(manifest.get("certifications") or []):
+        before = certification.get("fingerprints_before")
+        if isinstance(before, dict):
+            lineage.append(before)
+    return lineage
+
+
 def check_fingerprints(model_card: dict, manifest: dict) -> None:
     """Refuses a dataset whose labels came from another robot / BLC / controller / verdict
     than the model's: raises a QzError naming the first differing field. Other components
-    (e.g. the scene generator's) may differ: evaluating on other scenes is the point."""
+    (e.g. the scene generator's) may differ: evaluating on other scenes is the point. A model
+    trained before a recertification of the dataset (the code changed, the labels did not)
+    still matches it."""
     from qz_drake.errors import ConfigError
 
     ours, theirs = model_card.get("fingerprints") or {}, manifest.get("fingerprints") or {}
+    if ours and any(all(ours.get(key) == fingerprints.get(key) for key in LABEL_COMPONENTS)
+                    for fingerprints in _label_lineage(manifest)):
+        return
     for key in LABEL_COMPONENTS:
         if ours.get(key) != theirs.get(key):
             raise ConfigError(f"dataset.manifest.fingerprints.{key} = {theirs.get(key)!r}: differs from the model's "

@@ -200,6 +200,19 @@ def test_commands_train_evaluate_map(data, tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(model_commands, "load_dataset", lambda path: (arrays, other))
     with pytest.raises(QzError, match=r"dataset.manifest.fingerprints.blc = 'another-blc'"):
         args.func(args)
+    # A dataset recertified since the model was trained (the BLC's code changed, a sample of
+    # its trials re-ran the same) still has the model's labels; one whose certification came
+    # from yet another BLC does not.
+    certified = dict(other, certifications=[{"fingerprints_before": dict(manifest["fingerprints"]),
+                                             "fingerprints_after": dict(other["fingerprints"])}])
+    monkeypatch.setattr(model_commands, "load_dataset", lambda path: (arrays, certified))
+    assert args.func(args) == 0
+    capsys.readouterr()
+    unrelated = dict(other, certifications=[{"fingerprints_before": dict(manifest["fingerprints"], blc="third-blc"),
+                                             "fingerprints_after": dict(other["fingerprints"])}])
+    monkeypatch.setattr(model_commands, "load_dataset", lambda path: (arrays, unrelated))
+    with pytest.raises(QzError, match=r"dataset.manifest.fingerprints.blc = 'another-blc'"):
+        args.func(args)
 
     heightmap_file = make_terrain("step", height=0.3, size_x=4.0, size_y=3.0).save_npz(tmp_path / "step.npz")
     args = parser.parse_args(["map", "--model", str(tmp_path / "m"), "--terrain", str(heightmap_file),
