@@ -42,9 +42,10 @@ class EvaluationConfig:
 
 
 def _bin_ids(probabilities: np.ndarray, bins: int) -> np.ndarray:
-    # The binning of sklearn.calibration.calibration_curve(strategy="uniform").
+    # The binning of sklearn.calibration.calibration_curve(strategy="uniform"): a probability
+    # on an inner edge belongs to the lower bin (searchsorted's default side, as sklearn's).
     edges = np.linspace(0.0, 1.0, bins + 1)
-    return np.searchsorted(edges[1:-1], probabilities, side="right")
+    return np.searchsorted(edges[1:-1], probabilities)
 
 
 def expected_calibration_error(labels, probabilities, bins: int = 10) -> float:

@@ -123,6 +123,14 @@ def test_expected_calibration_error_by_hand():
     assert ev.expected_calibration_error(y, p, 10) == pytest.approx(expected)
     # Perfectly calibrated constant prediction.
     assert ev.expected_calibration_error([1, 0, 1, 0], [0.5] * 4) == pytest.approx(0.0)
+    # Probabilities on the bins' inner edges (what an isotonic or Platt calibration can give)
+    # belong to the lower bin, as in sklearn's calibration_curve: [.1, .2] holds 0.2, and the
+    # reliability curve and the weights agree (this crashed when they did not).
+    y = np.array([1, 0, 0, 1, 1], bool)
+    p = np.array([0.2, 0.2, 0.15, 0.7, 0.75])
+    expected = (3 * abs(1 / 3 - 0.55 / 3) + abs(1 - 0.7) + abs(1 - 0.75)) / 5
+    assert ev.expected_calibration_error(y, p, 10) == pytest.approx(expected)
+    assert sum(ev.binary_metrics(y, p)["reliability"]["count"]) == 5
 
 
 def test_patch_features_see_each_patch_alone(monkeypatch):
