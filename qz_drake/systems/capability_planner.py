@@ -17,6 +17,7 @@ instead of walking into an obstacle.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 
 import numpy as np
@@ -237,9 +238,11 @@ class CapabilityVIPlanner(LeafSystem):
         robot = self._robot_topology.Eval(context) if self._robot_topology.HasValue(context) else ""
         topology = robot if robot in self.mdp.topologies else failed.steps[0].topology
         if len(failed.steps) > 1:
-            # Shorter missions are easier for the BLC: the same actions, one mission each.
-            single = dataclasses.replace(self._split, min_success=1.0)
-            new = split_missions(failed.steps, single, start_yaw=yaw) + list(missions[index + 1:])
+            # Shorter missions are easier for the BLC: the same actions, one mission each, the
+            # last ending where the failed one did (the goal itself, if it was the last).
+            single = split_missions(failed.steps, dataclasses.replace(self._split, min_success=1.0))
+            single[-1].target = (failed.target[0], failed.target[1], single[-1].target[2])
+            new = _unwrapped(single + list(missions[index + 1:]), yaw)
             action = "split"
         else:
             s, a = step_state_action(self.mdp, failed.steps[0])
@@ -288,6 +291,17 @@ class CapabilityVIPlanner(LeafSystem):
     def _calc_utility(self, context, output):
         V = self.solution.V[:self.mdp.goal_state].reshape(self.mdp.grid_shape).max(axis=(0, 1))
         output.set_value((V, self.mdp.xs, self.mdp.ys))
+
+
+def _unwrapped(missions: list, yaw: float) -> list:
+    """Copies of the missions with each target's yaw the previous one's (the first: ``yaw``)
+    plus the turn in between, so that no 2 pi jump reaches the BLC."""
+    out, previous = [], yaw
+    for m in missions:
+        x, y, target_yaw = m.target
+        previous = previous + math.remainder(target_yaw - previous, 2 * math.pi)
+        out.append(dataclasses.replace(m, target=(x, y, previous)))
+    return out
 
 
 __all__ = ["CapabilityVIPlanner", "CapabilityPlannerLog"]

@@ -114,6 +114,10 @@ def test_a_mission_the_blc_cannot_plan_is_split_then_its_action_forbidden_and_th
     # The BLC could not plan it: the same actions come back one mission each.
     split = _blc_fails(planner, simulator, context, 1)
     assert [m.steps for m in split[:len(first[0].steps)]] == [[s] for s in first[0].steps]
+    # The last of them ends where the failed mission did; the yaws continue without a jump.
+    np.testing.assert_allclose(split[len(first[0].steps) - 1].target, first[0].target)
+    yaws = np.array([0.0] + [m.target[2] for m in split])
+    assert np.all(np.abs(np.diff(yaws)) <= np.pi + 1e-9)
     np.testing.assert_allclose(planner.GetOutputPort("target").Eval(context), split[0].target)
     assert planner.log.recoveries[-1][2] == "split" and len(planner.log.targets) == 1
     # It could not plan the single action either: the action is forbidden from that state and
