@@ -38,7 +38,8 @@ def demo_scenario(goal=DEMO_GOAL, seed: int = DEMO_SEED) -> Scenario:
 
 
 def run_demo(out_dir: str | Path, duration: float | None = None, goal=DEMO_GOAL) -> dict:
-    """Runs the demo walk into ``out_dir``; returns the summary (also written to summary.json; metrics.json holds every metric of the walk)."""
+    """Runs the demo walk into ``out_dir``; returns the summary (also written to summary.json;
+    metrics.json holds every metric of the walk)."""
     if duration is not None and not (math.isfinite(duration) and duration > 0):
         raise bad_value("duration", duration, "must be a finite positive number of seconds")
     out = Path(out_dir)

@@ -249,7 +249,8 @@ class TrajectoryOptimizationBLC(LeafSystem):
             plan, reason = planner(start, target, topology, start.time, extra_cycles=attempt)
             solution = planner.last_solution
             self.log.solves.append((start.time, target, topology, plan is not None, solution.solve_time,
-                                    f"retry {attempt} (+{attempt} tripod cycles): {reason}" if attempt and reason else reason,
+                                    (f"retry {attempt} (+{attempt} tripod cycles): {reason}"
+                                     if attempt and reason else reason),
                                     int(solution.iterations)))
             if plan is not None or attempt >= self._retries:
                 break
