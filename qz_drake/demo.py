@@ -49,7 +49,8 @@ def run_demo(out_dir: str | Path, duration: float | None = None, goal=DEMO_GOAL)
         scenario.simulation.duration = duration
     result = simulate(scenario, out_dir=out)
     keys = ("success", "reason", "reasons", "final_xy_error_m", "missions", "topology_changes", "replans",
-            "planning_time_s", "value_iterations", "blc_solves", "blc_failures", "blc_solve_time_s",
+            "tlc_recoveries", "planning_time_s", "value_iterations", "blc_solves", "blc_failures",
+            "blc_retries", "blc_solve_time_s",
             "sim_time_s", "wall_time_s", "realtime_factor", "max_tilt_deg", "max_joint_error_deg",
             "max_foot_slip_m", "leg_terrain_contacts", "trunk_terrain_contacts", "unreachable")
     summary = {"scenario": scenario.name, "goal": list(goal),
