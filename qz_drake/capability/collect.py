@@ -424,6 +424,9 @@ class Recertification:
     wall_time_s: float
     # Largest relative difference of a measured float between a stored and a re-run record.
     largest_relative_difference: float = 0.0
+    # Mismatches that the certified code, re-run here (``reference_code``), reproduces exactly
+    # as the new code does: the stored record is the processor that collected it, not the code.
+    machine_differences: list = dataclasses.field(default_factory=list)
 
 
 def recertification_sample(arrays: dict, count: int, key: str) -> list[int]:
@@ -452,7 +455,8 @@ def recertification_sample(arrays: dict, count: int, key: str) -> list[int]:
     return sorted(chosen)
 
 
-def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "") -> Recertification:
+def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "",
+              reference_code=None) -> Recertification:
     """Re-runs a sample of a dataset's trials with the running code; if every re-run record is
     identical to the stored one (all fields but the wall times), the manifest is moved to this
     code's fingerprints and the certification (old and new fingerprints, the trials re-run, the
@@ -462,6 +466,14 @@ def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "") ->
     that is off by default): trials are deterministic, so such a change reproduces every
     stored record exactly. A change that alters only trials outside the sample can pass
     unnoticed; a change meant to alter labels needs a new collection, not this.
+
+    Trials are deterministic on one machine, not across processors: a record collected on
+    another one can differ here (a BLC solve that converged at the last iteration of its
+    budget there runs out of it here). With ``reference_code``, a source tree (e.g. a git
+    worktree) of the code the manifest names, every mismatched trial is run again with that
+    code on this machine: where it gives exactly what the new code gives, the difference is
+    the machine's, not the change's; it is accepted and listed in the certification
+    (``machine_differences``). The tree must have the manifest's fingerprints.
     """
     from qz_drake.capability.dataset import DatasetLock, read_manifest
 
@@ -473,12 +485,12 @@ def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "") ->
     manifest = read_manifest(path)
     lock = DatasetLock(path, field="dataset")  # no collection may write it meanwhile
     try:
-        return _recertify(path, manifest, sample, workers, command, clock)
+        return _recertify(path, manifest, sample, workers, command, clock, reference_code)
     finally:
         lock.release()
 
 
-def _recertify(path, manifest, sample, workers, command, clock) -> Recertification:
+def _recertify(path, manifest, sample, workers, command, clock, reference_code=None) -> Recertification:
     from datetime import datetime, timezone
 
     from qz_drake.capability.dataset import (combined_fingerprint, differing_fields, load_records,
@@ -527,6 +539,16 @@ def _recertify(path, manifest, sample, workers, command, clock) -> Recertificati
             mismatches.append({"index": index, "fields": fields,
                                "stored": {f: _plain(old_record[f][0]) for f in fields[:4]},
                                "now": {f: _plain(new[f][0]) for f in fields[:4]}})
+    machine = []
+    if mismatches and reference_code is not None:
+        indices = [m["index"] for m in mismatches]
+        reference = _run_with_code(reference_code, [s for s in specs if s.index in indices], settings, old)
+        for m in list(mismatches):
+            here = differing_fields(reference[m["index"]], records_to_arrays([rerun[m["index"]]]),
+                                    skip=TIME_FIELDS)
+            if not here:
+                mismatches.remove(m)
+                machine.append(m)
     after = combined_fingerprint(parts)
     if not mismatches:
         manifest.setdefault("certifications", []).append({
@@ -534,12 +556,74 @@ def _recertify(path, manifest, sample, workers, command, clock) -> Recertificati
             "changed": changed, "fingerprints_before": old, "fingerprints_after": parts,
             "rerun_indices": sorted(stored), "command": command,
             "float_tolerance": {"rtol": RECERTIFY_RTOL, "atol": RECERTIFY_ATOL},
-            "largest_relative_difference": largest})
+            "largest_relative_difference": largest,
+            **({"machine_differences": machine} if machine else {})})
         manifest["fingerprints"], manifest["fingerprint"] = parts, after
         write_manifest(path, manifest)
     return Recertification(str(path), changed, len(stored), not mismatches, mismatches, before,
                            after if not mismatches else before, time.perf_counter() - clock,
-                           largest)
+                           largest, machine)
+
+
+# Run by _run_with_code in a fresh interpreter whose qz_drake is the reference tree's.
+_REFERENCE_SCRIPT = """
+import json, sys
+from pathlib import Path
+import numpy as np
+import qz_drake
+from qz_drake.capability.dataset import fingerprints, records_to_arrays
+from qz_drake.capability.trials import TrialConfig, TrialSpec, run_trial
+job = json.loads(Path(sys.argv[1]).read_text())
+root = Path(job["root"]).resolve()
+if root not in Path(qz_drake.__file__).resolve().parents:
+    sys.exit(f"--reference-code = {str(root)!r}: its qz_drake is not the one imported ({qz_drake.__file__})")
+config = TrialConfig(**job["settings"])
+parts = fingerprints(config)
+for key in sorted(set(parts) | set(job["fingerprints"])):
+    if parts.get(key) != job["fingerprints"].get(key):
+        sys.exit(f"--reference-code = {str(root)!r}: its {key} fingerprint {parts.get(key)!r} is not the "
+                 f"manifest's {job['fingerprints'].get(key)!r} (not the certified code)")
+records = [run_trial(TrialSpec(*spec), config) for spec in job["specs"]]
+np.savez(job["out"], **records_to_arrays(records))
+"""
+
+
+def _run_with_code(root, specs, settings: dict, fingerprints_expected: dict) -> dict:
+    """index -> the record of each spec run by the code in the source tree ``root`` (a fresh
+    interpreter with ``root`` first on its path), after checking that the tree has the expected
+    fingerprints. Raises a ConfigError naming --reference-code when it is not that code."""
+    import json
+    import os
+    import subprocess
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    import numpy as np
+
+    root = Path(root)
+    if not (root / "qz_drake" / "__init__.py").is_file():
+        raise bad_value("--reference-code", str(root), "not a source tree with a qz_drake package")
+    with tempfile.TemporaryDirectory() as tmp:
+        job = {"root": str(root), "settings": settings, "fingerprints": fingerprints_expected,
+               "specs": [[s.seed, s.index, s.scene, s.heading_sample, s.topology, s.kind] for s in specs],
+               "out": str(Path(tmp) / "reference.npz")}
+        (Path(tmp) / "job.json").write_text(json.dumps(job))
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root.resolve())] + (
+            [os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])))
+        run = subprocess.run([sys.executable, "-c", _REFERENCE_SCRIPT, str(Path(tmp) / "job.json")],
+                             capture_output=True, text=True, env=env, cwd=tmp)
+        if run.returncode != 0:
+            lines = (run.stderr or run.stdout).strip().splitlines() or ["exited with " + str(run.returncode)]
+            message = lines[-1]
+            if message.startswith("--reference-code"):
+                from qz_drake.errors import ConfigError
+
+                raise ConfigError(message)
+            raise bad_value("--reference-code", str(root), f"its trials did not run ({message[:200]})")
+        with np.load(job["out"], allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    return {int(i): {k: v[n:n + 1] for k, v in arrays.items()} for n, i in enumerate(arrays["index"])}
 
 
 def _largest_relative_difference(a: dict, b: dict) -> float:

@@ -165,7 +165,8 @@ def run_recertify(args) -> int:
     from qz_drake.capability.collect import recertify
 
     result = recertify(args.dataset, sample=args.sample, workers=args.workers,
-                       command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
+                       command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+                       reference_code=args.reference_code)
     if args.json:
         print(json.dumps(dataclasses.asdict(result)))
     elif not result.changed:
@@ -175,12 +176,18 @@ def run_recertify(args) -> int:
               f"every record the same (labels and inputs equal, successful walks' measurements "
               f"within 2 %; largest relative difference of any measurement "
               f"{result.largest_relative_difference:.1e}): the manifest now names this code "
-              f"({result.fingerprint_after})")
+              f"({result.fingerprint_after})"
+              + (f"; {len(result.machine_differences)} differed from the stored record the same way with the "
+                 f"certified code on this machine (the collecting processor's, listed in the manifest)"
+                 if result.machine_differences else ""))
     else:
         first = result.mismatches[0]
         print(f"{result.dataset}: {', '.join(result.changed)} changed; {len(result.mismatches)} of "
               f"{result.rerun} re-run trials differ (trial {first['index']}: {', '.join(first['fields'])}): "
-              f"the labels describe other behaviour; collect a new dataset")
+              f"the labels describe other behaviour; collect a new dataset"
+              + ("" if args.reference_code else
+                 " (or, if the records came from another processor, compare with the certified code on this "
+                 "machine: --reference-code DIR)"))
     return 0 if result.identical else 1
 
 
@@ -217,6 +224,9 @@ def register(subparsers) -> None:
     p.add_argument("--sample", type=int, default=36, help="trials to re-run (spread over kinds, "
                                                           "topologies and outcomes)")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    p.add_argument("--reference-code", default=None, metavar="DIR",
+                   help="a source tree of the code the manifest names (e.g. a git worktree): mismatched "
+                        "trials are re-run with it here, and a difference it reproduces is the machine's")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.set_defaults(func=run_recertify)
 

@@ -233,3 +233,63 @@ def test_recertification_compares_labels_exactly_and_measurements_to_a_tolerance
     assert set(MEASURED_FIELDS) <= set(RECORD_FIELDS)
     assert not set(MEASURED_FIELDS) & {"status", "success", "reason", "blc_success", "blc_iterations",
                                        "kind", "topology", "heading", *ARRAY_FIELDS}
+
+
+def _fingerprints_of(tree: Path, settings: dict) -> dict:
+    script = ("import json, sys; from qz_drake.capability.dataset import fingerprints; "
+              "from qz_drake.capability.trials import TrialConfig; "
+              "print(json.dumps(fingerprints(TrialConfig(**json.loads(sys.argv[1])))))")
+    run = subprocess.run([sys.executable, "-c", script, json.dumps(settings)], capture_output=True, text=True,
+                         env=dict(os.environ, PYTHONPATH=str(tree)), cwd=str(tree), timeout=300, check=True)
+    return json.loads(run.stdout)
+
+
+def test_recertify_with_the_certified_code_tells_a_machines_difference_from_the_changes(reference, tmp_path):
+    # The certified code: a copy of this tree whose verdict module differs in syntax, not in
+    # behaviour, so that the running code is "a change" against the manifest.
+    certified = tmp_path / "certified"
+    shutil.copytree(Path(__file__).resolve().parents[2] / "qz_drake", certified / "qz_drake",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    with open(certified / "qz_drake" / "verdict.py", "a") as f:
+        f.write("\n_CERTIFIED_COPY = True\n")
+    data = tmp_path / "collected_elsewhere"
+    shutil.copytree(reference, data)
+    manifest = json.loads((data / "manifest.json").read_text())
+    manifest["fingerprints"] = _fingerprints_of(certified, manifest["settings"])
+    (data / "manifest.json").write_text(json.dumps(manifest))
+    # Records as another processor might have stored them: an iteration count the code gives
+    # on neither side here.
+    shard = data / manifest["shards"][0]["file"]
+    with np.load(shard) as stored:
+        arrays = {k: stored[k] for k in stored.files}
+    arrays["blc_iterations"] = arrays["blc_iterations"] + 1
+    np.savez_compressed(shard, **arrays)
+
+    refused = recertify(data, sample=2)
+    assert not refused.identical and len(refused.mismatches) == 2
+    assert json.loads((data / "manifest.json").read_text()) == manifest
+
+    # With the certified code re-run here, the same difference: the machine's, accepted and listed.
+    result = recertify(data, sample=2, reference_code=certified)
+    assert result.identical and result.changed == ["verdict"] and len(result.machine_differences) == 2
+    after = json.loads((data / "manifest.json").read_text())
+    assert [m["index"] for m in after["certifications"][-1]["machine_differences"]] == sorted(arrays["index"])
+
+    # A tree that is not the certified code is refused, naming the option.
+    with pytest.raises(ConfigError, match="--reference-code"):
+        recertify(_with_fingerprint(reference, tmp_path), sample=1, reference_code=certified)
+
+
+def _with_fingerprint(reference, tmp_path):
+    """A copy of the reference dataset whose manifest names a made-up verdict code."""
+    copy = tmp_path / "made_up"
+    shutil.copytree(reference, copy)
+    manifest = json.loads((copy / "manifest.json").read_text())
+    manifest["fingerprints"]["verdict"] = "0123456789abcdef"
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    shard = copy / manifest["shards"][0]["file"]
+    with np.load(shard) as stored:
+        arrays = {k: stored[k] for k in stored.files}
+    arrays["blc_iterations"] = arrays["blc_iterations"] + 1
+    np.savez_compressed(shard, **arrays)
+    return copy
