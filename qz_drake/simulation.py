@@ -229,15 +229,17 @@ def _tripod_planner(heightmap, params, control):
 
 def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | Path | None = None,
          max_duration: float | None = None, heightmap=None, stop_on_failure: bool = False,
-         blc_params=None, station_factory=make_station, realtime_rate: float = 0.0) -> SimulationResult:
+         blc_params=None, station_factory=make_station, realtime_rate: float = 0.0,
+         mission_retries: int | None = None) -> SimulationResult:
     """Walks a scenario's route: missions planned from the measured state, IK + joint PD.
 
     ``heightmap`` replaces the map of the scenario's terrain section (see make_station). With
     ``stop_on_failure`` the run ends as soon as a contact or tracking check of the verdict has
     failed (capability trials: the rest of the walk cannot change the label). ``blc_params``
     are the BLC's BlcParameters (None: the defaults; for CapPlanner, the capability trials'
-    iteration budget). ``station_factory`` and
-    ``realtime_rate`` as in simulate()."""
+    iteration budget). ``mission_retries``: how often the BLC system solves a mission that
+    failed to plan again, one tripod cycle longer each time (None: CAPPLANNER_MISSION_RETRIES
+    for CapPlanner, 0 otherwise). ``station_factory`` and ``realtime_rate`` as in simulate()."""
     from qz_drake.systems.mission_sequencer import split_route
 
     out = Path(out_dir) if out_dir is not None else None
@@ -256,7 +258,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     # Wall time counts from the first mission's planning, so the real-time factor includes it.
     wall_start = time.perf_counter()
     if control.planner == "blc":
-        missions = _BlcMissions(builder, station, info, targets, control, blc_params)
+        missions = _BlcMissions(builder, station, info, targets, control, blc_params,
+                                mission_retries=mission_retries or 0)
     elif control.planner == "capplanner":
         if blc_params is None:
             # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt
@@ -270,7 +273,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
             return _unplanned(scenario, out, None, reason=f"goal unreachable: {source.log.unreachable}",
                               code="unreachable", extra=source.counts())
         missions = _BlcMissions(builder, station, info, targets, control, blc_params, route_source=source,
-                                mission_retries=CAPPLANNER_MISSION_RETRIES)
+                                mission_retries=CAPPLANNER_MISSION_RETRIES if mission_retries is None
+                                else mission_retries)
         if meshcat is not None:  # the guidance path in the recording, replaced at each replan
             from qz_drake.viz.guidance_path import add_guidance_visualizer
 
