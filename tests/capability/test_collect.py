@@ -97,16 +97,8 @@ def test_recertify_moves_a_dataset_to_code_that_reproduces_it_and_refuses_one_th
 
     # Behaviour that changed (a stored outcome no longer reproduced) is refused: exit 1, the
     # differing field named, the manifest left as it was.
-    changed = tmp_path / "changed"
-    shutil.copytree(reference, changed)
-    manifest = json.loads((changed / "manifest.json").read_text())
-    manifest["fingerprints"]["blc"] = "0123456789abcdef"
-    (changed / "manifest.json").write_text(json.dumps(manifest))
-    shard = changed / manifest["shards"][0]["file"]
-    with np.load(shard) as data:
-        arrays = {k: data[k] for k in data.files}
-    arrays["final_yaw_error_deg"] = arrays["final_yaw_error_deg"] + 1.0
-    np.savez_compressed(shard, **arrays)
+    changed, manifest, _ = _altered_copy(reference, tmp_path / "changed", {"blc": "0123456789abcdef"},
+                                         "final_yaw_error_deg", 1.0)
     run = subprocess.run(QZ + ["capability", "recertify", str(changed), "--sample", "2"],
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 1, run.stderr
@@ -235,6 +227,21 @@ def test_recertification_compares_labels_exactly_and_measurements_to_a_tolerance
                                        "kind", "topology", "heading", *ARRAY_FIELDS}
 
 
+def _altered_copy(reference, dest: Path, fingerprints: dict, field: str, delta: float):
+    """A copy of a dataset whose manifest names other code (``fingerprints`` updated) and whose
+    first shard's ``field`` is off by ``delta``: (folder, manifest, the shard's arrays)."""
+    shutil.copytree(reference, dest)
+    manifest = json.loads((dest / "manifest.json").read_text())
+    manifest["fingerprints"].update(fingerprints)
+    (dest / "manifest.json").write_text(json.dumps(manifest))
+    shard = dest / manifest["shards"][0]["file"]
+    with np.load(shard) as stored:
+        arrays = {k: stored[k] for k in stored.files}
+    arrays[field] = arrays[field] + delta
+    np.savez_compressed(shard, **arrays)
+    return dest, manifest, arrays
+
+
 def _fingerprints_of(tree: Path, settings: dict) -> dict:
     script = ("import json, sys; from qz_drake.capability.dataset import fingerprints; "
               "from qz_drake.capability.trials import TrialConfig; "
@@ -252,18 +259,11 @@ def test_recertify_with_the_certified_code_tells_a_machines_difference_from_the_
                     ignore=shutil.ignore_patterns("__pycache__"))
     with open(certified / "qz_drake" / "verdict.py", "a") as f:
         f.write("\n_CERTIFIED_COPY = True\n")
-    data = tmp_path / "collected_elsewhere"
-    shutil.copytree(reference, data)
-    manifest = json.loads((data / "manifest.json").read_text())
-    manifest["fingerprints"] = _fingerprints_of(certified, manifest["settings"])
-    (data / "manifest.json").write_text(json.dumps(manifest))
+    settings = json.loads((reference / "manifest.json").read_text())["settings"]
     # Records as another processor might have stored them: an iteration count the code gives
     # on neither side here.
-    shard = data / manifest["shards"][0]["file"]
-    with np.load(shard) as stored:
-        arrays = {k: stored[k] for k in stored.files}
-    arrays["blc_iterations"] = arrays["blc_iterations"] + 1
-    np.savez_compressed(shard, **arrays)
+    data, manifest, arrays = _altered_copy(reference, tmp_path / "collected_elsewhere",
+                                           _fingerprints_of(certified, settings), "blc_iterations", 1)
 
     refused = recertify(data, sample=2)
     assert not refused.identical and len(refused.mismatches) == 2
@@ -276,20 +276,7 @@ def test_recertify_with_the_certified_code_tells_a_machines_difference_from_the_
     assert [m["index"] for m in after["certifications"][-1]["machine_differences"]] == sorted(arrays["index"])
 
     # A tree that is not the certified code is refused, naming the option.
+    made_up, _, _ = _altered_copy(reference, tmp_path / "made_up", {"verdict": "0123456789abcdef"},
+                                  "blc_iterations", 1)
     with pytest.raises(ConfigError, match="--reference-code"):
-        recertify(_with_fingerprint(reference, tmp_path), sample=1, reference_code=certified)
-
-
-def _with_fingerprint(reference, tmp_path):
-    """A copy of the reference dataset whose manifest names a made-up verdict code."""
-    copy = tmp_path / "made_up"
-    shutil.copytree(reference, copy)
-    manifest = json.loads((copy / "manifest.json").read_text())
-    manifest["fingerprints"]["verdict"] = "0123456789abcdef"
-    (copy / "manifest.json").write_text(json.dumps(manifest))
-    shard = copy / manifest["shards"][0]["file"]
-    with np.load(shard) as stored:
-        arrays = {k: stored[k] for k in stored.files}
-    arrays["blc_iterations"] = arrays["blc_iterations"] + 1
-    np.savez_compressed(shard, **arrays)
-    return copy
+        recertify(made_up, sample=1, reference_code=certified)
