@@ -218,6 +218,15 @@ class CapabilityModel:
         """(topology, kind) of the networks this model has."""
         return sorted(self._networks)
 
+    def plan_failure_share(self, topology: str, kind: str) -> float | None:
+        """Of the network's failed training trials, the share in which the BLC found no plan
+        (the robot stood where it was) rather than the walk failing the verdict; None when the
+        network's card does not say (a model trained before the cards held it, or random)."""
+        card = self.card.get("cards", {}).get(f"{topology}/{kind}", {})
+        counts = card.get("failures") or {}
+        total = int(counts.get("planning", 0)) + int(counts.get("execution", 0))
+        return int(counts["planning"]) / total if total else None
+
     def has_network(self, topology: str, kind: str) -> bool:
         return (topology, kind) in self._networks
 
@@ -334,6 +343,10 @@ class CapabilityMap:
     turn_right: np.ndarray
     # Grid cell. [m]
     cell_size: float = P.CELL_SIZE
+    # (T, 3) per topology and kind (orthogonal, diagonal, turn): the share of the network's
+    # failures in which the BLC found no plan (CapabilityModel.plan_failure_share); NaN where
+    # the model does not say; None: not known at all (a stub model).
+    plan_failure_share: np.ndarray | None = None
 
     @property
     def queries(self) -> int:
@@ -416,5 +429,9 @@ def evaluate_map(model, inputs: MapInputs) -> CapabilityMap:
             both = model.success(np.stack([inputs.turn_patches] * 2), np.stack([feet] * 2), "turn", t,
                                  direction=np.array([P.TURN_LEFT, P.TURN_RIGHT])[:, None, None, None])
             left[i], right[i] = both
+    share = None
+    if hasattr(model, "plan_failure_share"):
+        share = np.array([[np.nan if (v := model.plan_failure_share(t, kind)) is None else v for kind in P.KINDS]
+                          for t in topologies], dtype=float).reshape(len(topologies), len(P.KINDS))
     return CapabilityMap(xs=inputs.xs, ys=inputs.ys, topologies=topologies, forward=forward, turn_left=left,
-                         turn_right=right, cell_size=inputs.cell_size)
+                         turn_right=right, cell_size=inputs.cell_size, plan_failure_share=share)

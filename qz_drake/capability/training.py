@@ -334,11 +334,22 @@ def train_one(arrays: dict, rows: dict[str, np.ndarray], topology: str, kind: st
         # Rows the network was fitted on: the training trials, and their mirror images.
         "train_rows": int(len(data["train"][2])),
         "positives": {split: int(np.sum(arrays["success"][r])) for split, r in rows.items()},
+        # The training trials' failures by what failed: the BLC found no plan (the robot stood
+        # where it was) or the walk failed the verdict (a fall, a leg in the terrain, a slip, a
+        # missed target). The planner's MDP reads the share of the first as a failure that
+        # leaves the robot standing (qz_drake.planning.capability_mdp, plan_failure_share).
+        "failures": _failure_counts(arrays, rows["train"]),
         "test": test, "baselines": baselines,
         "beats_baselines": beats_baselines(test, baselines),
         "seed": seed,
     }
     return NetworkResult(topology, kind, net, card)
+
+
+def _failure_counts(arrays: dict, rows: np.ndarray) -> dict[str, int]:
+    failed = ~np.asarray(arrays["success"][rows], dtype=bool)
+    planned = np.asarray(arrays["blc_success"][rows], dtype=bool)
+    return {"planning": int(np.sum(failed & ~planned)), "execution": int(np.sum(failed & planned))}
 
 
 def train_networks(arrays: dict, *, fingerprint: str, fingerprints: dict | None = None,

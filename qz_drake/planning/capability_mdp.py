@@ -10,7 +10,21 @@ action is the CapabilityModel's for the action's topology from the current cell 
 the robot standing on that topology's nominal footholds; all of them come from one batched
 evaluation of the map (qz_drake.capability.model.predict_map). With probability p the robot
 reaches the next (cell, heading) in the new topology (the goal state when that cell is the
-goal's); otherwise it falls into the failure state. A forward move off the grid fails.
+goal's). A failure is one of two things, and the trials tell them apart: the BLC found no plan
+(the robot stands where it was, and the TLC goes round: qz_drake.systems.capability_planner)
+or the walk failed (a fall, a leg in the terrain, a slip: the end). With q = share * (1 - p),
+share the network's measured share of planning failures (``plan_failure_share``), the robot
+stays in its state with probability q at ``plan_failure_cost``, and falls into the absorbing
+failure state with probability (1 - p) - q. A forward move off the grid and a topology change
+where none can be made fail outright.
+
+Why not every failure terminal (the first reading of the paper's "negative reward"): about 80 %
+of the trials' failures are the BLC's, after which the robot stands unharmed. With all of them
+terminal, a route of n moves of p = 0.95 keeps 0.95^n of the goal's reward, and beyond about
+1 / (1 - gamma * p) = 17 moves every cell's value is the failure's: on a 100 m map the policy far
+from the goal no longer points at it. The self-loop is a Markov approximation: a planning
+failure repeats from the same state (the BLC is deterministic), and the planner forbids that
+action there after one (``forbid_action``), which the MDP's "stay and choose again" stands for.
 
 Why the topology is in the state: the paper's Fig. 8 robot changes topology "to better adapt
 to tough terrain", which is only worth it where it pays; a cost for *changing* topology needs
@@ -22,7 +36,8 @@ action's, evaluated in the new topology.
 
 Rewards (expected, per state and action): ``-action_cost`` for any action, ``-topology_change_cost``
 when the action's topology differs from the state's, ``goal_reward`` on reaching the goal,
-``failure_reward`` on failing; zero in the absorbing states. The policy is Eq. 10's greedy
+``failure_reward`` on failing, ``-plan_failure_cost`` on a planning failure; zero in the
+absorbing states. The policy is Eq. 10's greedy
 one; :func:`most_likely_path` follows it from a start, taking each action's successful outcome.
 """
 
@@ -53,6 +68,15 @@ class CapabilityMdpConfig:
     # action with success p then loses about (1 - p) * 200 against a safe one, so a 5 % risk
     # is worth avoiding at a detour of up to ~10 actions. A fall ends the mission either way.
     failure_reward: float = -100.0
+    # Share of an action's failure probability that is the BLC finding no plan (the robot
+    # stands where it was; the rest end the walk). None: each network's share measured on its
+    # training trials (CapabilityModel.plan_failure_share; 0 where the model does not say,
+    # as a random model); a number in [0, 1]: that share for every action (0: every failure
+    # ends the walk).
+    plan_failure_share: float | None = None
+    # Cost of a planning failure: the robot stood while the BLC searched, and the TLC replans;
+    # about one action's time.
+    plan_failure_cost: float = 1.0
     # Cost of every action (forward one cell or a 45 deg turn): prefers short routes with few
     # turns; small against the goal so that risk, not length, decides between corridors.
     action_cost: float = 1.0
@@ -82,11 +106,16 @@ class CapabilityMdpConfig:
 
     def check(self) -> "CapabilityMdpConfig":
         for name in ("goal_reward", "action_cost", "topology_change_cost", "switch_max_slope_deg",
-                     "switch_max_roughness"):
+                     "switch_max_roughness", "plan_failure_cost"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise bad_value(f"capability_mdp.{name}", getattr(self, name), "must be finite and >= 0")
         if not (np.isfinite(self.failure_reward) and self.failure_reward <= 0):
             raise bad_value("capability_mdp.failure_reward", self.failure_reward, "must be finite and <= 0")
+        share = self.plan_failure_share
+        if share is not None and not (isinstance(share, (int, float)) and not isinstance(share, bool)
+                                      and 0.0 <= share <= 1.0):
+            raise bad_value("capability_mdp.plan_failure_share", share, "must be a number in [0, 1] or null "
+                            "(the model's measured shares)")
         if not (0.0 < self.discount < 1.0):
             raise bad_value("capability_mdp.discount", self.discount, "must be in (0, 1)")
         for t in self.topologies:
@@ -117,6 +146,10 @@ class CapabilityMdp:
     # Goal cell (ix, iy).
     goal_cell: tuple[int, int]
     config: CapabilityMdpConfig
+    # (T, 3) the share of planning failures used per topology and kind (orthogonal, diagonal,
+    # turn); (A, S) the probability that an action leaves the robot standing where it was.
+    plan_failure_share: np.ndarray | None = None
+    stand: np.ndarray | None = None
 
     @property
     def grid_shape(self) -> tuple[int, int, int, int]:
@@ -204,8 +237,10 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
     t0, k, iy, ix = np.unravel_index(np.arange(grid), (T, K, ny, nx))
     at_goal = (ix == mdp.goal_cell[0]) & (iy == mdp.goal_cell[1])
     success = np.zeros((A, S))
+    stand = np.zeros((A, S))
     next_state = np.tile(np.arange(S), (A, 1))
     R = np.zeros((S, A))
+    mdp.plan_failure_share = _plan_failure_shares(capability_map, config, T)
     for t in range(T):
         # Grid state of the same cell and heading in topology t (the action's).
         same = np.ravel_multi_index((np.full(grid, t), k, iy, ix), (T, K, ny, nx))
@@ -219,27 +254,51 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
             (capability_map.turn_left[t, k, iy, ix], same + (((k + 1) % K) - k) * ny * nx),
             (capability_map.turn_right[t, k, iy, ix], same + (((k - 1) % K) - k) * ny * nx),
         )
+        share = mdp.plan_failure_share[t]
+        shares = (np.where(k % 2 == 0, share[0], share[1]), share[2], share[2])
         for m, (p, nxt) in enumerate(motions):
             a = 3 * t + m
             p = np.clip(np.asarray(p, dtype=float), 0.0, 1.0)
+            # What the BLC could not plan leaves the robot standing; a forward move off the grid
+            # and a refused topology change are not the BLC's and fail outright.
+            q = (1.0 - p) * shares[m] * (on_grid if m == 0 else 1.0)
             if switchable is not None:  # a topology change where the robot cannot make one fails
-                p = np.where((t0 != t) & ~np.asarray(switchable, dtype=bool)[iy, ix], 0.0, p)
+                refused = (t0 != t) & ~np.asarray(switchable, dtype=bool)[iy, ix]
+                p, q = np.where(refused, 0.0, p), np.where(refused, 0.0, q)
             reward = (-config.action_cost - config.topology_change_cost * (t0 != t)
-                      + p * config.goal_reward * (nxt == goal) + (1.0 - p) * config.failure_reward)
+                      + p * config.goal_reward * (nxt == goal) + (1.0 - p - q) * config.failure_reward
+                      - q * config.plan_failure_cost)
             # A robot already in the goal cell (a start there) has arrived: any action ends it.
             success[a, :grid] = np.where(at_goal, 1.0, p)
+            stand[a, :grid] = np.where(at_goal, 0.0, q)
             next_state[a, :grid] = np.where(at_goal, goal, nxt)
             R[:grid, a] = np.where(at_goal, 0.0, reward)
     rows = np.arange(S)
+    absorbing = rows >= grid
     matrices = []
     for a in range(A):
-        p = success[a]
-        absorbing = rows >= grid
-        data = np.concatenate([np.where(absorbing, 1.0, p), (1.0 - p)[~absorbing]])
-        cols = np.concatenate([np.where(absorbing, rows, next_state[a]), np.full(grid, failure)])
-        matrices.append(sp.csr_matrix((data, (np.concatenate([rows, rows[~absorbing]]), cols)), shape=(S, S)))
-    mdp.P, mdp.R, mdp.success, mdp.next_state = matrices, R, success, next_state
+        p, q = success[a], stand[a]
+        # Every grid row keeps its failure entry (forbid_action writes there); the self-loop
+        # only where the robot may stand.
+        stays = np.flatnonzero(q > 0)
+        data = np.concatenate([np.where(absorbing, 1.0, p), (1.0 - p - q)[~absorbing], q[stays]])
+        cols = np.concatenate([np.where(absorbing, rows, next_state[a]), np.full(grid, failure), stays])
+        matrices.append(sp.csr_matrix((data, (np.concatenate([rows, rows[~absorbing], stays]), cols)),
+                                      shape=(S, S)))
+    mdp.P, mdp.R, mdp.success, mdp.next_state, mdp.stand = matrices, R, success, next_state, stand
     return mdp
+
+
+def _plan_failure_shares(capability_map, config: CapabilityMdpConfig, n_topologies: int) -> np.ndarray:
+    """(T, 3) the share of planning failures per topology and kind: the config's, or the
+    map's (the model's measurement), 0 where neither says."""
+    if config.plan_failure_share is not None:
+        return np.full((n_topologies, len(P.KINDS)), float(config.plan_failure_share))
+    measured = getattr(capability_map, "plan_failure_share", None)
+    if measured is None:
+        return np.zeros((n_topologies, len(P.KINDS)))
+    measured = np.asarray(measured, dtype=float).reshape(n_topologies, len(P.KINDS))
+    return np.clip(np.nan_to_num(measured, nan=0.0), 0.0, 1.0)
 
 
 def forbid_action(mdp: CapabilityMdp, state: int, action: int) -> None:
@@ -252,10 +311,12 @@ def forbid_action(mdp: CapabilityMdp, state: int, action: int) -> None:
         raise bad_value("action", action, f"expected an action 0..{len(mdp.P) - 1}")
     matrix = mdp.P[action]
     row = slice(matrix.indptr[state], matrix.indptr[state + 1])
+    # Zeros stay stored: every grid row keeps its failure entry for a later call.
     matrix.data[row] = np.where(matrix.indices[row] == mdp.failure_state, 1.0, 0.0)
-    matrix.eliminate_zeros()
     t0 = np.unravel_index(state, mdp.grid_shape)[0]
     config = mdp.config
+    if mdp.stand is not None:
+        mdp.stand[action, state] = 0.0
     mdp.success[action, state] = 0.0
     mdp.next_state[action, state] = mdp.failure_state
     mdp.R[state, action] = (-config.action_cost - config.topology_change_cost * (t0 != action // len(MOTIONS))

@@ -106,6 +106,10 @@ def run_plan(args) -> int:
         "max_change": float(result.solution.max_change), "path_length_m": length,
         "predicted_success": float(result.success_probability), "missions": len(missions),
         "topology_changes": int(result.topology_changes), "states": int(result.mdp.goal_state + 2),
+        # Per topology: the share of failures (orthogonal, diagonal, turn) the MDP took for the
+        # BLC finding no plan (the robot stands) rather than the end of the walk.
+        "plan_failure_share": {t: [round(float(v), 4) for v in row]
+                               for t, row in zip(result.mdp.topologies, result.mdp.plan_failure_share)},
         "start": list(start), "goal": list(goal), "png": str(png),
         "path": [{"x": s.x, "y": s.y, "heading": s.heading, "topology": s.action_topology, "motion": s.motion,
                   "success": s.success} for s in result.steps],

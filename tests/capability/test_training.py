@@ -64,6 +64,17 @@ def test_learns_a_known_rule_on_held_out_scenes(learned):
     assert card["baselines"]["logistic"]["auc"] > 0.9  # the rule is a threshold on a hand-made feature
     assert card["baselines"]["gradient_boosting"]["n"] == card["test"]["n"]
     assert card["beats_baselines"] in (True, False)
+    # The training trials' failures by what failed, and the share the planner reads from them.
+    train = np.isin(arrays["scene"], result.split["train"]) & (arrays["topology"] == "nominal") \
+        & (arrays["kind"] == "orthogonal")
+    failed = train & ~arrays["success"]
+    assert card["failures"] == {"planning": int(np.sum(failed & ~arrays["blc_success"])),
+                                "execution": int(np.sum(failed & arrays["blc_success"]))}
+    assert sum(card["failures"].values()) == card["n"]["train"] - card["positives"]["train"] > 0
+    from qz_drake.capability.model import CapabilityModel
+    share = CapabilityModel.from_training(result).plan_failure_share("nominal", "orthogonal")
+    assert share == pytest.approx(card["failures"]["planning"] / sum(card["failures"].values()))
+    assert CapabilityModel.random().plan_failure_share("nominal", "orthogonal") is None
 
 
 def test_training_is_reproducible():

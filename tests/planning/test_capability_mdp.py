@@ -153,3 +153,72 @@ def test_topology_changes_only_where_the_robot_can_make_them(corridors):
     assert np.all((crossing(result) > 4) & (crossing(result) < 7))  # over the ridge, in front_bend
     nowhere = plan_on_map(capability_map, START, 0, GOAL, switchable=np.zeros_like(near_start))
     assert nowhere.reaches_goal and nowhere.topology_changes == 0 and np.all(crossing(nowhere) > 9)
+
+
+class SharingStub(StubModel):
+    """A StubModel that also says which share of each network's failures were the BLC's."""
+
+    SHARES = {"orthogonal": 0.5, "diagonal": 0.7, "turn": 0.9}
+
+    def plan_failure_share(self, topology, kind):
+        return self.SHARES[kind]
+
+
+def test_planning_failures_leave_the_robot_standing(corridors):
+    """A failure is split by the model's measured share: the BLC found no plan (the robot stays
+    in its state at plan_failure_cost) or the walk failed (the absorbing failure state); off
+    the grid and refused topology changes fail outright."""
+    from qz_drake.planning.capability_mdp import forbid_action
+
+    capability_map = predict_map(SharingStub(), corridors, ["nominal", "front_bend"], anchor=START)
+    assert np.allclose(capability_map.plan_failure_share, [[0.5, 0.7, 0.9]] * 2)
+    switchable = np.ones((len(capability_map.ys), len(capability_map.xs)), dtype=bool)
+    switchable[:, 0] = False
+    mdp = build_capability_mdp(capability_map, GOAL, CapabilityMdpConfig(plan_failure_cost=3.0), switchable)
+    for m in mdp.P:
+        assert np.allclose(np.asarray(m.sum(axis=1)).ravel(), 1.0)
+    fail = mdp.failure_state
+    # Heading 0: the orthogonal network's share; heading 1: the diagonal one's; turns: 0.9.
+    s0, s1 = mdp.state(2, 5, 0, "nominal"), mdp.state(2, 5, 1, "nominal")
+    assert mdp.P[0][s0, s0] == pytest.approx(0.03 * 0.5) and mdp.P[0][s0, fail] == pytest.approx(0.03 * 0.5)
+    assert mdp.P[0][s1, s1] == pytest.approx(0.03 * 0.7) and mdp.P[0][s1, fail] == pytest.approx(0.03 * 0.3)
+    assert mdp.P[1][s0, s0] == pytest.approx(0.01 * 0.9) and mdp.P[1][s0, fail] == pytest.approx(0.01 * 0.1)
+    assert mdp.R[s0, 0] == pytest.approx(-1.0 - 0.015 * 100.0 - 0.015 * 3.0)
+    # Off the grid, and a topology change where none can be made: no standing, only failure.
+    edge = mdp.state(0, 3, 4, "nominal")
+    assert mdp.P[0][edge, edge] == 0.0 and mdp.P[0][edge, fail] == 1.0
+    refused = mdp.state(0, 3, 0, "nominal")
+    change = mdp.topologies.index("front_bend") * 3  # forward in front_bend
+    assert mdp.P[change][refused, refused] == 0.0 and mdp.P[change][refused, fail] == 1.0
+    # The config's share overrides the model's; 0 is the terminal reading.
+    terminal = build_capability_mdp(capability_map, GOAL, CapabilityMdpConfig(plan_failure_share=0.0))
+    assert terminal.P[0][s0, s0] == 0.0 and terminal.P[0][s0, fail] == pytest.approx(0.03)
+    # Forbidding an action, twice, leaves it certain failure and every row stochastic.
+    for s in (s0, mdp.state(3, 5, 0, "nominal")):
+        forbid_action(mdp, s, 0)
+        assert mdp.P[0][s, fail] == 1.0 and mdp.P[0][s, s] == 0.0 and mdp.stand[0, s] == 0.0
+    assert np.allclose(np.asarray(mdp.P[0].sum(axis=1)).ravel(), 1.0)
+    with pytest.raises(QzError, match="capability_mdp.plan_failure_share"):
+        build_capability_mdp(capability_map, GOAL, CapabilityMdpConfig(plan_failure_share=1.5))
+
+
+def test_a_long_route_reaches_the_goal_when_planning_failures_are_not_the_end():
+    """On a 160 m corridor of moves with p = 0.95 (157 moves to the goal), a route's chance to
+    arrive is 0.95^157: with every failure the end, the start's value is the failure's to
+    epsilon and the greedy path loops near the start; with 80 % of failures leaving the robot
+    standing (the trials' share), the values still point at the goal and the path arrives."""
+
+    class Flat(StubModel):
+        def success(self, patches, feet, kind, topology, direction=None):
+            return np.full(np.shape(patches)[:-2], 0.99 if kind == "turn" else 0.95)
+
+    length = 160.0
+    heightmap = HeightMap(np.zeros((30, int(length / 0.1))), 0.1, (0.05, 0.05))
+    capability_map = predict_map(Flat(), heightmap, ["nominal"], anchor=(1.5, 1.5))
+    goal = (length - 1.5, 1.5)
+    terminal = plan_on_map(capability_map, (1.5, 1.5), 0, goal, config=CapabilityMdpConfig(plan_failure_share=0.0))
+    assert not terminal.reaches_goal
+    standing = plan_on_map(capability_map, (1.5, 1.5), 0, goal, config=CapabilityMdpConfig(plan_failure_share=0.8))
+    assert standing.reaches_goal and [s.motion for s in standing.steps] == ["forward"] * 157
+    row = standing.utility_map()[1, :-2]
+    assert np.all(np.diff(row) > 0)  # every cell nearer the goal is worth more
