@@ -16,7 +16,14 @@ or the walk failed (a fall, a leg in the terrain, a slip: the end). With q = sha
 share the network's measured share of planning failures (``plan_failure_share``), the robot
 stays in its state with probability q at ``plan_failure_cost``, and falls into the absorbing
 failure state with probability (1 - p) - q. A forward move off the grid and a topology change
-where none can be made fail outright.
+where none can be made fail outright. The BLC is deterministic: what it could not plan from a
+state it will not plan there the next time, and the TLC forbids the action there
+(``forbid_action``). So after a planning failure the robot chooses again *among the other
+actions*: :func:`solve_capability_mdp` iterates Q(s, a) = r(s, a) + gamma (sum_s' P(s, a, s')
+V(s') + q(s, a) max_{b != a} Q(s, b)), the self-loop's value being the best other action's (a
+contraction in Q of modulus gamma, like Eq. 9). With a plain self-loop the MDP would count on
+retrying: an action of p = 0.4 would look like 0.4 / (1 - q) = 0.75, and the route would seek
+such actions.
 
 Why not every failure terminal (the first reading of the paper's "negative reward"): about 80 %
 of the trials' failures are the BLC's, after which the robot stands unharmed. With all of them
@@ -24,7 +31,7 @@ terminal, a route of n moves of p = 0.95 keeps 0.95^n of the goal's reward, and 
 1 / (1 - gamma * p) = 17 moves every cell's value is the failure's: on a 100 m map the policy far
 from the goal no longer points at it. The self-loop is a Markov approximation: a planning
 failure repeats from the same state (the BLC is deterministic), and the planner forbids that
-action there after one (``forbid_action``), which the MDP's "stay and choose again" stands for.
+action there after one (``forbid_action``): the solver values the stay by the other actions.
 
 Why the topology is in the state: the paper's Fig. 8 robot changes topology "to better adapt
 to tough terrain", which is only worth it where it pays; a cost for *changing* topology needs
@@ -403,6 +410,45 @@ def most_likely_path(mdp: CapabilityMdp, solution: ValueIterationResult, start_s
     return steps, s == mdp.goal_state, probability
 
 
+def solve_capability_mdp(mdp: CapabilityMdp, V0=None) -> ValueIterationResult:
+    """Value iteration (Eq. 9-10) on the capability MDP, a planning failure's stay valued by the
+    best *other* action from the same state (see the module docstring); without planning
+    failures (``mdp.stand`` zero) it is :func:`value_iteration`'s Eq. 9. Stops when the largest
+    change of Q falls below epsilon (1 - gamma) / (2 gamma), as value_iteration does on V."""
+    import scipy.sparse as sp
+
+    config = mdp.config
+    A, S = mdp.success.shape
+    gamma = float(config.discount)
+    stand = np.zeros((A, S)) if mdp.stand is None else np.asarray(mdp.stand, dtype=float)
+    if not stand.any():
+        return value_iteration(mdp.P, mdp.R, gamma, epsilon=config.epsilon, max_iter=config.max_iter, V0=V0)
+    stacked = sp.vstack(mdp.P, format="csr")
+    r = np.ascontiguousarray(np.asarray(mdp.R, dtype=float).T)
+    threshold = config.epsilon * (1.0 - gamma) / (2.0 * gamma)
+    V = np.zeros(S) if V0 is None else np.array(V0, dtype=float).reshape(S)
+    columns = np.arange(S)
+    Q = r + gamma * (stacked @ V).reshape(A, S)
+    change, converged, iterations = np.inf, False, 0
+    for iterations in range(1, int(config.max_iter) + 1):
+        # V and the best other action's value per state and action, from the last Q.
+        best = Q.argmax(axis=0)
+        V = Q[best, columns]
+        masked = Q.copy()
+        masked[best, columns] = -np.inf
+        other = np.broadcast_to(V, (A, S)).copy()
+        other[best, columns] = masked.max(axis=0)
+        # P holds the stay as a self-loop on V(s); the stay is worth the other action instead.
+        Q_next = r + gamma * ((stacked @ V).reshape(A, S) + stand * (other - V))
+        change = float(np.max(np.abs(Q_next - Q)))
+        Q = Q_next
+        if change < threshold:
+            converged = True
+            break
+    return ValueIterationResult(V=Q.max(axis=0), policy=np.argmax(Q, axis=0), Q=np.ascontiguousarray(Q.T),
+                                iterations=iterations, max_change=change, converged=converged)
+
+
 def plan_on_map(capability_map, start_xy, start_heading: int, goal_xy, *, start_topology: str = "nominal",
                 config: CapabilityMdpConfig | None = None, switchable: np.ndarray | None = None) -> CapabilityPlan:
     """Builds the MDP of a CapabilityMap, solves it by value iteration and extracts the most
@@ -411,8 +457,7 @@ def plan_on_map(capability_map, start_xy, start_heading: int, goal_xy, *, start_
     if start_topology not in mdp.topologies:
         raise bad_value("start_topology", start_topology, f"expected one of {', '.join(mdp.topologies)}")
     ix, iy = mdp.cell_of(*start_xy, field="start")
-    solution = value_iteration(mdp.P, mdp.R, mdp.config.discount, epsilon=mdp.config.epsilon,
-                               max_iter=mdp.config.max_iter)
+    solution = solve_capability_mdp(mdp)
     steps, reaches, probability = most_likely_path(mdp, solution, mdp.state(ix, iy, start_heading, start_topology))
     return CapabilityPlan(mdp, solution, steps, reaches, probability)
 

@@ -100,8 +100,8 @@ class CapabilityVIPlanner(LeafSystem):
         self._max_recoveries = max_recoveries
         self._failures_seen = 0
         from qz_drake.capability.model import predict_map
-        from qz_drake.planning.capability_mdp import CapabilityMdpConfig, build_capability_mdp, switchable_cells
-        from qz_drake.planning.value_iteration import value_iteration
+        from qz_drake.planning.capability_mdp import (CapabilityMdpConfig, build_capability_mdp, solve_capability_mdp,
+                                                      switchable_cells)
 
         self.log = CapabilityPlannerLog()
         # The plan from the start (a CapabilityPlan, for drawing: capability.plots.plot_plan).
@@ -119,8 +119,7 @@ class CapabilityVIPlanner(LeafSystem):
         self.mdp = build_capability_mdp(self.capability_map, goal, config,
                                         switchable_cells(heightmap, self.capability_map.xs,
                                                          self.capability_map.ys, config))
-        self.solution = value_iteration(self.mdp.P, self.mdp.R, config.discount, epsilon=config.epsilon,
-                                        max_iter=config.max_iter)
+        self.solution = solve_capability_mdp(self.mdp)
         self.log.planning_time_s = time.perf_counter() - clock
         self.log.value_iterations = int(self.solution.iterations)
         self._goal = tuple(float(v) for v in goal)
@@ -217,8 +216,7 @@ class CapabilityVIPlanner(LeafSystem):
 
     def _recover(self, context, state):
         """The BLC could not plan the current mission: go round it (see the class docstring)."""
-        from qz_drake.planning.capability_mdp import forbid_action, step_state_action
-        from qz_drake.planning.value_iteration import value_iteration
+        from qz_drake.planning.capability_mdp import forbid_action, solve_capability_mdp, step_state_action
 
         missions, index = context.get_abstract_state(self._missions).get_value()
         t = context.get_time()
@@ -248,9 +246,7 @@ class CapabilityVIPlanner(LeafSystem):
             s, a = step_state_action(self.mdp, failed.steps[0])
             forbid_action(self.mdp, s, a)
             clock = time.perf_counter()
-            config = self.mdp.config
-            self.solution = value_iteration(self.mdp.P, self.mdp.R, config.discount, epsilon=config.epsilon,
-                                            max_iter=config.max_iter, V0=self.solution.V)
+            self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
             self.log.planning_time_s += time.perf_counter() - clock
             self.log.value_iterations += int(self.solution.iterations)
             new = self._replan(t, x0, y0, yaw, topology)

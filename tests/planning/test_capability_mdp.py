@@ -222,3 +222,35 @@ def test_a_long_route_reaches_the_goal_when_planning_failures_are_not_the_end():
     assert standing.reaches_goal and [s.motion for s in standing.steps] == ["forward"] * 157
     row = standing.utility_map()[1, :-2]
     assert np.all(np.diff(row) > 0)  # every cell nearer the goal is worth more
+
+
+def test_after_a_planning_failure_the_robot_chooses_among_the_other_actions(corridors):
+    """The BLC is deterministic, so the MDP does not count on retrying what it could not plan:
+    the solver's Q is the fixed point of Q(s, a) = r + gamma (P V without the stay + q max_{b != a}
+    Q(s, b)), and it is never above a plain self-loop's value (which would count on the retry)."""
+    from qz_drake.planning.capability_mdp import solve_capability_mdp
+    from qz_drake.planning.value_iteration import value_iteration
+
+    mdp = build_capability_mdp(predict_map(SharingStub(), corridors, ["nominal"]), GOAL,
+                               CapabilityMdpConfig(epsilon=1e-6))
+    solution = solve_capability_mdp(mdp)
+    assert solution.converged
+    Q = solution.Q.T  # (A, S)
+    V = Q.max(axis=0)
+    other = np.empty_like(Q)
+    for a in range(Q.shape[0]):
+        other[a] = np.delete(Q, a, axis=0).max(axis=0)
+    stacked = np.vstack([(m @ V) for m in mdp.P])  # includes the stay's q V(s)
+    expected = mdp.R.T + mdp.config.discount * (stacked + mdp.stand * (other - V))
+    assert np.allclose(Q, expected, atol=1e-4)
+    assert mdp.stand.max() > 0.01
+    looping = value_iteration(mdp.P, mdp.R, mdp.config.discount, epsilon=1e-6, max_iter=mdp.config.max_iter)
+    assert np.all(solution.V <= looping.V + 1e-4)
+    # Where a planning failure is likely and the other actions are worse, the retry is what a
+    # self-loop overvalues.
+    assert np.max(looping.V - solution.V) > 0.1
+    # Without planning failures it is Eq. 9's value iteration.
+    terminal = build_capability_mdp(predict_map(SharingStub(), corridors, ["nominal"]), GOAL,
+                                    CapabilityMdpConfig(plan_failure_share=0.0))
+    assert np.allclose(solve_capability_mdp(terminal).V,
+                       value_iteration(terminal.P, terminal.R, 0.99, epsilon=0.01, max_iter=5000).V)
