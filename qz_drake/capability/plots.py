@@ -155,8 +155,9 @@ def plot_plan(heightmap, plan, path, *, title: str = "", walked_xy=None) -> Path
     left.set_ylabel("y [m]")
     left.legend(loc="upper left", fontsize=8, framealpha=0.8)
     left.set_title("terrain and the planned path")
-    outcome = f"P(success) {plan.success_probability:.2f}" if plan.reaches_goal else "goal not reached"
-    right.set_title(f"value iteration: {plan.solution.iterations} iterations, {len(plan.steps)} actions, {outcome}")
+    outcome = (f"P(success) {plan.success_probability:.2f}, P(no fall) {plan.fall_free_probability:.2f}"
+               if plan.reaches_goal else "goal not reached")
+    right.set_title(f"VI: {plan.solution.iterations} iterations, {len(plan.steps)} actions, {outcome}")
     if title:
         fig.suptitle(title)
     fig.tight_layout()

@@ -353,6 +353,14 @@ class PathStep:
     motion: str
     # Predicted success probability of the action.
     success: float
+    # Predicted probability that the BLC finds no plan for it (the robot stands; the TLC goes
+    # round); the rest of 1 - success is the walk failing.
+    stand: float = 0.0
+
+    @property
+    def fall(self) -> float:
+        """Predicted probability that the action ends the walk (a fall, a leg in the terrain...)."""
+        return max(0.0, 1.0 - self.success - self.stand)
 
 
 @dataclasses.dataclass
@@ -388,6 +396,17 @@ class CapabilityPlan:
     def topology_changes(self) -> int:
         return sum(s.topology != s.action_topology for s in self.steps)
 
+    @property
+    def fall_free_probability(self) -> float:
+        """Predicted chance that no action of the path ends the walk, the TLC going round what
+        the BLC cannot plan: the product of the steps' 1 - fall."""
+        return fall_free_probability(self.steps)
+
+
+def fall_free_probability(steps) -> float:
+    """Product of the PathSteps' 1 - fall (1 for no steps)."""
+    return float(np.prod([1.0 - s.fall for s in steps])) if steps else 1.0
+
 
 def most_likely_path(mdp: CapabilityMdp, solution: ValueIterationResult, start_state: int,
                      max_steps: int | None = None) -> tuple[list[PathStep], bool, float]:
@@ -404,7 +423,8 @@ def most_likely_path(mdp: CapabilityMdp, solution: ValueIterationResult, start_s
         ix, iy, k, t = mdp.unravel(s)
         action_topology, motion = mdp.action(a)
         p = float(mdp.success[a, s])
-        steps.append(PathStep(float(mdp.xs[ix]), float(mdp.ys[iy]), k, t, action_topology, motion, p))
+        q = 0.0 if mdp.stand is None else float(mdp.stand[a, s])
+        steps.append(PathStep(float(mdp.xs[ix]), float(mdp.ys[iy]), k, t, action_topology, motion, p, q))
         probability *= p
         s = int(mdp.next_state[a, s])
     return steps, s == mdp.goal_state, probability

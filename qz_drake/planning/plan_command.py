@@ -92,10 +92,10 @@ def run_plan(args) -> int:
                   config=CapabilityMdpConfig(topologies=topologies))
     planning_time = time.perf_counter() - clock
     missions = split_missions(result.steps, start_yaw=args.heading * math.pi / 4) if result.reaches_goal else []
-    reachable = result.reaches_goal and result.success_probability >= args.min_success
+    reachable = result.reaches_goal and result.fall_free_probability >= args.min_success
     reason = "" if reachable else (
         "no path reaches the goal" if not result.reaches_goal else
-        f"the best path's predicted success {result.success_probability:.3f} < {args.min_success:g}")
+        f"the best path's predicted chance of no fall {result.fall_free_probability:.3f} < {args.min_success:g}")
     out.mkdir(parents=True, exist_ok=True)
     png = plot_plan(heightmap, result, out / "plan.png", title=f"{args.terrain}: CapPlanner's TLC")
     cells = result.cells
@@ -104,7 +104,9 @@ def run_plan(args) -> int:
         "success": bool(reachable), "reason": reason, "planning_time_s": planning_time,
         "iterations": int(result.solution.iterations), "converged": bool(result.solution.converged),
         "max_change": float(result.solution.max_change), "path_length_m": length,
-        "predicted_success": float(result.success_probability), "missions": len(missions),
+        # Every action planned and walked at the first attempt; no action ending the walk.
+        "predicted_success": float(result.success_probability),
+        "predicted_fall_free": float(result.fall_free_probability), "missions": len(missions),
         "topology_changes": int(result.topology_changes), "states": int(result.mdp.goal_state + 2),
         # Per topology: the share of failures (orthogonal, diagonal, turn) the MDP took for the
         # BLC finding no plan (the robot stands) rather than the end of the walk.
@@ -112,7 +114,7 @@ def run_plan(args) -> int:
                                for t, row in zip(result.mdp.topologies, result.mdp.plan_failure_share)},
         "start": list(start), "goal": list(goal), "png": str(png),
         "path": [{"x": s.x, "y": s.y, "heading": s.heading, "topology": s.action_topology, "motion": s.motion,
-                  "success": s.success} for s in result.steps],
+                  "success": s.success, "no_plan": s.stand} for s in result.steps],
         "mission_targets": [{"x": m.target[0], "y": m.target[1], "yaw": m.target[2], "topology": m.topology,
                              "success": m.success} for m in missions],
     }
@@ -121,7 +123,8 @@ def run_plan(args) -> int:
         print(json.dumps({k: v for k, v in summary.items() if k not in ("path", "mission_targets")}))
     else:
         print(f"{'reachable' if reachable else 'UNREACHABLE'}: {len(missions)} missions, "
-              f"{length:.1f} m, P(success) {result.success_probability:.2f}, {result.topology_changes} topology "
+              f"{length:.1f} m, P(success) {result.success_probability:.2f}, P(no fall) "
+              f"{result.fall_free_probability:.2f}, {result.topology_changes} topology "
               f"changes, VI {result.solution.iterations} iterations, {planning_time:.2f} s -> {png}")
     return 0 if reachable else 1
 
@@ -138,7 +141,7 @@ def register(subparsers) -> None:
     p.add_argument("--goal", required=True, metavar="X,Y", help="goal [m]")
     p.add_argument("--model", default=None, help="capability model folder (default: the shipped model)")
     p.add_argument("--min-success", type=float, default=0.05,
-                   help="least predicted success of the path to call the goal reachable")
+                   help="least predicted chance of the path arriving without a fall to call the goal reachable")
     p.add_argument("--out", default="out/plan", help="output folder")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.set_defaults(func=run_plan)

@@ -10,8 +10,9 @@ topologies to TrajectoryOptimizationBLC one after the other, on the same ports a
 route's MissionTargetSequencer, and at every mission start replans from the *expected end* of
 the current mission (paper 000: "the next BLC mission is given by TLC according to current
 robot position and expected end position of current BLC mission"). When no path reaches the
-goal with a predicted success of at least ``min_route_success``, it says so (``unreachable``)
-instead of walking into an obstacle.
+goal, or the best path's predicted chance of arriving without a fall (the TLC going round
+missions the BLC cannot plan: qz_drake.planning.capability_mdp) is below ``min_route_success``,
+it says so (``unreachable``) instead of walking into an obstacle.
 """
 
 from __future__ import annotations
@@ -82,8 +83,8 @@ class CapabilityVIPlanner(LeafSystem):
         initial_topology: the topology the robot stands in.
         mdp_config: CapabilityMdpConfig (rewards, discount, topologies).
         split_config: MissionSplitConfig (the BLC's reach, the merge threshold).
-        min_route_success: least predicted success of the whole path to call the goal
-            reachable.
+        min_route_success: least predicted chance of the whole path arriving without a fall
+            to call the goal reachable.
         plan_ahead: hand out the next mission this long before the current plan ends. [s]
         check_period: how often the plan is looked at. [s]
         max_recoveries: most missions the BLC could not plan that the planner goes round.
@@ -143,7 +144,7 @@ class CapabilityVIPlanner(LeafSystem):
 
     # -- planning ------------------------------------------------------------------------------
     def _replan(self, t: float, x: float, y: float, yaw: float, topology: str) -> list:
-        from qz_drake.planning.capability_mdp import CapabilityPlan, most_likely_path
+        from qz_drake.planning.capability_mdp import CapabilityPlan, fall_free_probability, most_likely_path
 
         clock = time.perf_counter()
         ix, iy = self.mdp.cell_of(x, y, field="start", margin=self.mdp.config.cell_size)
@@ -160,9 +161,11 @@ class CapabilityVIPlanner(LeafSystem):
             last.target = (self._goal[0], self._goal[1], last.target[2])
         self.log.replans.append((t, (x, y, k, topology), len(missions), probability))
         self.log.planning_time_s += time.perf_counter() - clock
-        if not reaches or probability < self._min_success:
+        fall_free = fall_free_probability(steps)
+        if not reaches or fall_free < self._min_success:
             self.log.unreachable = (f"no path reaches the goal {list(self._goal)}" if not reaches else
-                                    f"the best path's predicted success {probability:.3f} < {self._min_success:g}")
+                                    f"the best path's predicted chance of no fall {fall_free:.3f} < "
+                                    f"{self._min_success:g}")
             return []
         return missions
 

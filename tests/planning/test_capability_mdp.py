@@ -220,6 +220,10 @@ def test_a_long_route_reaches_the_goal_when_planning_failures_are_not_the_end():
     assert not terminal.reaches_goal
     standing = plan_on_map(capability_map, (1.5, 1.5), 0, goal, config=CapabilityMdpConfig(plan_failure_share=0.8))
     assert standing.reaches_goal and [s.motion for s in standing.steps] == ["forward"] * 157
+    # Every move planned and walked at once: 0.95^157; no move ending the walk: (1 - 0.05 * 0.2)^157.
+    assert standing.success_probability == pytest.approx(0.95 ** 157)
+    assert standing.fall_free_probability == pytest.approx(0.99 ** 157)
+    assert all(s.stand == pytest.approx(0.04) and s.fall == pytest.approx(0.01) for s in standing.steps)
     row = standing.utility_map()[1, :-2]
     assert np.all(np.diff(row) > 0)  # every cell nearer the goal is worth more
 

@@ -79,7 +79,7 @@ def test_the_first_plan_goes_round_the_wall_and_reaches_the_goal():
 
 def test_a_goal_behind_walls_is_reported_unreachable():
     planner = _planner(_world(enclosed=True))
-    assert "predicted success" in planner.log.unreachable or "no path" in planner.log.unreachable
+    assert "chance of no fall" in planner.log.unreachable or "no path" in planner.log.unreachable
     assert planner.done
 
 
