@@ -155,6 +155,33 @@ def test_query_inputs_and_map_success_agree_with_patches(trained):
     assert cmap.turn_right[0, k, i, j] == pytest.approx(float(model.success(p, f, "turn", "nominal", 1)), abs=1e-6)
 
 
+@pytest.mark.parametrize("kind", ["orthogonal", "turn"])
+def test_all_topologies_at_once_give_each_networks_own_answer(kind):
+    """success_all (the first convolutions of all topologies stacked, each network's input
+    standardisation folded into its kernels, zero padding included) gives what each network
+    gives alone, on the shipped model (whose networks standardise with different scalars)."""
+    model = CapabilityModel.load()
+    rng = np.random.default_rng(0)
+    topologies = ["nominal", "front_bend", "split_up"]
+    patches = rng.normal(0.0, 0.08, (3, 5, 20, 20)) + rng.uniform(-0.2, 0.2, (3, 5, 1, 1))
+    feet = {t: model.query_inputs(make_terrain("flat"), np.zeros((3, 5)), np.zeros((3, 5)), 0, kind, t)[1]
+            for t in topologies}
+    together = model.success_all(patches, feet, kind)
+    means = {float(model.network(t, kind).patch_mean) for t in topologies}
+    assert len(means) == len(topologies)  # the folding is exercised with different scalars
+    for t in topologies:
+        if kind == "turn":
+            left, right = together[t]
+            assert left.shape == (3, 5)
+            np.testing.assert_allclose(left, model.success(patches, feet[t], kind, t, 0), atol=2e-6)
+            np.testing.assert_allclose(right, model.success(patches, feet[t], kind, t, 1), atol=2e-6)
+        else:
+            assert together[t].shape == (3, 5)
+            np.testing.assert_allclose(together[t], model.success(patches, feet[t], kind, t), atol=2e-6)
+    with pytest.raises(QzError, match=r"feet\[split_up\]"):
+        model.success_all(patches, {**feet, "split_up": feet["split_up"][:2]}, kind)
+
+
 # -- commands ---------------------------------------------------------------------------------
 def _parser():
     parser = argparse.ArgumentParser(prog="qz capability")
