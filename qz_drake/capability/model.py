@@ -120,7 +120,8 @@ def load_network(weights: Path, card: dict, name: str):
                                           f"(header format {metadata.get('format')!r})")
     if card.get("weights_sha256") != _sha256(weights):
         raise _error(field, str(weights), "its SHA-256 differs from the card's weights_sha256 (file replaced?)")
-    config = NetworkConfig(**card.get("network_config", {}))
+    # Cards written before the factored output have one output.
+    config = NetworkConfig(**{"factored": False, **card.get("network_config", {})})
     net = CapabilityNet(kind, config)
     try:
         net.load_state_dict(state, strict=True)
@@ -303,13 +304,14 @@ class CapabilityModel:
                 features = net.encode_patch(x[start:stop])
                 for d in (P.TURN_LEFT, P.TURN_RIGHT):
                     extra = torch.cat([e[start:stop], torch.full((stop - start, 1), float(d))], dim=1)
-                    out[d, start:stop] = torch.sigmoid(net.head(features, extra)).numpy()
+                    out[d, start:stop] = net.success_of(net.head(features, extra)).numpy()
         return out[0].reshape(batch), out[1].reshape(batch)
 
     def success_all(self, patches, feet: dict, kind: str) -> dict:
         """Every listed topology's network of one kind on the same patches, each with its own
-        feet: topology -> success (moves) or (left, right) (turns), as ``success`` and
-        ``turn_success`` give them, to float32 rounding.
+        feet: topology -> (success, plan), success as ``success`` gives it (to float32
+        rounding), plan the chance that the BLC plans the move (None for a network with the
+        paper's single output); for turns each is (2, ...): left (d = 0), right (d = 1).
 
         What the topologies share is done once: the first convolution of all the networks runs
         as one convolution of their stacked kernels over the raw patches (1.8x faster than one
@@ -345,6 +347,7 @@ class CapabilityModel:
         x = torch.from_numpy(np.ascontiguousarray(patches.reshape(n, 1, P.PATCH_SIZE, P.PATCH_SIZE)))
         directions = (P.TURN_LEFT, P.TURN_RIGHT) if kind == "turn" else (None,)
         out = np.empty((len(topologies), len(directions), n))
+        plan = np.full((len(topologies), len(directions), n), np.nan)
         with torch.inference_mode():
             kernels, offsets = [], []
             for net in nets:
@@ -366,10 +369,13 @@ class CapabilityModel:
                         extra = extras[i][start:stop]
                         if d is not None:
                             extra = torch.cat([extra, torch.full((stop - start, 1), float(d))], dim=1)
-                        out[i, j, start:stop] = torch.sigmoid(net.head(features, extra)).numpy()
-        if kind == "turn":
-            return {t: (out[i, 0].reshape(batch), out[i, 1].reshape(batch)) for i, t in enumerate(topologies)}
-        return {t: out[i, 0].reshape(batch) for i, t in enumerate(topologies)}
+                        logits = net.head(features, extra)
+                        out[i, j, start:stop] = net.success_of(logits).numpy()
+                        if net.factored:
+                            plan[i, j, start:stop] = net.plan_of(logits).numpy()
+        shape = (len(directions),) + batch if kind == "turn" else batch
+        return {t: (out[i].reshape(shape), plan[i].reshape(shape) if nets[i].factored else None)
+                for i, t in enumerate(topologies)}
 
     @staticmethod
     def query_inputs(heightmap, x, y, heading_index, kind: str, topology: str, *, ground=None):
@@ -412,6 +418,11 @@ class CapabilityMap:
     # failures in which the BLC found no plan (CapabilityModel.plan_failure_share); NaN where
     # the model does not say; None: not known at all (a stub model).
     plan_failure_share: np.ndarray | None = None
+    # (T, 8, ny, nx) each, with a two-output model (networks.NetworkConfig.factored): the
+    # chance that the BLC plans the action (the rest of its failures are falls); None otherwise.
+    forward_plan: np.ndarray | None = None
+    turn_left_plan: np.ndarray | None = None
+    turn_right_plan: np.ndarray | None = None
 
     @property
     def queries(self) -> int:
@@ -485,15 +496,23 @@ def evaluate_map(model, inputs: MapInputs) -> CapabilityMap:
     even = (np.arange(8) % 2 == 0)
     forward, left, right = np.empty(shape), np.empty(shape), np.empty(shape)
     if hasattr(model, "success_all"):  # the topologies' first convolutions as one
+        plans = np.full((3,) + shape, np.nan)  # forward, left, right
         for kind, mask in (("orthogonal", even), ("diagonal", ~even)):
             moves = model.success_all(inputs.move_patches[mask], {t: inputs.feet[t][mask] for t in topologies}, kind)
             for i, t in enumerate(topologies):
-                forward[i][mask] = moves[t]
+                forward[i][mask] = moves[t][0]
+                if moves[t][1] is not None:
+                    plans[0, i][mask] = moves[t][1]
         turns = model.success_all(inputs.turn_patches, inputs.feet, "turn")
         for i, t in enumerate(topologies):
-            left[i], right[i] = turns[t]
+            (left[i], right[i]), plan = turns[t]
+            if plan is not None:
+                plans[1, i], plans[2, i] = plan
+        factored = not np.isnan(plans).any()
         return CapabilityMap(xs=inputs.xs, ys=inputs.ys, topologies=topologies, forward=forward, turn_left=left,
-                             turn_right=right, cell_size=inputs.cell_size, plan_failure_share=_shares(model, topologies))
+                             turn_right=right, cell_size=inputs.cell_size, plan_failure_share=_shares(model, topologies),
+                             forward_plan=plans[0] if factored else None, turn_left_plan=plans[1] if factored else None,
+                             turn_right_plan=plans[2] if factored else None)
     for i, t in enumerate(topologies):
         feet = inputs.feet[t]
         forward[i][even] = model.success(inputs.move_patches[even], feet[even], "orthogonal", t)

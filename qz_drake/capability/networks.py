@@ -6,6 +6,17 @@ second head is the start feet in the heading frame (18 numbers) and, for the tur
 the direction d. The two are concatenated and go through two dense layers; a sigmoid gives
 the success probability.
 
+A second output (``NetworkConfig.factored``, the default): the last layer has two logits, the
+paper's success and that the BLC finds a plan for the move (p_plan). A failure the BLC could
+not plan leaves the robot standing where it was and the planner can go round it; the rest
+(the BLC planned, the walk failed) is a fall, a leg in the terrain, a slip. Which of the two a
+failure is depends on the terrain (on obstacles 58 % of the trials' failures are the BLC's, on
+slopes all of them), and the planner's MDP needs it per state
+(qz_drake.planning.capability_mdp). Both outputs are trained on every trial, on its
+``success`` and ``blc_success`` labels. (Tried first: success as p_plan * p_walk, the walk
+output trained on the planned trials only; on the same 12 214 trials and split it scored a
+mean test AUC of 0.923 against the single output's 0.943: the walk output sees fewer trials.)
+
 Inputs are standardised inside the module (fixed buffers set from the training set and saved
 with the weights), so that callers pass heights and feet in metres as qz_drake.capability.patches
 makes them and a saved network is self-contained.
@@ -39,6 +50,8 @@ class NetworkConfig:
     patch_features: int = 32
     # Width of the first of the two dense layers after the concatenation (not given by the paper).
     hidden: int = 64
+    # Two outputs, success and p_plan (see the module docstring); False: the paper's one.
+    factored: bool = True
 
 
 def extra_inputs(kind: str) -> int:
@@ -56,8 +69,10 @@ def _max_pool_2x2(x: torch.Tensor) -> torch.Tensor:
 class CapabilityNet(nn.Module):
     """O(M_O, p), D(M_D, p) or S(M_S, d) of paper 000 Fig. 4: success probability of one action.
 
-    ``forward(patch, extra)`` returns logits (B,) for patches (B, 20, 20) [m] and the second
-    head (B, 18) or (B, 19) [m, and d in {0, 1}]; :meth:`probability` applies the sigmoid.
+    ``forward(patch, extra)`` returns logits for patches (B, 20, 20) [m] and the second head
+    (B, 18) or (B, 19) [m, and d in {0, 1}]: (B,) success logits, or (B, 2) success and plan
+    logits when factored; :meth:`probability` gives the success probability (B,) either way
+    and :meth:`plan_probability` the chance that the BLC plans the move.
     """
 
     def __init__(self, kind: str, config: NetworkConfig | None = None):
@@ -72,7 +87,8 @@ class CapabilityNet(nn.Module):
         self.patch_dense = nn.Linear(c * pooled * pooled, int(config.patch_features))
         n_extra = extra_inputs(kind)
         self.dense1 = nn.Linear(int(config.patch_features) + n_extra, int(config.hidden))
-        self.dense2 = nn.Linear(int(config.hidden), 1)
+        self.factored = bool(config.factored)
+        self.dense2 = nn.Linear(int(config.hidden), 2 if self.factored else 1)
         # Input standardisation, set by set_input_scaling from the training set.
         self.register_buffer("patch_mean", torch.zeros(()))
         self.register_buffer("patch_scale", torch.ones(()))
@@ -97,13 +113,27 @@ class CapabilityNet(nn.Module):
         return torch.relu(self.patch_dense(x.flatten(1)))
 
     def head(self, features: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
-        """The two dense layers after the concatenation; logits (B,)."""
+        """The two dense layers after the concatenation; logits (B,), or (B, 2) when factored."""
         e = (extra - self.extra_mean) / self.extra_scale
         x = torch.relu(self.dense1(torch.cat([features, e], dim=1)))
-        return self.dense2(x).squeeze(1)
+        out = self.dense2(x)
+        return out if self.factored else out.squeeze(1)
 
     def forward(self, patch: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
         return self.head(self.encode_patch(patch), extra)
 
+    @staticmethod
+    def success_of(logits: torch.Tensor) -> torch.Tensor:
+        """Success probability (B,) of the logits ``forward`` or ``head`` returned."""
+        return torch.sigmoid(logits[:, 0] if logits.dim() == 2 else logits)
+
+    @staticmethod
+    def plan_of(logits: torch.Tensor) -> torch.Tensor | None:
+        """P(the BLC plans the move) (B,) of factored logits; None for the paper's one output."""
+        return torch.sigmoid(logits[:, 1]) if logits.dim() == 2 else None
+
     def probability(self, patch: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
-        return torch.sigmoid(self.forward(patch, extra))
+        return self.success_of(self.forward(patch, extra))
+
+    def plan_probability(self, patch: torch.Tensor, extra: torch.Tensor) -> torch.Tensor | None:
+        return self.plan_of(self.forward(patch, extra))

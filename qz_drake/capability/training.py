@@ -32,7 +32,7 @@ from qz_drake.errors import ConfigError, bad_value
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 
 # Keys of the dataset contract (qz_drake.capability.dataset.load_training_arrays) used here.
-REQUIRED_KEYS = ("patch", "feet", "direction", "success", "scene", "topology", "kind")
+REQUIRED_KEYS = ("patch", "feet", "direction", "success", "blc_success", "scene", "topology", "kind")
 LOSSES = ("mse", "bce")
 INITIALISATIONS = ("scratch", "pooled")
 # The 18 networks (topology, kind), in TOPOLOGY_NAMES x KINDS order.
@@ -87,6 +87,11 @@ class TrainingConfig:
     # scene splits, weight decay 1e-4: mean test AUC 0.855 -> 0.869 and 0.793 -> 0.829, Brier
     # 0.141 -> 0.131 and 0.153 -> 0.148.
     mirror: bool = True
+    # Two outputs per network, the success and P(the BLC plans the move), trained on the
+    # trials' success and blc_success labels (networks.NetworkConfig.factored);
+    # the planner needs the first per state to tell a plan not found (the robot stands) from a
+    # fall. False: the paper's single success output.
+    factored: bool = True
     # Networks to train, "topology/kind" names; empty: every (topology, kind) with data.
     networks: list[str] = dataclasses.field(default_factory=list)
     # Calibration bins and baseline features.
@@ -191,14 +196,16 @@ def split_scenes(scene_ids, fractions=(0.70, 0.15, 0.15), seed: int = 0) -> dict
 
 
 def _tensors(arrays: dict, rows: np.ndarray, kind: str, mirror: bool = False):
-    """(patches, second head, labels) of the rows; with ``mirror``, followed by the rows'
-    mirror images (patches.mirror_inputs) with the same labels."""
+    """(patches, second head, labels) of the rows, labels (N, 2): the BLC planned the move
+    (``blc_success``), the trial succeeded; with ``mirror``, followed by the rows' mirror
+    images (patches.mirror_inputs) with the same labels."""
     import torch
 
     patch = np.asarray(arrays["patch"][rows], dtype=np.float32)
     feet = np.asarray(arrays["feet"][rows], dtype=np.float32)
     direction = np.asarray(arrays["direction"][rows])
-    label = np.asarray(arrays["success"][rows], dtype=np.float32)
+    label = np.column_stack([np.asarray(arrays["blc_success"][rows], dtype=np.float32),
+                             np.asarray(arrays["success"][rows], dtype=np.float32)])
     if mirror:
         m_patch, m_feet, m_direction = mirror_inputs(patch, feet, direction, kind)
         patch, feet = np.concatenate([patch, m_patch]), np.concatenate([feet, m_feet])
@@ -216,11 +223,18 @@ def _split_tensors(arrays: dict, rows: dict[str, np.ndarray], kind: str, config:
 
 
 def _loss(name: str, logits, labels):
+    """The loss of logits (B,) against the success labels, or of factored logits (B, 2): the
+    success output's against ``success`` plus the plan output's against ``blc_success``."""
     import torch
 
-    if name == "mse":
-        return torch.mean((torch.sigmoid(logits) - labels) ** 2)
-    return torch.nn.functional.binary_cross_entropy_with_logits(logits, labels)
+    def term(x, y):
+        if name == "mse":
+            return (torch.sigmoid(x) - y) ** 2
+        return torch.nn.functional.binary_cross_entropy_with_logits(x, y, reduction="none")
+
+    if logits.dim() == 1:
+        return term(logits, labels[:, 1]).mean()
+    return (term(logits[:, 0], labels[:, 1]) + term(logits[:, 1], labels[:, 0])).mean()
 
 
 def _fit(kind: str, train, val, loss: str, config: TrainingConfig, seed: int, advance=None,
@@ -230,10 +244,10 @@ def _fit(kind: str, train, val, loss: str, config: TrainingConfig, seed: int, ad
     best epoch, epochs run)."""
     import torch
 
-    from qz_drake.capability.networks import CapabilityNet
+    from qz_drake.capability.networks import CapabilityNet, NetworkConfig
 
     torch.manual_seed(seed)
-    net = CapabilityNet(kind)
+    net = CapabilityNet(kind, NetworkConfig(factored=config.factored))
     if initial_state is None:
         net.set_input_scaling(train[0], train[1])
     else:
@@ -309,7 +323,7 @@ def train_one(arrays: dict, rows: dict[str, np.ndarray], topology: str, kind: st
             start = time.perf_counter()
             net, best_epoch, epochs = _fit(kind, data["train"], data["validation"], loss, config, seed, advance,
                                            initial_state=pooled[loss] if init == "pooled" else None)
-            val = binary_metrics(data["validation"][2].numpy(), _predict(net, data["validation"]), bins=bins)
+            val = binary_metrics(data["validation"][2][:, 1].numpy(), _predict(net, data["validation"]), bins=bins)
             name = loss if init == "scratch" else f"{loss}+pooled"
             runs[name] = (net, {"loss": loss, "initialisation": init, "best_epoch": best_epoch, "epochs": epochs,
                                 "train_seconds": time.perf_counter() - start, "validation": val})
@@ -318,6 +332,12 @@ def train_one(arrays: dict, rows: dict[str, np.ndarray], topology: str, kind: st
     net = runs[chosen][0]
     test_labels = np.asarray(arrays["success"][rows["test"]], dtype=bool)
     test = binary_metrics(test_labels, _predict(net, data["test"]), bins=bins)
+    if net.factored:  # how well the plan output tells what the BLC plans (the planner's stand)
+        import torch
+
+        with torch.no_grad():
+            planned = net.plan_probability(data["test"][0], data["test"][1]).numpy().astype(float)
+        test["plan"] = binary_metrics(np.asarray(arrays["blc_success"][rows["test"]], dtype=bool), planned, bins=bins)
     features = {split: baseline_inputs(arrays["patch"][r], arrays["direction"][r], kind, config.evaluation)
                 for split, r in rows.items() if split in ("train", "test")}
     baselines = baseline_metrics(features["train"], arrays["success"][rows["train"]], features["test"],

@@ -12,10 +12,12 @@ evaluation of the map (qz_drake.capability.model.predict_map). With probability 
 reaches the next (cell, heading) in the new topology (the goal state when that cell is the
 goal's). A failure is one of two things, and the trials tell them apart: the BLC found no plan
 (the robot stands where it was, and the TLC goes round: qz_drake.systems.capability_planner)
-or the walk failed (a fall, a leg in the terrain, a slip: the end). With q = share * (1 - p),
-share the network's measured share of planning failures (``plan_failure_share``), the robot
-stays in its state with probability q at ``plan_failure_cost``, and falls into the absorbing
-failure state with probability (1 - p) - q. A forward move off the grid and a topology change
+or the walk failed (a fall, a leg in the terrain, a slip: the end). With q the probability
+that the BLC finds no plan, the robot stays in its state with probability q at
+``plan_failure_cost``, and falls into the absorbing failure state with probability (1 - p) - q.
+q is the factored model's own, per state and action (1 - p_plan: networks.NetworkConfig.
+factored); for a model with the paper's single output, share * (1 - p) with the network's
+measured share of planning failures (``plan_failure_share``); the config can fix the share. A forward move off the grid and a topology change
 where none can be made fail outright. The BLC is deterministic: what it could not plan from a
 state it will not plan there the next time, and the TLC forbids the action there
 (``forbid_action``). So after a planning failure the robot chooses again *among the other
@@ -76,10 +78,12 @@ class CapabilityMdpConfig:
     # is worth avoiding at a detour of up to ~10 actions. A fall ends the mission either way.
     failure_reward: float = -100.0
     # Share of an action's failure probability that is the BLC finding no plan (the robot
-    # stands where it was; the rest end the walk). None: each network's share measured on its
-    # training trials (CapabilityModel.plan_failure_share; 0 where the model does not say,
-    # as a random model); a number in [0, 1]: that share for every action (0: every failure
-    # ends the walk).
+    # stands where it was; the rest end the walk). None: the model's (a factored model's
+    # P(no plan) per state and action; else each network's share measured on its training
+    # trials, CapabilityModel.plan_failure_share; 0 where the model does not say, as a random
+    # model); a number in [0, 1]: that share for every action (0: every failure ends the
+    # walk). A constant share is a poor guess where it matters: 58 % of the obstacle trials'
+    # failures are the BLC's against 77 % overall, and near a tall obstacle fewer.
     plan_failure_share: float | None = None
     # Cost of a planning failure: the robot stood while the BLC searched, and the TLC replans;
     # about one action's time.
@@ -157,6 +161,9 @@ class CapabilityMdp:
     # turn); (A, S) the probability that an action leaves the robot standing where it was.
     plan_failure_share: np.ndarray | None = None
     stand: np.ndarray | None = None
+    # Where the planning failures' probabilities came from: "model, per state" (a factored
+    # model), "model cards' shares" (plan_failure_share above) or "config".
+    plan_failure_source: str = ""
 
     @property
     def grid_shape(self) -> tuple[int, int, int, int]:
@@ -248,6 +255,9 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
     next_state = np.tile(np.arange(S), (A, 1))
     R = np.zeros((S, A))
     mdp.plan_failure_share = _plan_failure_shares(capability_map, config, T)
+    mdp.plan_failure_source = ("config" if config.plan_failure_share is not None else
+                               "model, per state" if getattr(capability_map, "forward_plan", None) is not None
+                               else "model cards' shares")
     for t in range(T):
         # Grid state of the same cell and heading in topology t (the action's).
         same = np.ravel_multi_index((np.full(grid, t), k, iy, ix), (T, K, ny, nx))
@@ -263,12 +273,17 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
         )
         share = mdp.plan_failure_share[t]
         shares = (np.where(k % 2 == 0, share[0], share[1]), share[2], share[2])
+        planned = _plan_probabilities(capability_map, config, t, k, iy, ix)
         for m, (p, nxt) in enumerate(motions):
             a = 3 * t + m
             p = np.clip(np.asarray(p, dtype=float), 0.0, 1.0)
             # What the BLC could not plan leaves the robot standing; a forward move off the grid
             # and a refused topology change are not the BLC's and fail outright.
-            q = (1.0 - p) * shares[m] * (on_grid if m == 0 else 1.0)
+            if planned is not None:  # the factored model's own P(no plan) of this state and action
+                q = np.clip(1.0 - planned[m], 0.0, 1.0 - p)
+            else:
+                q = (1.0 - p) * shares[m]
+            q = q * (on_grid if m == 0 else 1.0)
             if switchable is not None:  # a topology change where the robot cannot make one fails
                 refused = (t0 != t) & ~np.asarray(switchable, dtype=bool)[iy, ix]
                 p, q = np.where(refused, 0.0, p), np.where(refused, 0.0, q)
@@ -294,6 +309,15 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
                                       shape=(S, S)))
     mdp.P, mdp.R, mdp.success, mdp.next_state, mdp.stand = matrices, R, success, next_state, stand
     return mdp
+
+
+def _plan_probabilities(capability_map, config: CapabilityMdpConfig, t: int, k, iy, ix):
+    """(forward, turn left, turn right) P(the BLC plans it) per grid state of topology t, from
+    a factored model's map; None when the config fixes a share or the map has none."""
+    if config.plan_failure_share is not None or getattr(capability_map, "forward_plan", None) is None:
+        return None
+    return tuple(np.asarray(getattr(capability_map, name)[t, k, iy, ix], dtype=float)
+                 for name in ("forward_plan", "turn_left_plan", "turn_right_plan"))
 
 
 def _plan_failure_shares(capability_map, config: CapabilityMdpConfig, n_topologies: int) -> np.ndarray:

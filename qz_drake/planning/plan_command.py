@@ -110,6 +110,7 @@ def run_plan(args) -> int:
         "topology_changes": int(result.topology_changes), "states": int(result.mdp.goal_state + 2),
         # Per topology: the share of failures (orthogonal, diagonal, turn) the MDP took for the
         # BLC finding no plan (the robot stands) rather than the end of the walk.
+        "plan_failures_from": result.mdp.plan_failure_source,
         "plan_failure_share": {t: [round(float(v), 4) for v in row]
                                for t, row in zip(result.mdp.topologies, result.mdp.plan_failure_share)},
         "start": list(start), "goal": list(goal), "png": str(png),

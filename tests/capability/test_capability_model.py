@@ -170,14 +170,23 @@ def test_all_topologies_at_once_give_each_networks_own_answer(kind):
     means = {float(model.network(t, kind).patch_mean) for t in topologies}
     assert len(means) == len(topologies)  # the folding is exercised with different scalars
     for t in topologies:
-        if kind == "turn":
-            left, right = together[t]
-            assert left.shape == (3, 5)
-            np.testing.assert_allclose(left, model.success(patches, feet[t], kind, t, 0), atol=2e-6)
-            np.testing.assert_allclose(right, model.success(patches, feet[t], kind, t, 1), atol=2e-6)
-        else:
-            assert together[t].shape == (3, 5)
-            np.testing.assert_allclose(together[t], model.success(patches, feet[t], kind, t), atol=2e-6)
+        success, plan = together[t]
+        net = model.network(t, kind)
+        directions = (0, 1) if kind == "turn" else (None,)
+        assert success.shape == ((2, 3, 5) if kind == "turn" else (3, 5))
+        for i, d in enumerate(directions):
+            alone = model.success(patches, feet[t], kind, t, d)
+            np.testing.assert_allclose(success[i] if kind == "turn" else success, alone, atol=2e-6)
+            if net.factored:  # the plan output, recomputed by the network alone
+                extra = feet[t].reshape(15, 18).astype(np.float32)
+                if d is not None:
+                    extra = np.column_stack([extra, np.full(15, d, np.float32)])
+                with torch.no_grad():
+                    expected = net.plan_probability(torch.as_tensor(patches.reshape(15, 20, 20).astype(np.float32)),
+                                                    torch.as_tensor(extra)).numpy().reshape(3, 5)
+                np.testing.assert_allclose(plan[i] if kind == "turn" else plan, expected, atol=2e-6)
+            else:
+                assert plan is None
     with pytest.raises(QzError, match=r"feet\[split_up\]"):
         model.success_all(patches, {**feet, "split_up": feet["split_up"][:2]}, kind)
 

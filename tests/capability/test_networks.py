@@ -18,7 +18,10 @@ def test_layers_follow_the_paper():
     # 20 -> pool -> 10 -> pool -> 5: four 5 x 5 maps flattened into the patch's dense layer.
     assert net.patch_dense.in_features == 4 * 5 * 5
     assert net.dense1.in_features == NetworkConfig().patch_features + 18
-    assert net.dense2.out_features == 1
+    # Factored (the default): P(the BLC plans it) and P(the walk passes | planned); the paper's one
+    # success output on request.
+    assert net.dense2.out_features == 2
+    assert CapabilityNet("orthogonal", NetworkConfig(factored=False)).dense2.out_features == 1
     assert CapabilityNet("turn").dense1.in_features == NetworkConfig().patch_features + 19
     assert (extra_inputs("diagonal"), extra_inputs("turn")) == (18, 19)
 
@@ -32,6 +35,33 @@ def test_probabilities_batched_and_in_range():
     # Batched evaluation equals one query at a time.
     one = torch.stack([net.probability(patch[i:i + 1], extra[i:i + 1])[0] for i in range(7)])
     assert torch.allclose(p, one, atol=1e-6)
+
+
+def test_the_second_output_is_the_chance_that_the_blc_plans_the_move():
+    torch.manual_seed(1)
+    net = CapabilityNet("diagonal").eval()
+    patch, extra = torch.randn(5, 20, 20) * 0.1, torch.randn(5, 18)
+    logits = net(patch, extra)
+    assert logits.shape == (5, 2)
+    assert torch.allclose(net.probability(patch, extra), torch.sigmoid(logits[:, 0]))
+    assert torch.allclose(net.plan_probability(patch, extra), torch.sigmoid(logits[:, 1]))
+    single = CapabilityNet("diagonal", NetworkConfig(factored=False)).eval()
+    assert single(patch, extra).shape == (5,) and single.plan_probability(patch, extra) is None
+
+
+def test_the_two_output_loss_trains_each_output_on_its_label():
+    """Success on the trial's success, the plan output on whether the BLC planned it."""
+    from qz_drake.capability.training import _loss
+
+    for name in ("mse", "bce"):
+        logits = torch.zeros(2, 2, requires_grad=True)
+        labels = torch.tensor([[1.0, 0.0], [0.0, 0.0]])  # (planned, success): walk failed; not planned
+        _loss(name, logits, labels).backward()
+        assert logits.grad[0, 0] > 0.0 and logits.grad[1, 0] > 0.0  # success pushed down on both
+        assert logits.grad[0, 1] < 0.0 and logits.grad[1, 1] > 0.0  # plan up where planned, else down
+        single = torch.zeros(2, requires_grad=True)
+        _loss(name, single, labels).backward()
+        assert single.grad[0] > 0.0 and single.grad[1] > 0.0
 
 
 def test_fast_pooling_is_max_pool():

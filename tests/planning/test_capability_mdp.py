@@ -258,3 +258,31 @@ def test_after_a_planning_failure_the_robot_chooses_among_the_other_actions(corr
                                     CapabilityMdpConfig(plan_failure_share=0.0))
     assert np.allclose(solve_capability_mdp(terminal).V,
                        value_iteration(terminal.P, terminal.R, 0.99, epsilon=0.01, max_iter=5000).V)
+
+
+def test_a_factored_model_says_per_state_which_failures_leave_the_robot_standing():
+    """With a two-output model's P(the BLC plans it) in the map, the stay is 1 - p_plan of that
+    state and action (not a share per network): of two moves with the same success 0.42, the
+    one the BLC usually cannot plan (p_plan 0.45) mostly leaves the robot standing, the one it
+    plans and then fails (p_plan 0.95, a leg on an obstacle) mostly ends the walk."""
+    from qz_drake.capability.model import CapabilityMap
+
+    nx, ny = 6, 3
+    forward = np.full((1, 8, ny, nx), 0.97)
+    turn = np.full((1, 8, ny, nx), 0.99)
+    plan = np.full((1, 8, ny, nx), 0.99)
+    forward[0, 0, 1, 2], plan[0, 0, 1, 2] = 0.42, 0.45
+    forward[0, 0, 1, 3], plan[0, 0, 1, 3] = 0.42, 0.95
+    capability_map = CapabilityMap(xs=0.5 + np.arange(nx), ys=0.5 + np.arange(ny), topologies=("nominal",),
+                                   forward=forward, turn_left=turn, turn_right=turn.copy(),
+                                   plan_failure_share=np.array([[0.8, 0.8, 0.8]]), forward_plan=plan,
+                                   turn_left_plan=plan.copy(), turn_right_plan=plan.copy())
+    mdp = build_capability_mdp(capability_map, (5.5, 1.5))
+    assert mdp.plan_failure_source == "model, per state"
+    blc, obstacle = mdp.state(2, 1, 0, "nominal"), mdp.state(3, 1, 0, "nominal")
+    assert mdp.stand[0, blc] == pytest.approx(0.55) and mdp.P[0][blc, mdp.failure_state] == pytest.approx(0.03)
+    assert mdp.stand[0, obstacle] == pytest.approx(0.05)
+    assert mdp.P[0][obstacle, mdp.failure_state] == pytest.approx(0.53)
+    # A fixed share in the config overrides the model's per-state view.
+    fixed = build_capability_mdp(capability_map, (5.5, 1.5), CapabilityMdpConfig(plan_failure_share=0.5))
+    assert fixed.plan_failure_source == "config" and fixed.stand[0, obstacle] == pytest.approx(0.29)
