@@ -110,6 +110,11 @@ class CapabilityMdpConfig:
     # ended the walk. The MDP gives a topology change elsewhere no success. [deg], [m]
     switch_max_slope_deg: float = 8.0
     switch_max_roughness: float = 0.03
+    # ... and nothing within the legs' reach (SWITCH_REACH) standing out of the ground's plane
+    # by more than this: each leg is lifted and swung to its new foothold. In a Fig. 9
+    # obstacle world a switch beside a 0.13 m box (0.4 m from the cell centre; roughness over
+    # the 0.7 m disc 0.01) passed a foot 3.4 cm into it and ended the walk. [m]
+    switch_max_step: float = 0.03
     # Grid cell. [m]
     cell_size: float = P.CELL_SIZE
     # Topologies the robot may use; empty: all six.
@@ -117,7 +122,7 @@ class CapabilityMdpConfig:
 
     def check(self) -> "CapabilityMdpConfig":
         for name in ("goal_reward", "action_cost", "topology_change_cost", "switch_max_slope_deg",
-                     "switch_max_roughness", "plan_failure_cost"):
+                     "switch_max_roughness", "switch_max_step", "plan_failure_cost"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise bad_value(f"capability_mdp.{name}", getattr(self, name), "must be finite and >= 0")
         if not (np.isfinite(self.failure_reward) and self.failure_reward <= 0):
@@ -206,28 +211,44 @@ class CapabilityMdp:
 
 # The ground a topology switch needs level: Qingzhui's trunk half-diagonal. [m]
 SWITCH_RADIUS = 0.7
+# The ground its legs sweep: the farthest nominal foothold (split_up, 0.83 m) and the foot's
+# kinematic box. [m]
+SWITCH_REACH = 0.95
 SWITCH_SPACING = 0.1  # [m]
+
+
+def _disc(radius: float):
+    step = np.arange(-radius, radius + 1e-9, SWITCH_SPACING)
+    dx, dy = np.meshgrid(step, step)
+    inside = dx ** 2 + dy ** 2 <= radius ** 2
+    return dx[inside], dy[inside]
 
 
 def switchable_cells(heightmap, xs, ys, config: CapabilityMdpConfig | None = None) -> np.ndarray:
     """(ny, nx) True where the robot may change topology: the terrain around the cell centre
-    (xs, ys) is level and smooth enough (``switch_max_slope_deg``, ``switch_max_roughness``)."""
+    (xs, ys) is level and smooth enough (``switch_max_slope_deg``, ``switch_max_roughness``)
+    under the body, and flat within the legs' reach (``switch_max_step``)."""
     config = config or CapabilityMdpConfig()
-    # The terrain on a disc of SWITCH_RADIUS around each cell centre, sampled every
-    # SWITCH_SPACING (paper 003's body features, Eq. 7-8, at the cells only: on a 100 m map the
-    # whole-map features took 2.9 s, these 0.14 s).
-    step = np.arange(-SWITCH_RADIUS, SWITCH_RADIUS + 1e-9, SWITCH_SPACING)
-    dx, dy = np.meshgrid(step, step)
-    inside = dx ** 2 + dy ** 2 <= SWITCH_RADIUS ** 2
-    dx, dy = dx[inside], dy[inside]
+    # The terrain on discs around each cell centre, sampled every SWITCH_SPACING (paper 003's
+    # body features, Eq. 7-8, at the cells only: on a 100 m map the whole-map features took
+    # 2.9 s, these 0.14 s).
     X, Y = np.meshgrid(np.asarray(xs, dtype=float), np.asarray(ys, dtype=float))
-    z = np.asarray(heightmap.height(X[..., None] + dx, Y[..., None] + dy), dtype=float)
-    # Least-squares plane over a symmetric disc: slopes sum(d z) / sum(d^2) along x and y.
-    a = (z * dx).sum(axis=-1) / (dx ** 2).sum()
-    b = (z * dy).sum(axis=-1) / (dy ** 2).sum()
+
+    def plane(radius):
+        dx, dy = _disc(radius)
+        z = np.asarray(heightmap.height(X[..., None] + dx, Y[..., None] + dy), dtype=float)
+        # Least-squares plane over a symmetric disc: slopes sum(d z) / sum(d^2) along x and y.
+        a = (z * dx).sum(axis=-1) / (dx ** 2).sum()
+        b = (z * dy).sum(axis=-1) / (dy ** 2).sum()
+        residual = z - z.mean(axis=-1, keepdims=True) - a[..., None] * dx - b[..., None] * dy
+        return z, a, b, residual
+
+    z, a, b, _ = plane(SWITCH_RADIUS)
     slope = np.arctan(np.hypot(a, b))
     roughness = z.std(axis=-1)
-    return (slope <= np.radians(config.switch_max_slope_deg)) & (roughness <= config.switch_max_roughness)
+    step = np.abs(plane(SWITCH_REACH)[3]).max(axis=-1)
+    return ((slope <= np.radians(config.switch_max_slope_deg)) & (roughness <= config.switch_max_roughness)
+            & (step <= config.switch_max_step))
 
 
 def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | None = None,

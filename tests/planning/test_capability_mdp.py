@@ -286,3 +286,18 @@ def test_a_factored_model_says_per_state_which_failures_leave_the_robot_standing
     # A fixed share in the config overrides the model's per-state view.
     fixed = build_capability_mdp(capability_map, (5.5, 1.5), CapabilityMdpConfig(plan_failure_share=0.5))
     assert fixed.plan_failure_source == "config" and fixed.stand[0, obstacle] == pytest.approx(0.29)
+
+
+def test_no_topology_change_beside_an_obstacle_within_the_legs_reach():
+    """A 0.13 m box 0.5 m from a cell centre hardly moves the ground's roughness under the body
+    (the 0.7 m disc) but stands in the legs' way when they swing to the new footholds."""
+    from qz_drake.planning.capability_mdp import switchable_cells
+
+    res = 0.05
+    x = res / 2 + res * np.arange(120)
+    X, Y = np.meshgrid(x, x)
+    h = np.where((np.abs(X - 3.5) < 0.1) & (np.abs(Y - 3.0) < 0.1), 0.13, 0.0)
+    heightmap = HeightMap(h, res, (res / 2, res / 2))
+    xs, ys = np.array([3.0, 1.0, 4.3]), np.array([3.0])  # the box 0.5, 2.5 and 0.8 m away
+    assert switchable_cells(heightmap, xs, ys).tolist() == [[False, True, False]]
+    assert switchable_cells(heightmap, xs, ys, CapabilityMdpConfig(switch_max_step=0.2)).tolist() == [[True] * 3]
