@@ -21,7 +21,7 @@ from qz_drake.config import Scenario
 from qz_drake.station import GRAVITY, make_station
 from qz_drake.systems.joint_pd import JointPdController
 from qz_drake.systems.state_layout import BASE_POS, JOINT_Q, base_rpy, tilt_deg
-from qz_drake.viz.recording import recording_meshcat
+from qz_drake.viz.recording import RECORDING_FPS, recording_meshcat
 
 # Samples per second of the logged signals. [Hz]
 LOG_RATE = 100.0
@@ -120,7 +120,7 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
     simulator.Initialize()
     duration = scenario.simulation.duration if duration is None else duration
     if meshcat is not None:
-        meshcat.StartRecording()
+        meshcat.StartRecording(frames_per_second=RECORDING_FPS)
     wall_start = time.perf_counter()
     simulator.AdvanceTo(duration)
     wall = time.perf_counter() - wall_start
@@ -297,7 +297,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
         return _unplanned(scenario, out, missions)
     limit = scenario.simulation.duration if max_duration is None else max_duration
     if meshcat is not None:
-        meshcat.StartRecording()
+        meshcat.StartRecording(frames_per_second=RECORDING_FPS)
     context = simulator.get_context()
     station_context = station.GetMyContextFromRoot(context)
     fell = False

@@ -269,8 +269,11 @@ def make_station(scenario: Scenario, meshcat: Meshcat | None = None, *,
     builder.ExportOutput(plant.get_body_poses_output_port(), "body_poses")
 
     if meshcat is not None:
+        from qz_drake.viz.recording import RECORDING_FPS
+
         MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat,
-                                       MeshcatVisualizerParams(role=Role.kIllustration))
+                                       MeshcatVisualizerParams(role=Role.kIllustration,
+                                                               publish_period=1.0 / RECORDING_FPS))
     diagram = builder.Build()
     diagram.set_name("station")
     return diagram, StationInfo(heightmap=heightmap, contact_representation=representation,
