@@ -255,7 +255,7 @@ def test_after_a_planning_failure_the_robot_chooses_among_the_other_actions(corr
     assert np.max(looping.V - solution.V) > 0.1
     # Without planning failures it is Eq. 9's value iteration.
     terminal = build_capability_mdp(predict_map(SharingStub(), corridors, ["nominal"]), GOAL,
-                                    CapabilityMdpConfig(plan_failure_share=0.0))
+                                    CapabilityMdpConfig(plan_failure_share=0.0, epsilon=0.01))
     assert np.allclose(solve_capability_mdp(terminal).V,
                        value_iteration(terminal.P, terminal.R, 0.99, epsilon=0.01, max_iter=5000).V)
 
