@@ -18,9 +18,10 @@ import time
 import numpy as np
 
 VARIANTS = {
-    "paper (no mirror, weight decay 1e-4)": {"mirror": False, "weight_decay": 1e-4},
-    "mirror, weight decay 1e-4": {"mirror": True, "weight_decay": 1e-4},
-    "mirror, weight decay 1e-2 (default)": {"mirror": True, "weight_decay": 1e-2},
+    "paper (one output, no mirror, weight decay 1e-4)": {"factored": False, "mirror": False, "weight_decay": 1e-4},
+    "one output, mirror, weight decay 1e-4": {"factored": False, "mirror": True, "weight_decay": 1e-4},
+    "one output, mirror, weight decay 1e-2": {"factored": False, "mirror": True, "weight_decay": 1e-2},
+    "two outputs, mirror, weight decay 1e-2 (default)": {"factored": True, "mirror": True, "weight_decay": 1e-2},
 }
 
 
@@ -31,11 +32,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dataset", default="data/capability")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    parser.add_argument("--variants", type=int, nargs="+", default=None,
+                        help="indices (0-based) of the variants to run; default all: " +
+                             "; ".join(f"{i} {name}" for i, name in enumerate(VARIANTS)))
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
+    chosen = list(VARIANTS) if args.variants is None else [list(VARIANTS)[i] for i in args.variants]
     arrays, manifest = load_training_arrays(args.dataset)
     rows = []
-    for name, settings in VARIANTS.items():
+    for name in chosen:
+        settings = VARIANTS[name]
         for seed in args.seeds:
             start = time.perf_counter()
             result = train_networks(arrays, fingerprint=manifest["fingerprint"],
@@ -47,6 +53,8 @@ def main() -> None:
                          "logistic_auc": float(np.mean([c["baselines"]["logistic"]["auc"] for c in cards])),
                          "logistic_brier": float(np.mean([c["baselines"]["logistic"]["brier"] for c in cards])),
                          "beats_baselines": int(sum(bool(c["beats_baselines"]) for c in cards)),
+                         "plan_auc": (float(np.mean([c["test"]["plan"]["auc"] for c in cards]))
+                                      if all("plan" in c["test"] for c in cards) else None),
                          "seconds": time.perf_counter() - start})
             if not args.json:
                 r = rows[-1]
