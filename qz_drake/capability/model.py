@@ -342,7 +342,8 @@ class CapabilityModel:
         for t in topologies:
             f = np.asarray(feet[t], dtype=np.float32)
             if f.shape != batch + (6, 3):
-                raise _error(f"feet[{t}]", f"array of shape {f.shape}", f"expected {batch + (6, 3)} to match the patches")
+                raise _error(f"feet[{t}]", f"array of shape {f.shape}",
+                             f"expected {batch + (6, 3)} to match the patches")
             extras.append(torch.from_numpy(np.ascontiguousarray(f.reshape(n, 18))))
         x = torch.from_numpy(np.ascontiguousarray(patches.reshape(n, 1, P.PATCH_SIZE, P.PATCH_SIZE)))
         directions = (P.TURN_LEFT, P.TURN_RIGHT) if kind == "turn" else (None,)
@@ -510,7 +511,8 @@ def evaluate_map(model, inputs: MapInputs) -> CapabilityMap:
                 plans[1, i], plans[2, i] = plan
         factored = not np.isnan(plans).any()
         return CapabilityMap(xs=inputs.xs, ys=inputs.ys, topologies=topologies, forward=forward, turn_left=left,
-                             turn_right=right, cell_size=inputs.cell_size, plan_failure_share=_shares(model, topologies),
+                             turn_right=right, cell_size=inputs.cell_size,
+                             plan_failure_share=_shares(model, topologies),
                              forward_plan=plans[0] if factored else None, turn_left_plan=plans[1] if factored else None,
                              turn_right_plan=plans[2] if factored else None)
     for i, t in enumerate(topologies):

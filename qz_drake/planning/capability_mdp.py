@@ -15,12 +15,12 @@ goal's). A failure is one of two things, and the trials tell them apart: the BLC
 or the walk failed (a fall, a leg in the terrain, a slip: the end). With q the probability
 that the BLC finds no plan, the robot stays in its state with probability q at
 ``plan_failure_cost``, and falls into the absorbing failure state with probability (1 - p) - q.
-q is the factored model's own, per state and action (1 - p_plan: networks.NetworkConfig.
+q is the two-output model's own, per state and action (1 - p_plan: networks.NetworkConfig.
 factored); for a model with the paper's single output, share * (1 - p) with the network's
-measured share of planning failures (``plan_failure_share``); the config can fix the share. A forward move off the grid and a topology change
-where none can be made fail outright. The BLC is deterministic: what it could not plan from a
-state it will not plan there the next time, and the TLC forbids the action there
-(``forbid_action``). So after a planning failure the robot chooses again *among the other
+measured share of planning failures (``plan_failure_share``); the config can fix the share.
+A forward move off the grid and a topology change where none can be made fail outright. The
+BLC is deterministic: what it could not plan from a state it will not plan there the next time,
+and the TLC forbids the action there (``forbid_action``). So after a planning failure the robot chooses again *among the other
 actions*: :func:`solve_capability_mdp` iterates Q(s, a) = r(s, a) + gamma (sum_s' P(s, a, s')
 V(s') + q(s, a) max_{b != a} Q(s, b)), the self-loop's value being the best other action's (a
 contraction in Q of modulus gamma, like Eq. 9). With a plain self-loop the MDP would count on
