@@ -21,9 +21,10 @@ measured share of planning failures (``plan_failure_share``); the config can fix
 A forward move off the grid and a topology change where none can be made fail outright. The
 BLC is deterministic: what it could not plan from a state it will not plan there the next time,
 and the TLC forbids the action there (``forbid_action``). So after a planning failure the
-robot chooses again *among the other actions*: :func:`solve_capability_mdp` iterates Q(s, a) = r(s, a) + gamma (sum_s' P(s, a, s')
-V(s') + q(s, a) max_{b != a} Q(s, b)), the self-loop's value being the best other action's (a
-contraction in Q of modulus gamma, like Eq. 9). With a plain self-loop the MDP would count on
+robot chooses again *among the other actions*: :func:`solve_capability_mdp` iterates
+Q(s, a) = r(s, a) + gamma (sum_s' P(s, a, s') V(s') + q(s, a) max_{b != a} Q(s, b)), the
+self-loop's value being the best other action's (a contraction in Q of modulus gamma, like
+Eq. 9). With a plain self-loop the MDP would count on
 retrying: an action of p = 0.4 would look like 0.4 / (1 - q) = 0.75, and the route would seek
 such actions.
 
