@@ -288,24 +288,9 @@ class CapabilityModel:
     def turn_success(self, patches, feet, topology: str) -> tuple[np.ndarray, np.ndarray]:
         """(left, right) success of turning from the same queries: the same as ``success``
         with d = 0 and d = 1, but the patch head runs once for both directions."""
-        import torch
-
-        net = self.network(topology, "turn")
-        patches = np.asarray(patches, dtype=np.float32)
-        batch = patches.shape[:-2]
-        self.success(patches[:0], np.asarray(feet)[:0], "turn", topology, direction=0)  # checks shapes
-        n = int(np.prod(batch, dtype=np.int64))
-        x = torch.from_numpy(np.ascontiguousarray(patches.reshape(n, P.PATCH_SIZE, P.PATCH_SIZE)))
-        e = torch.from_numpy(np.ascontiguousarray(np.asarray(feet, dtype=np.float32).reshape(n, 18)))
-        out = np.empty((2, n))
-        with torch.inference_mode():
-            for start in range(0, n, INFERENCE_BATCH):
-                stop = min(start + INFERENCE_BATCH, n)
-                features = net.encode_patch(x[start:stop])
-                for d in (P.TURN_LEFT, P.TURN_RIGHT):
-                    extra = torch.cat([e[start:stop], torch.full((stop - start, 1), float(d))], dim=1)
-                    out[d, start:stop] = net.success_of(net.head(features, extra)).numpy()
-        return out[0].reshape(batch), out[1].reshape(batch)
+        self.success(np.asarray(patches)[:0], np.asarray(feet)[:0], "turn", topology, direction=0)  # checks shapes
+        left_right, _ = self.success_all(patches, {topology: feet}, "turn")[topology]
+        return left_right[0], left_right[1]
 
     def success_all(self, patches, feet: dict, kind: str) -> dict:
         """Every listed topology's network of one kind on the same patches, each with its own
