@@ -504,12 +504,9 @@ def evaluate_map(model, inputs: MapInputs) -> CapabilityMap:
         feet = inputs.feet[t]
         forward[i][even] = model.success(inputs.move_patches[even], feet[even], "orthogonal", t)
         forward[i][~even] = model.success(inputs.move_patches[~even], feet[~even], "diagonal", t)
-        if hasattr(model, "turn_success"):
-            left[i], right[i] = model.turn_success(inputs.turn_patches, feet, t)
-        else:
-            both = model.success(np.stack([inputs.turn_patches] * 2), np.stack([feet] * 2), "turn", t,
-                                 direction=np.array([P.TURN_LEFT, P.TURN_RIGHT])[:, None, None, None])
-            left[i], right[i] = both
+        # A model with only ``success`` (a stub): both directions in one call.
+        left[i], right[i] = model.success(np.stack([inputs.turn_patches] * 2), np.stack([feet] * 2), "turn", t,
+                                          direction=np.array([P.TURN_LEFT, P.TURN_RIGHT])[:, None, None, None])
     return CapabilityMap(xs=inputs.xs, ys=inputs.ys, topologies=topologies, forward=forward, turn_left=left,
                          turn_right=right, cell_size=inputs.cell_size, plan_failure_share=_shares(model, topologies))
 
