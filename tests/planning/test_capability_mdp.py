@@ -1,6 +1,8 @@
 """The capability MDP (paper 000 II-E.2) on a synthetic map with two corridors through a wall,
 one of which holds a low ridge that a stub capability model calls impossible."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -202,23 +204,29 @@ def test_planning_failures_leave_the_robot_standing(corridors):
         build_capability_mdp(capability_map, GOAL, CapabilityMdpConfig(plan_failure_share=1.5))
 
 
+class FlatStub(StubModel):
+    """Every move p = 0.95, every turn 0.99."""
+
+    def success(self, patches, feet, kind, topology, direction=None):
+        return np.full(np.shape(patches)[:-2], 0.99 if kind == "turn" else 0.95)
+
+
 def test_a_long_route_reaches_the_goal_when_planning_failures_are_not_the_end():
     """On a 160 m corridor of moves with p = 0.95 (157 moves to the goal), a route's chance to
     arrive is 0.95^157: with every failure the end, the start's value is the failure's to
     epsilon and the greedy path loops near the start; with 80 % of failures leaving the robot
     standing (the trials' share), the values still point at the goal and the path arrives."""
 
-    class Flat(StubModel):
-        def success(self, patches, feet, kind, topology, direction=None):
-            return np.full(np.shape(patches)[:-2], 0.99 if kind == "turn" else 0.95)
-
     length = 160.0
     heightmap = HeightMap(np.zeros((30, int(length / 0.1))), 0.1, (0.05, 0.05))
-    capability_map = predict_map(Flat(), heightmap, ["nominal"], anchor=(1.5, 1.5))
+    capability_map = predict_map(FlatStub(), heightmap, ["nominal"], anchor=(1.5, 1.5))
     goal = (length - 1.5, 1.5)
-    terminal = plan_on_map(capability_map, (1.5, 1.5), 0, goal, config=CapabilityMdpConfig(plan_failure_share=0.0))
+    # The 20 m world's discount and costs (scale_to_grid off), with every failure terminal.
+    terminal = plan_on_map(capability_map, (1.5, 1.5), 0, goal,
+                           config=CapabilityMdpConfig(plan_failure_share=0.0, scale_to_grid=False))
     assert not terminal.reaches_goal
-    standing = plan_on_map(capability_map, (1.5, 1.5), 0, goal, config=CapabilityMdpConfig(plan_failure_share=0.8))
+    standing = plan_on_map(capability_map, (1.5, 1.5), 0, goal,
+                           config=CapabilityMdpConfig(plan_failure_share=0.8, scale_to_grid=False))
     assert standing.reaches_goal and [s.motion for s in standing.steps] == ["forward"] * 157
     # Every move planned and walked at once: 0.95^157; no move ending the walk: (1 - 0.05 * 0.2)^157.
     assert standing.success_probability == pytest.approx(0.95 ** 157)
@@ -226,6 +234,45 @@ def test_a_long_route_reaches_the_goal_when_planning_failures_are_not_the_end():
     assert all(s.stand == pytest.approx(0.04) and s.fall == pytest.approx(0.01) for s in standing.steps)
     row = standing.utility_map()[1, :-2]
     assert np.all(np.diff(row) > 0)  # every cell nearer the goal is worth more
+
+
+def test_on_a_larger_map_the_discount_and_costs_scale_so_that_the_goal_still_counts():
+    """A 300 m corridor (297 moves of p = 0.95, 80 % of failures leaving the robot standing): with
+    the 20 m world's discount and costs the route costs more than a fall and the path stops near
+    the start; scaled to the grid (k = 7.6) it walks to the goal."""
+
+    length = 300.0
+    heightmap = HeightMap(np.zeros((30, int(length / 0.1))), 0.1, (0.05, 0.05))
+    capability_map = predict_map(FlatStub(), heightmap, ["nominal"], anchor=(1.5, 1.5))
+    goal, config = (length - 1.5, 1.5), CapabilityMdpConfig(plan_failure_share=0.8)
+    unscaled = plan_on_map(capability_map, (1.5, 1.5), 0, goal, config=dataclasses.replace(config, scale_to_grid=False))
+    assert not unscaled.reaches_goal and len(unscaled.steps) < 20
+    scaled = plan_on_map(capability_map, (1.5, 1.5), 0, goal, config=config)
+    assert scaled.reaches_goal and [s.motion for s in scaled.steps] == ["forward"] * 297
+    k = (len(capability_map.xs) + len(capability_map.ys)) / 40
+    assert k > 7
+    assert scaled.mdp.config.discount == pytest.approx(1 - 0.01 / k)
+    assert scaled.mdp.config.action_cost == pytest.approx(1 / k)
+    # A grid of the 20 m world's size or smaller keeps the config as it is.
+    assert CapabilityMdpConfig().for_grid(20, 20) == CapabilityMdpConfig()
+
+
+def test_policy_evaluation_reaches_value_iterations_fixed_point_in_fewer_iterations(corridors):
+    """Valuing each greedy policy (policy iteration's step) between improvements: the same Q as
+    Eq. 9 iterated alone, to within epsilon, the same policy up to ties, in under half the
+    iterations on this 14 m map (39 against 97; on 100 m x 100 m 51 against 756)."""
+    from qz_drake.planning.capability_mdp import solve_capability_mdp
+
+    capability_map = predict_map(SharingStub(), corridors, ["nominal", "front_bend"])
+    evaluated = solve_capability_mdp(build_capability_mdp(capability_map, GOAL, CapabilityMdpConfig(epsilon=1e-3)))
+    alone = solve_capability_mdp(build_capability_mdp(capability_map, GOAL,
+                                                      CapabilityMdpConfig(epsilon=1e-3, policy_evaluation=False)))
+    assert evaluated.converged and alone.converged
+    assert np.max(np.abs(evaluated.Q - alone.Q)) < 1e-3
+    # The same choices up to ties (two topologies the stub rates alike, turns either way).
+    states = np.arange(len(alone.V))
+    assert np.all(alone.Q[states, evaluated.policy] >= alone.V - 1e-3)
+    assert evaluated.iterations * 2 < alone.iterations
 
 
 def test_after_a_planning_failure_the_robot_chooses_among_the_other_actions(corridors):
