@@ -63,6 +63,10 @@ from qz_drake.planning.value_iteration import ValueIterationResult, value_iterat
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 
 MOTIONS = ("forward", "turn_left", "turn_right")
+# Most policy evaluations in one solve, then Eq. 9 alone (a contraction: it always converges).
+# The runner-up's successor is valued one evaluation behind, so in principle the greedy policy
+# could cycle; measured: 43 evaluations on the 100 m world, 11-16 on 20 m.
+MAX_EVALUATIONS = 200
 # Cell step (dx, dy) of a forward move along heading k.
 HEADING_STEPS = np.array([(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1)])
 
@@ -550,7 +554,7 @@ def solve_capability_mdp(mdp: CapabilityMdp, V0=None) -> ValueIterationResult:
         return Q
 
     Q = backup(np.array(V0, dtype=float).reshape(S))
-    change, converged, iterations, evaluated = np.inf, False, 0, None
+    change, converged, iterations, evaluated, evaluations = np.inf, False, 0, None, 0
     ranks = (A - np.arange(A)).astype(np.int8 if A < 127 else np.int32)[:, None]
 
     def argmax(Q, V):
@@ -570,10 +574,11 @@ def solve_capability_mdp(mdp: CapabilityMdp, V0=None) -> ValueIterationResult:
         second = Q.max(axis=0)
         runner_up = argmax(Q, second)
         Q[best, columns] = V
-        if config.policy_evaluation and (evaluated is None or np.any(best != evaluated)):
+        if (config.policy_evaluation and evaluations < MAX_EVALUATIONS
+                and (evaluated is None or np.any(best != evaluated))):
             # A new greedy policy: value it (policy iteration's evaluation step) and improve on
             # that; Eq. 9 alone creeps there at gamma per iteration far from the goal.
-            evaluated = best
+            evaluated, evaluations = best, evaluations + 1
             Q = _evaluate_greedy(mdp, stand, best, runner_up, V, r, gamma, backup)
             continue
         # One iteration of Eq. 9 in Q form (the best action's stay worth the second best). Its

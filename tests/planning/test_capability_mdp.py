@@ -275,6 +275,20 @@ def test_policy_evaluation_reaches_value_iterations_fixed_point_in_fewer_iterati
     assert evaluated.iterations * 2 < alone.iterations
 
 
+def test_policy_evaluations_are_bounded_then_value_iteration_finishes(corridors, monkeypatch):
+    """Past MAX_EVALUATIONS the solver iterates Eq. 9 alone, which always converges: with a bound
+    of 2 it still reaches the same values."""
+    from qz_drake.planning import capability_mdp as mdp_module
+
+    capability_map = predict_map(SharingStub(), corridors, ["nominal"])
+    config = CapabilityMdpConfig(epsilon=1e-3)
+    full = mdp_module.solve_capability_mdp(build_capability_mdp(capability_map, GOAL, config))
+    monkeypatch.setattr(mdp_module, "MAX_EVALUATIONS", 2)
+    bounded = mdp_module.solve_capability_mdp(build_capability_mdp(capability_map, GOAL, config))
+    assert bounded.converged and bounded.iterations > full.iterations
+    assert np.max(np.abs(bounded.Q - full.Q)) < 1e-3
+
+
 def test_after_a_planning_failure_the_robot_chooses_among_the_other_actions(corridors):
     """The BLC is deterministic, so the MDP does not count on retrying what it could not plan:
     the solver's Q is the fixed point of Q(s, a) = r + gamma (P V without the stay + q max_{b != a}
