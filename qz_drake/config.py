@@ -101,6 +101,9 @@ class ControllerConfig:
     planner: str = "tripod"
     # capplanner only: the capability model folder; empty: the one shipped in the package.
     capability_model: str = ""
+    # capplanner only: settings of its MDP other than the defaults, by name
+    # (qz_drake.planning.capability_mdp.CapabilityMdpConfig), e.g. {failure_reward: -200}.
+    capability_mdp: dict[str, float] = dataclasses.field(default_factory=dict)
     # Waypoints of the route for "walk", from the start.
     route: list[Waypoint] = dataclasses.field(default_factory=list)
     # Longest local mission along the route. [m]
@@ -292,6 +295,9 @@ def validate_scenario(scenario: Scenario) -> Scenario:
     _positive("scenario.controller.phase_duration", c.phase_duration)
     if not (math.isfinite(c.plan_ahead) and c.plan_ahead >= 0):
         raise bad_value("scenario.controller.plan_ahead", c.plan_ahead, "must be a non-negative number of seconds")
+    for key, value in c.capability_mdp.items():
+        if not math.isfinite(value):
+            raise bad_value(f"scenario.controller.capability_mdp.{key}", value, "must be finite")
     _positive("scenario.controller.kp", c.kp)
     _positive("scenario.controller.kd", c.kd)
     return scenario

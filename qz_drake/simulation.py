@@ -494,12 +494,27 @@ def _unplanned(scenario, out, missions, *, reason: str | None = None, code: str 
 CAPPLANNER_MISSION_RETRIES = 2
 
 
+def mdp_config(overrides: dict, topologies):
+    """CapPlanner's MDP settings: the defaults, ``overrides`` (controller.capability_mdp) by
+    name, the topologies the model knows."""
+    import dataclasses
+
+    from qz_drake.errors import bad_value
+    from qz_drake.planning.capability_mdp import CapabilityMdpConfig
+
+    numbers = [f.name for f in dataclasses.fields(CapabilityMdpConfig) if f.type in ("float", float)]
+    for key in overrides:
+        if key not in numbers:
+            raise bad_value(f"scenario.controller.capability_mdp.{key}", overrides[key],
+                            f"not a setting of the MDP (valid: {', '.join(numbers)})")
+    return CapabilityMdpConfig(topologies=list(topologies), **{k: float(v) for k, v in overrides.items()}).check()
+
+
 def _capability_planner(scenario, info):
     """CapPlanner's top-level controller for a walking scenario: the capability model of
     ``controller.capability_model`` (empty: the shipped one), the goal at the route's last
     waypoint, planned over the station's heightmap from the robot's start."""
     from qz_drake.capability.model import CapabilityModel
-    from qz_drake.planning.capability_mdp import CapabilityMdpConfig
     from qz_drake.systems.capability_planner import CapabilityVIPlanner
     from qz_drake.systems.state_layout import base_rpy
 
@@ -524,7 +539,7 @@ def _capability_planner(scenario, info):
     return CapabilityVIPlanner(model=model, heightmap=info.heightmap, goal=(goal.x, goal.y),
                                start=(float(x0[4]), float(x0[5]), float(base_rpy(x0)[2])),
                                initial_topology=info.topology.name, plan_ahead=control.plan_ahead,
-                               mdp_config=CapabilityMdpConfig(topologies=topologies))
+                               mdp_config=mdp_config(control.capability_mdp, topologies))
 
 
 def _planned_base(plans, times):

@@ -7,6 +7,7 @@ import json
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -90,10 +91,50 @@ def test_astar_is_tuned_on_worlds_that_are_not_the_experiments(tmp_path):
                                         "astar_max_slope_deg": 30.0, "astar_body_radius": 0.7}
 
 
-@pytest.mark.parametrize("args, field", [(["--steps", "0.1,x"], "--steps"), (["--slopes", "-5"], "--slopes"),
-                                         (["--radii", "0"], "--radii"), (["--tasks", "0"], "--tasks")])
-def test_tune_astar_bad_input_is_one_line_exit_2(tmp_path, args, field):
-    run = subprocess.run(QZ + ["experiment", "tune-astar", "--out", str(tmp_path)] + args,
+@pytest.mark.slow
+def test_capplanner_is_tuned_on_the_same_tuning_worlds_as_astar(synthetic_model_dir, tmp_path):
+    """Each (failure reward, topology-change cost) walks the tuning tasks with those settings in
+    CapPlanner's MDP; the experiment then takes the chosen pair."""
+    from qz_drake.experiments.fig9 import ExperimentConfig, capplanner_settings, read_results, tune_capplanner
+
+    report = tune_capplanner(tmp_path, failure_rewards=(-100.0, -300.0), topology_change_costs=(2.0,),
+                             terrains=("obstacles",), difficulties=("simple",), tasks=1,
+                             config=ExperimentConfig(capability_model=str(synthetic_model_dir), scale=0.3),
+                             progress=False)
+    grid = report["grid"]
+    assert [g["failure_reward"] for g in grid] == [-100.0, -300.0] and report["planner"] == "capplanner"
+    for g in grid:
+        [record] = read_results(g["folder"])
+        assert record["seed"] >= 1000 and record["planner"] == "capplanner" and record["reason"] != "error"
+        settings = json.loads((Path(g["folder"]) / "settings.json").read_text())
+        assert settings["capplanner_failure_reward"] == g["failure_reward"]
+    assert report["chosen"]["failure_reward"] in (-100.0, -300.0)
+    assert capplanner_settings(tmp_path) == {"capplanner_failure_reward": report["chosen"]["failure_reward"],
+                                             "capplanner_topology_change_cost": 2.0}
+
+
+def test_a_walking_scenario_sets_capplanners_mdp_by_name():
+    from qz_drake.errors import QzError
+    from qz_drake.simulation import mdp_config
+
+    config = mdp_config({"failure_reward": -250, "topology_change_cost": 5}, ["nominal", "front_bend"])
+    assert (config.failure_reward, config.topology_change_cost, config.topologies) == (-250.0, 5.0,
+                                                                                      ["nominal", "front_bend"])
+    assert config.goal_reward == 100.0  # the rest stay the defaults
+    with pytest.raises(QzError, match="scenario.controller.capability_mdp.failure_rewad"):
+        mdp_config({"failure_rewad": -250}, ["nominal"])
+    with pytest.raises(QzError, match="capability_mdp.failure_reward"):
+        mdp_config({"failure_reward": 50}, ["nominal"])  # a failure is not rewarded
+
+
+@pytest.mark.parametrize("command, args, field", [
+    ("tune-astar", ["--steps", "0.1,x"], "--steps"), ("tune-astar", ["--slopes", "-5"], "--slopes"),
+    ("tune-astar", ["--radii", "0"], "--radii"), ("tune-astar", ["--tasks", "0"], "--tasks"),
+    ("tune-capplanner", ["--failure-rewards", "-100,x"], "--failure-rewards"),
+    ("tune-capplanner", ["--failure-rewards", "100"], "--failure-rewards"),
+    ("tune-capplanner", ["--switch-costs", "-1"], "--switch-costs"), ("tune-capplanner", ["--tasks", "0"], "--tasks")])
+def test_tuning_bad_input_is_one_line_exit_2(tmp_path, command, args, field):
+    run = subprocess.run(QZ + ["experiment", command, "--out", str(tmp_path)] + args,
                          capture_output=True, text=True, timeout=120)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1 and field in lines[0], run.stderr
@@ -111,6 +152,17 @@ def test_experiment_takes_a_tuning_and_refuses_a_missing_or_foreign_one(tmp_path
     (tmp_path / "other.json").write_text(json.dumps({"rows": []}))
     with pytest.raises(QzError, match="--astar-tuning"):
         astar_settings(tmp_path / "other.json")
+    # CapPlanner's tuning is its own: neither file stands for the other.
+    from qz_drake.experiments.fig9 import capplanner_settings
+
+    (tmp_path / "capplanner.json").write_text(json.dumps(
+        {"planner": "capplanner", "chosen": {"failure_reward": -200.0, "topology_change_cost": 6.0}}))
+    assert capplanner_settings(tmp_path / "capplanner.json") == {"capplanner_failure_reward": -200.0,
+                                                                 "capplanner_topology_change_cost": 6.0}
+    with pytest.raises(QzError, match="--astar-tuning"):
+        astar_settings(tmp_path / "capplanner.json")
+    with pytest.raises(QzError, match="--capplanner-tuning"):
+        capplanner_settings(tmp_path / "tuning.json")
     run = subprocess.run(QZ + ["experiment", "capplanner-vs-astar", "--out", str(tmp_path / "x"),
                                "--astar-tuning", str(tmp_path / "missing")], capture_output=True, text=True,
                          timeout=120)

@@ -1,5 +1,6 @@
-"""``qz experiment capplanner-vs-astar``: paper 000 Fig. 9, and ``qz experiment tune-astar``, the
-A* baseline's thresholds chosen on tuning worlds (see qz_drake.experiments.fig9)."""
+"""``qz experiment capplanner-vs-astar``: paper 000 Fig. 9, and ``qz experiment tune-astar`` /
+``tune-capplanner``, each planner's settings chosen on tuning worlds (see
+qz_drake.experiments.fig9)."""
 
 from __future__ import annotations
 
@@ -17,9 +18,11 @@ def run_fig9(args) -> int:
     from qz_drake.experiments.plots import plot_fig9
     from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS
 
-    from qz_drake.experiments.fig9 import astar_settings
+    from qz_drake.experiments.fig9 import astar_settings, capplanner_settings
 
     tuned = astar_settings(args.astar_tuning) if args.astar_tuning else {}
+    if args.capplanner_tuning:
+        tuned.update(capplanner_settings(args.capplanner_tuning))
     config = ExperimentConfig(capability_model=args.model or "", scale=args.scale, **tuned)
     summary = run_experiment(args.out, planners=_names(args.planners, "--planners", tuple(PLANNERS)),
                              terrains=_names(args.terrains, "--terrains", TERRAINS),
@@ -43,15 +46,29 @@ def _numbers(text, field) -> tuple[float, ...] | None:
         raise bad_value(field, text, "expected comma-separated numbers") from None
 
 
+def _print_tuning(report, args) -> None:
+    if args.json:
+        print(json.dumps(report))
+        return
+    for row in report["grid"]:
+        setting = ", ".join(f"{k} {row[k]:g}" for k in report["chosen"])
+        print(f"{setting}: {row['successes']}/{row['tasks']} walked")
+    print(f"chosen: {report['chosen']}")
+
+
+def _check_tasks(args) -> None:
+    if args.tasks < 1:
+        from qz_drake.errors import bad_value
+
+        raise bad_value("--tasks", args.tasks, "must be a positive whole number")
+
+
 def run_tune_astar(args) -> int:
     from qz_drake.experiments.fig9 import (TUNING_BODY_RADII, TUNING_SLOPES_DEG, TUNING_STEP_HEIGHTS,
                                            ExperimentConfig, tune_astar)
     from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS
 
-    if args.tasks < 1:
-        from qz_drake.errors import bad_value
-
-        raise bad_value("--tasks", args.tasks, "must be a positive whole number")
+    _check_tasks(args)
     report = tune_astar(args.out, step_heights=_numbers(args.steps, "--steps") or TUNING_STEP_HEIGHTS,
                         slopes_deg=_numbers(args.slopes, "--slopes") or TUNING_SLOPES_DEG,
                         body_radii=_numbers(args.radii, "--radii") or TUNING_BODY_RADII,
@@ -59,15 +76,37 @@ def run_tune_astar(args) -> int:
                         difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
                         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
                         config=ExperimentConfig(scale=args.scale), progress=not args.json and sys.stderr.isatty())
-    if args.json:
-        print(json.dumps(report))
-    else:
-        for row in report["grid"]:
-            print(f"step {row['max_step_height']:.2f} m, slope {row['max_slope_deg']:g} deg, "
-                  f"body radius {row['body_radius']:.2f} m: "
-                  f"{row['successes']}/{row['tasks']} walked")
-        print(f"chosen: {report['chosen']}")
+    _print_tuning(report, args)
     return 0
+
+
+def run_tune_capplanner(args) -> int:
+    from qz_drake.experiments.fig9 import (TUNING_FAILURE_REWARDS, TUNING_TOPOLOGY_CHANGE_COSTS,
+                                           ExperimentConfig, tune_capplanner)
+    from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS
+
+    _check_tasks(args)
+    report = tune_capplanner(
+        args.out, failure_rewards=_numbers(args.failure_rewards, "--failure-rewards") or TUNING_FAILURE_REWARDS,
+        topology_change_costs=_numbers(args.switch_costs, "--switch-costs") or TUNING_TOPOLOGY_CHANGE_COSTS,
+        terrains=_names(args.terrains, "--terrains", TERRAINS),
+        difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
+        tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
+        config=ExperimentConfig(capability_model=args.model or "", scale=args.scale),
+        progress=not args.json and sys.stderr.isatty())
+    _print_tuning(report, args)
+    return 0
+
+
+def _tuning_arguments(p) -> None:
+    p.add_argument("--out", required=True, help="tuning folder (one results folder per setting, tuning.json)")
+    p.add_argument("--tasks", type=int, default=2, help="tuning tasks per terrain and difficulty")
+    p.add_argument("--terrains", default=None, help="comma-separated: stairs,obstacles,both")
+    p.add_argument("--difficulties", default=None, help="comma-separated: simple,medium,hard")
+    p.add_argument("--scale", type=float, default=1.0, help="world scale (1: the experiment's worlds)")
+    p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    p.add_argument("--ray-address", default=None, help="run the tasks on this Ray cluster (host:port)")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
 
 
 def register(subparsers) -> None:
@@ -84,6 +123,9 @@ def register(subparsers) -> None:
     p.add_argument("--astar-tuning", default=None,
                    help="tuning.json (or its folder) of qz experiment tune-astar: A*'s chosen thresholds "
                         "(default: the untuned defaults)")
+    p.add_argument("--capplanner-tuning", default=None,
+                   help="tuning.json (or its folder) of qz experiment tune-capplanner: CapPlanner's chosen "
+                        "failure reward and topology-change cost (default: the MDP's defaults)")
     p.add_argument("--scale", type=float, default=1.0, help="world scale (1: the experiment's worlds)")
     p.add_argument("--recordings", type=int, default=1,
                    help="record the first N tasks of every terrain, difficulty and planner (out/recordings/)")
@@ -94,16 +136,18 @@ def register(subparsers) -> None:
 
     p = sub.add_parser("tune-astar", help="choose the A* baseline's thresholds on tuning worlds "
                                           "(seeds from 1000, never the experiment's)")
-    p.add_argument("--out", required=True, help="tuning folder (one results folder per setting, tuning.json)")
-    p.add_argument("--tasks", type=int, default=2, help="tuning tasks per terrain and difficulty")
+    _tuning_arguments(p)
     p.add_argument("--steps", default=None, help="comma-separated max step heights [m] (default 0.12,0.16,0.2,0.24)")
     p.add_argument("--slopes", default=None, help="comma-separated max slopes [deg] (default 20,30)")
     p.add_argument("--radii", default=None,
                    help="comma-separated body-disc radii of the cost map [m] (default 0.7,0.9)")
-    p.add_argument("--terrains", default=None, help="comma-separated: stairs,obstacles,both")
-    p.add_argument("--difficulties", default=None, help="comma-separated: simple,medium,hard")
-    p.add_argument("--scale", type=float, default=1.0, help="world scale (1: the experiment's worlds)")
-    p.add_argument("--workers", type=int, default=1, help="local worker processes")
-    p.add_argument("--ray-address", default=None, help="run the tasks on this Ray cluster (host:port)")
-    p.add_argument("--json", action="store_true", help="print one JSON line")
     p.set_defaults(func=run_tune_astar)
+
+    p = sub.add_parser("tune-capplanner", help="choose CapPlanner's failure reward and topology-change cost "
+                                               "on the same tuning worlds as A*'s")
+    _tuning_arguments(p)
+    p.add_argument("--failure-rewards", default=None,
+                   help="comma-separated failure rewards, negative (default -100,-200; the goal is +100)")
+    p.add_argument("--switch-costs", default=None, help="comma-separated topology-change costs (default 2,6)")
+    p.add_argument("--model", default=None, help="CapPlanner's capability model folder (default: shipped)")
+    p.set_defaults(func=run_tune_capplanner)

@@ -47,6 +47,11 @@ class ExperimentConfig:
     astar_max_slope_deg: float = 30.0
     astar_safety_weight: float = 0.5
     astar_body_radius: float = 0.7
+    # CapPlanner's risk and topology-change settings (capability_mdp.CapabilityMdpConfig's
+    # failure_reward and topology_change_cost), chosen by ``qz experiment tune-capplanner`` on
+    # the same tuning worlds as A*'s.
+    capplanner_failure_reward: float = -100.0
+    capplanner_topology_change_cost: float = 2.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,6 +122,8 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
             controller=ControllerConfig(kind="walk", planner=walking_planner, mission_length=config.mission_length,
                                         speed=config.speed, phase_duration=config.phase_duration,
                                         capability_model=config.capability_model,
+                                        capability_mdp=dict(failure_reward=config.capplanner_failure_reward,
+                                                            topology_change_cost=config.capplanner_topology_change_cost),
                                         route=[Waypoint(x=x, y=y, yaw=a, topology=t) for x, y, a, t in waypoints]))
         # One BLC for both planners, as paper 000 has it: first solves only (the trials' BLC, and
         # the one the A* settings were tuned with); what differs is the TLC, including
@@ -208,8 +215,11 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
     out.mkdir(parents=True, exist_ok=True)
     settings = out / "settings.json"
     mine = dataclasses.asdict(config)
-    if settings.is_file() and json.loads(settings.read_text()) != mine:
-        raise bad_value("--out", str(out), "holds results of other experiment settings")
+    if settings.is_file():
+        # A setting added since those results were written reads as its default there.
+        theirs = {**dataclasses.asdict(ExperimentConfig()), **json.loads(settings.read_text())}
+        if theirs != mine:
+            raise bad_value("--out", str(out), "holds results of other experiment settings")
     settings.write_text(json.dumps(mine, indent=1))
     done = {r["key"] for r in read_results(out) if r.get("reason") != "error"}
     if isinstance(recordings, bool) or recordings < 0:
@@ -270,21 +280,82 @@ TUNING_SLOPES_DEG = (20.0, 30.0)
 TUNING_BODY_RADII = (0.7, 0.9)
 
 
+# Each tuning's report keys -> the ExperimentConfig fields they set.
+ASTAR_TUNED = {"max_step_height": "astar_max_step_height", "max_slope_deg": "astar_max_slope_deg",
+               "body_radius": "astar_body_radius"}
+CAPPLANNER_TUNED = {"failure_reward": "capplanner_failure_reward",
+                    "topology_change_cost": "capplanner_topology_change_cost"}
+
+
+def _tuned_settings(path, names: dict, flag: str, command: str) -> dict:
+    """The ExperimentConfig fields of a tuning's chosen setting (``tuning.json``, or its folder)."""
+    path = Path(path)
+    file = path / "tuning.json" if path.is_dir() else path
+    defaults = ExperimentConfig()
+    try:
+        chosen = json.loads(file.read_text())["chosen"]
+        if not isinstance(chosen, dict) or not set(chosen) & set(names):
+            raise KeyError("chosen")
+        return {field: float(chosen.get(key, getattr(defaults, field))) for key, field in names.items()}
+    except FileNotFoundError:
+        raise bad_value(flag, str(path), f"no tuning.json there (run qz experiment {command})") from None
+    except (ValueError, KeyError, TypeError):
+        raise bad_value(flag, str(file), f"not a tuning.json of qz experiment {command}") from None
+
+
 def astar_settings(path) -> dict:
     """The ExperimentConfig fields of a tuning's chosen A* setting (``tuning.json`` of
     ``tune_astar``, or its folder): astar_max_step_height, astar_max_slope_deg,
     astar_body_radius."""
-    path = Path(path)
-    file = path / "tuning.json" if path.is_dir() else path
-    try:
-        chosen = json.loads(file.read_text())["chosen"]
-        return {"astar_max_step_height": float(chosen["max_step_height"]),
-                "astar_max_slope_deg": float(chosen["max_slope_deg"]),
-                "astar_body_radius": float(chosen.get("body_radius", ExperimentConfig.astar_body_radius))}
-    except FileNotFoundError:
-        raise bad_value("--astar-tuning", str(path), "no tuning.json there (run qz experiment tune-astar)") from None
-    except (ValueError, KeyError, TypeError):
-        raise bad_value("--astar-tuning", str(file), "not a tuning.json of qz experiment tune-astar") from None
+    return _tuned_settings(path, ASTAR_TUNED, "--astar-tuning", "tune-astar")
+
+
+def capplanner_settings(path) -> dict:
+    """The ExperimentConfig fields of ``tune_capplanner``'s chosen setting:
+    capplanner_failure_reward, capplanner_topology_change_cost."""
+    return _tuned_settings(path, CAPPLANNER_TUNED, "--capplanner-tuning", "tune-capplanner")
+
+
+def _tune(out, planner: str, grid: list[dict], names: dict, folder_of, *, terrains, difficulties, tasks: int,
+          workers: int, ray_address, config: ExperimentConfig, progress: bool) -> dict:
+    """Walks ``tasks`` tuning tasks per terrain and difficulty (seeds from
+    worlds.TUNING_SEED_START, never the experiment's 0-19) with each setting of ``grid`` (report
+    keys, see ``names``), each in its own resumable folder under ``out``; keeps the setting with
+    the most successes (ties: the smaller mean displacement ratio, then the first in the grid).
+    Writes ``tuning.json``."""
+    from qz_drake.experiments.worlds import TUNING_SEED_START
+
+    out = Path(out)
+    results = []
+    for setting in grid:
+        trial = dataclasses.replace(config, **{names[k]: float(v) for k, v in setting.items()})
+        folder = out / folder_of(setting)
+        summary = run_experiment(folder, planners=(planner,), terrains=terrains, difficulties=difficulties,
+                                 tasks=tasks, workers=workers, ray_address=ray_address, config=trial,
+                                 progress=progress, first_seed=TUNING_SEED_START, recordings=0)
+        rows = summary["rows"]
+        done = sum(r["tasks"] for r in rows)
+        ok = sum(r["successes"] for r in rows)
+        ratios = [r["displacement_ratio"] for r in rows if r["displacement_ratio"] is not None]
+        results.append({**{k: float(v) for k, v in setting.items()}, "tasks": done, "successes": ok,
+                        "success_rate": ok / done if done else None,
+                        "displacement_ratio": float(np.mean(ratios)) if ratios else None,
+                        "rows": rows, "folder": str(folder)})
+    best = max(enumerate(results), key=lambda item: (item[1]["successes"],
+                                                     -(item[1]["displacement_ratio"] or np.inf),
+                                                     -item[0]))[1]
+    report = {"planner": planner, "chosen": {k: best[k] for k in grid[0]},
+              "grid": results, "tasks_per_cell": tasks, "first_seed": TUNING_SEED_START}
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "tuning.json").write_text(json.dumps(report, indent=1))
+    return report
+
+
+def _check_grid(**values) -> None:
+    for flag, (numbers, sign) in values.items():
+        if not numbers or any(not (isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+                                   and sign * v > 0) for v in numbers):
+            raise bad_value(flag, list(numbers), "expected positive numbers" if sign > 0 else "expected negative numbers")
 
 
 def tune_astar(out, *, step_heights=TUNING_STEP_HEIGHTS, slopes_deg=TUNING_SLOPES_DEG,
@@ -293,43 +364,37 @@ def tune_astar(out, *, step_heights=TUNING_STEP_HEIGHTS, slopes_deg=TUNING_SLOPE
                ray_address: str | None = None, config: ExperimentConfig = ExperimentConfig(),
                progress: bool = True) -> dict:
     """Tunes the A* baseline's thresholds as strongly as it honestly can be: every
-    (max step height, max slope, body radius) of the grid walks ``tasks`` tasks per terrain and difficulty
-    on tuning worlds (seeds from worlds.TUNING_SEED_START, never the experiment's 0-19), each
-    in its own resumable folder under ``out``; the kept setting has the most successes (ties:
-    the smaller mean displacement ratio, then the first in the grid). Writes ``tuning.json``."""
-    from qz_drake.experiments.worlds import TUNING_SEED_START
+    (max step height, max slope, body radius) of the grid on the tuning worlds (``_tune``)."""
+    _check_grid(**{"--steps": (step_heights, 1), "--slopes": (slopes_deg, 1), "--radii": (body_radii, 1)})
+    grid = [{"max_step_height": float(step), "max_slope_deg": float(slope), "body_radius": float(radius)}
+            for radius in body_radii for step in step_heights for slope in slopes_deg]
+    return _tune(out, "astar", grid, ASTAR_TUNED,
+                 lambda g: f"step{g['max_step_height']:.2f}_slope{g['max_slope_deg']:g}_radius{g['body_radius']:.2f}",
+                 terrains=terrains, difficulties=difficulties, tasks=tasks, workers=workers,
+                 ray_address=ray_address, config=config, progress=progress)
 
-    for name, values in (("--steps", step_heights), ("--slopes", slopes_deg), ("--radii", body_radii)):
-        if not values or any(not (isinstance(v, (int, float)) and v > 0) for v in values):
-            raise bad_value(name, list(values), "expected positive numbers")
-    out = Path(out)
-    results = []
-    for radius in body_radii:
-        for step in step_heights:
-            for slope in slopes_deg:
-                trial = dataclasses.replace(config, astar_max_step_height=float(step),
-                                            astar_max_slope_deg=float(slope),
-                                            astar_body_radius=float(radius))
-                folder = out / f"step{float(step):.2f}_slope{float(slope):g}_radius{float(radius):.2f}"
-                summary = run_experiment(folder, planners=("astar",), terrains=terrains,
-                                         difficulties=difficulties, tasks=tasks, workers=workers,
-                                         ray_address=ray_address, config=trial, progress=progress,
-                                         first_seed=TUNING_SEED_START, recordings=0)
-                rows = summary["rows"]
-                done = sum(r["tasks"] for r in rows)
-                ok = sum(r["successes"] for r in rows)
-                ratios = [r["displacement_ratio"] for r in rows if r["displacement_ratio"] is not None]
-                results.append({"max_step_height": float(step), "max_slope_deg": float(slope),
-                                "body_radius": float(radius), "tasks": done, "successes": ok,
-                                "success_rate": ok / done if done else None,
-                                "displacement_ratio": float(np.mean(ratios)) if ratios else None,
-                                "rows": rows, "folder": str(folder)})
-    best = max(enumerate(results), key=lambda item: (item[1]["successes"],
-                                                     -(item[1]["displacement_ratio"] or np.inf),
-                                                     -item[0]))[1]
-    report = {"chosen": {"max_step_height": best["max_step_height"], "max_slope_deg": best["max_slope_deg"],
-                         "body_radius": best["body_radius"]},
-              "grid": results, "tasks_per_cell": tasks, "first_seed": TUNING_SEED_START}
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "tuning.json").write_text(json.dumps(report, indent=1))
-    return report
+
+# The grid ``tune_capplanner`` searches by default: the fall's penalty against the goal's 100
+# (how much risk a shorter route may carry) and the price of a topology change (how sure the
+# networks must be that another topology is better: with six topologies the most optimistic
+# network's noise alone can look like a gain).
+TUNING_FAILURE_REWARDS = (-100.0, -200.0)
+TUNING_TOPOLOGY_CHANGE_COSTS = (2.0, 6.0)
+
+
+def tune_capplanner(out, *, failure_rewards=TUNING_FAILURE_REWARDS,
+                    topology_change_costs=TUNING_TOPOLOGY_CHANGE_COSTS, terrains=TERRAINS,
+                    difficulties=DIFFICULTIES, tasks: int = 2, workers: int = 1, ray_address: str | None = None,
+                    config: ExperimentConfig = ExperimentConfig(), progress: bool = True) -> dict:
+    """Tunes CapPlanner's failure reward and topology-change cost the way A* is tuned: every
+    pair of the grid on the same tuning worlds (``_tune``)."""
+    _check_grid(**{"--failure-rewards": (failure_rewards, -1)})
+    if not topology_change_costs or any(not (isinstance(v, (int, float)) and not isinstance(v, bool)
+                                             and np.isfinite(v) and v >= 0) for v in topology_change_costs):
+        raise bad_value("--switch-costs", list(topology_change_costs), "expected numbers >= 0")
+    grid = [{"failure_reward": float(f), "topology_change_cost": float(c)}
+            for f in failure_rewards for c in topology_change_costs]
+    return _tune(out, "capplanner", grid, CAPPLANNER_TUNED,
+                 lambda g: f"failure{-g['failure_reward']:g}_switch{g['topology_change_cost']:g}",
+                 terrains=terrains, difficulties=difficulties, tasks=tasks, workers=workers,
+                 ray_address=ray_address, config=config, progress=progress)
