@@ -125,6 +125,14 @@ def test_a_walking_scenario_sets_capplanners_mdp_by_name():
         mdp_config({"failure_rewad": -250}, ["nominal"])
     with pytest.raises(QzError, match="capability_mdp.failure_reward"):
         mdp_config({"failure_reward": 50}, ["nominal"])  # a failure is not rewarded
+    # In a scenario file.
+    from qz_drake.config import load_scenario_text
+
+    text = "name: t\ncontroller:\n  kind: walk\n  planner: capplanner\n  route: [{x: 1.0, y: 0.0}]\n"
+    scenario = load_scenario_text(text + "  capability_mdp: {failure_reward: -150}\n")
+    assert scenario.controller.capability_mdp == {"failure_reward": -150.0}
+    with pytest.raises(QzError, match="scenario.controller.capability_mdp.failure_reward"):
+        load_scenario_text(text + "  capability_mdp: {failure_reward: lots}\n")
 
 
 @pytest.mark.parametrize("command, args, field", [
