@@ -3,6 +3,7 @@ plans round a wall and the robot walks it in Drake under the strict verdict; the
 pipeline runs one tiny task per planner; qz plan's outputs and bad input."""
 
 import base64
+import dataclasses
 import json
 import re
 import subprocess
@@ -111,6 +112,28 @@ def test_capplanner_is_tuned_on_the_same_tuning_worlds_as_astar(synthetic_model_
     assert report["chosen"]["failure_reward"] in (-100.0, -300.0)
     assert capplanner_settings(tmp_path) == {"capplanner_failure_reward": report["chosen"]["failure_reward"],
                                              "capplanner_topology_change_cost": 2.0}
+
+
+def test_capplanner_results_are_not_resumed_with_another_model(synthetic_model_dir, tmp_path):
+    """A results folder records the weights CapPlanner walked with (CapabilityModel.identity):
+    resuming it with another model (e.g. the shipped one after a retrain) is refused before any
+    walk, naming --model; the same model resumes."""
+    from qz_drake.capability.model import CapabilityModel
+    from qz_drake.errors import QzError
+    from qz_drake.experiments.fig9 import MODEL_IDENTITY, ExperimentConfig, run_experiment
+
+    synthetic, shipped = CapabilityModel.load(synthetic_model_dir), CapabilityModel.load()
+    assert synthetic.identity != shipped.identity and len(shipped.identity) == 16
+    assert CapabilityModel.load(synthetic_model_dir).identity == synthetic.identity
+    config = ExperimentConfig(capability_model=str(synthetic_model_dir), scale=0.3)
+    settings = {**dataclasses.asdict(config), MODEL_IDENTITY: shipped.identity}
+    (tmp_path / "settings.json").write_text(json.dumps(settings))
+    with pytest.raises(QzError, match="--model"):
+        run_experiment(tmp_path, planners=("capplanner",), terrains=("obstacles",), difficulties=("simple",),
+                       tasks=1, config=config, progress=False)
+    # The folder is left as it was: nothing walked, its record unchanged.
+    assert not (tmp_path / "results.jsonl").exists()
+    assert json.loads((tmp_path / "settings.json").read_text())[MODEL_IDENTITY] == shipped.identity
 
 
 def test_a_walking_scenario_sets_capplanners_mdp_by_name():

@@ -215,6 +215,19 @@ class CapabilityModel:
         return dict(self.card.get("fingerprints", {}))
 
     @property
+    def identity(self) -> str:
+        """Which trained weights these are: a digest of every network's weights SHA-256 (from
+        the cards), so that two models trained on the same dataset still differ. A model
+        without weight digests (random, or not saved) is its dataset fingerprint."""
+        import hashlib
+
+        cards = self.card.get("cards", {})
+        digests = sorted((name, card.get("weights_sha256", "")) for name, card in cards.items())
+        if not digests or not all(d for _, d in digests):
+            return self.fingerprint
+        return hashlib.sha256(repr(digests).encode()).hexdigest()[:16]
+
+    @property
     def networks(self) -> list[tuple[str, str]]:
         """(topology, kind) of the networks this model has."""
         return sorted(self._networks)

@@ -21,6 +21,8 @@ from qz_drake.errors import bad_value
 from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS, TASKS_PER_CELL, make_task
 
 RESULTS = "results.jsonl"
+# settings.json's record of the capability model CapPlanner's walks used (CapabilityModel.identity).
+MODEL_IDENTITY = "capability_model_identity"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -203,10 +205,11 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
         make_task(t, "simple", 0, scale=config.scale)
     for d in difficulties:
         make_task("stairs", d, 0, scale=config.scale)
+    model = None
     if "capplanner" in planners:
         from qz_drake.capability.model import CapabilityModel
 
-        CapabilityModel.load(config.capability_model or None)  # a missing model fails before any walk
+        model = CapabilityModel.load(config.capability_model or None)  # a missing model fails before any walk
     if ray_address:
         check_ray_address(ray_address)
     out = Path(out)
@@ -215,11 +218,25 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
     out.mkdir(parents=True, exist_ok=True)
     settings = out / "settings.json"
     mine = dataclasses.asdict(config)
-    if settings.is_file():
+    stored = json.loads(settings.read_text()) if settings.is_file() else None
+    if stored is not None:
         # A setting added since those results were written reads as its default there.
-        theirs = {**dataclasses.asdict(ExperimentConfig()), **json.loads(settings.read_text())}
+        theirs = {**dataclasses.asdict(ExperimentConfig()), **stored}
+        theirs.pop(MODEL_IDENTITY, None)
         if theirs != mine:
             raise bad_value("--out", str(out), "holds results of other experiment settings")
+    if model is not None:
+        # CapPlanner's results belong to the weights that walked them: "the shipped model"
+        # changes when it is retrained. (Results written before this was recorded carry none.)
+        if stored is not None and stored.get(MODEL_IDENTITY, model.identity) != model.identity:
+            raise bad_value("--model", config.capability_model or "the shipped model",
+                            f"{out} holds CapPlanner results of another model ({stored[MODEL_IDENTITY]}, "
+                            f"this one is {model.identity}): use another --out")
+        walked = any(r.get("planner") == "capplanner" for r in read_results(out))
+        if stored is None or MODEL_IDENTITY in stored or not walked:
+            mine[MODEL_IDENTITY] = model.identity
+    elif stored is not None and MODEL_IDENTITY in stored:
+        mine[MODEL_IDENTITY] = stored[MODEL_IDENTITY]  # an A*-only run keeps CapPlanner's record
     settings.write_text(json.dumps(mine, indent=1))
     done = {r["key"] for r in read_results(out) if r.get("reason") != "error"}
     if isinstance(recordings, bool) or recordings < 0:
