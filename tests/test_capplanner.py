@@ -136,6 +136,28 @@ def test_capplanner_results_are_not_resumed_with_another_model(synthetic_model_d
     assert json.loads((tmp_path / "settings.json").read_text())[MODEL_IDENTITY] == shipped.identity
 
 
+def test_results_written_before_a_setting_existed_still_resume(tmp_path):
+    """A* tuning folders were written before CapPlanner's settings joined ExperimentConfig: a
+    setting missing from settings.json reads as its default, so they resume (here: nothing left
+    to walk); a setting that differs is refused."""
+    from qz_drake.errors import QzError
+    from qz_drake.experiments.fig9 import ExperimentConfig, TaskSpec, run_experiment
+
+    config = ExperimentConfig(scale=0.3)
+    old = {k: v for k, v in dataclasses.asdict(config).items() if not k.startswith("capplanner_")}
+    (tmp_path / "settings.json").write_text(json.dumps(old))
+    key = TaskSpec("obstacles", "simple", 0, "astar").key
+    (tmp_path / "results.jsonl").write_text(json.dumps({"key": key, "terrain": "obstacles", "difficulty": "simple",
+                                                        "seed": 0, "planner": "astar", "success": True,
+                                                        "reason": "", "displacement_ratio": 1.1}) + "\n")
+    summary = run_experiment(tmp_path, planners=("astar",), terrains=("obstacles",), difficulties=("simple",),
+                             tasks=1, config=config, progress=False)
+    assert summary["ran"] == 0 and summary["rows"][0]["successes"] == 1
+    with pytest.raises(QzError, match="--out"):
+        run_experiment(tmp_path, planners=("astar",), terrains=("obstacles",), difficulties=("simple",), tasks=1,
+                       config=dataclasses.replace(config, capplanner_failure_reward=-200.0), progress=False)
+
+
 def test_a_walking_scenario_sets_capplanners_mdp_by_name():
     from qz_drake.errors import QzError
     from qz_drake.simulation import mdp_config
