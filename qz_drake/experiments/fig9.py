@@ -368,11 +368,10 @@ def _tune(out, planner: str, grid: list[dict], names: dict, folder_of, *, terrai
     return report
 
 
-def _check_grid(**values) -> None:
-    for flag, (numbers, sign) in values.items():
-        if not numbers or any(not (isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
-                                   and sign * v > 0) for v in numbers):
-            raise bad_value(flag, list(numbers), "expected positive numbers" if sign > 0 else "expected negative numbers")
+def _check_numbers(flag: str, numbers, ok, expected: str) -> None:
+    if not numbers or any(not (isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and ok(v))
+                          for v in numbers):
+        raise bad_value(flag, list(numbers), expected)
 
 
 def tune_astar(out, *, step_heights=TUNING_STEP_HEIGHTS, slopes_deg=TUNING_SLOPES_DEG,
@@ -382,7 +381,8 @@ def tune_astar(out, *, step_heights=TUNING_STEP_HEIGHTS, slopes_deg=TUNING_SLOPE
                progress: bool = True) -> dict:
     """Tunes the A* baseline's thresholds as strongly as it honestly can be: every
     (max step height, max slope, body radius) of the grid on the tuning worlds (``_tune``)."""
-    _check_grid(**{"--steps": (step_heights, 1), "--slopes": (slopes_deg, 1), "--radii": (body_radii, 1)})
+    for flag, numbers in (("--steps", step_heights), ("--slopes", slopes_deg), ("--radii", body_radii)):
+        _check_numbers(flag, numbers, lambda v: v > 0, "expected positive numbers")
     grid = [{"max_step_height": float(step), "max_slope_deg": float(slope), "body_radius": float(radius)}
             for radius in body_radii for step in step_heights for slope in slopes_deg]
     return _tune(out, "astar", grid, ASTAR_TUNED,
@@ -405,10 +405,8 @@ def tune_capplanner(out, *, failure_rewards=TUNING_FAILURE_REWARDS,
                     config: ExperimentConfig = ExperimentConfig(), progress: bool = True) -> dict:
     """Tunes CapPlanner's failure reward and topology-change cost the way A* is tuned: every
     pair of the grid on the same tuning worlds (``_tune``)."""
-    _check_grid(**{"--failure-rewards": (failure_rewards, -1)})
-    if not topology_change_costs or any(not (isinstance(v, (int, float)) and not isinstance(v, bool)
-                                             and np.isfinite(v) and v >= 0) for v in topology_change_costs):
-        raise bad_value("--switch-costs", list(topology_change_costs), "expected numbers >= 0")
+    _check_numbers("--failure-rewards", failure_rewards, lambda v: v < 0, "expected negative numbers")
+    _check_numbers("--switch-costs", topology_change_costs, lambda v: v >= 0, "expected numbers >= 0")
     grid = [{"failure_reward": float(f), "topology_change_cost": float(c)}
             for f in failure_rewards for c in topology_change_costs]
     return _tune(out, "capplanner", grid, CAPPLANNER_TUNED,

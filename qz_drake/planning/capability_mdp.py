@@ -572,18 +572,19 @@ def solve_capability_mdp(mdp: CapabilityMdp, V0=None) -> ValueIterationResult:
             V = Q[best, columns]
         Q[best, columns] = -np.inf
         second = Q.max(axis=0)
-        runner_up = argmax(Q, second)
-        Q[best, columns] = V
         if (config.policy_evaluation and evaluations < MAX_EVALUATIONS
                 and (evaluated is None or np.any(best != evaluated))):
             # A new greedy policy: value it (policy iteration's evaluation step) and improve on
             # that; Eq. 9 alone creeps there at gamma per iteration far from the goal.
+            runner_up = argmax(Q, second)
+            Q[best, columns] = V
             evaluated, evaluations = best, evaluations + 1
             Q = _evaluate_greedy(mdp, stand, best, runner_up, V, r, gamma, backup)
             continue
         # One iteration of Eq. 9 in Q form (the best action's stay worth the second best). Its
         # residual over every Q(s, a) below the threshold: Q is within epsilon / 2 of the
         # fixed point and the greedy policy epsilon-optimal.
+        Q[best, columns] = V
         Q_next = backup(V, best, second)
         change = float(np.max(np.abs(Q_next - Q)))
         Q, evaluated = Q_next, None
