@@ -140,10 +140,56 @@ def dataset_stats(path) -> dict:
             "fingerprints": manifest.get("fingerprints")}
 
 
+def _percent(rate) -> str:
+    return "-" if rate is None else f"{100 * rate:.0f} %"
+
+
+def stats_markdown(stats: dict) -> str:
+    """The dataset's summary as Markdown tables (the tables of data/capability/README.md):
+    success per topology and kind, per scene kind and difficulty, the BLC-versus-robot
+    disagreement per kind, the failure reasons and the topologies going up stairs."""
+    lines = [f"{stats['trials']} trials: {stats['executed']} executed, {stats['invalid_starts']} invalid "
+             f"starts, {stats['errors']} errors; {stats['successes']} successes "
+             f"({_percent(stats['successes'] / stats['executed'] if stats['executed'] else None)} of the "
+             f"executed). Dataset fingerprint `{stats['fingerprint']}`.", "",
+             "| topology | kind | executed | success | BLC alone | BLC and robot disagree |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    for row in stats["rows"]:
+        blc = row["blc_successes"] / row["executed"] if row["executed"] else None
+        lines.append(f"| {row['topology']} | {row['kind']} | {row['executed']} | {_percent(row['success_rate'])} "
+                     f"| {_percent(blc)} | {_percent(row['blc_disagreement'])} |")
+    lines += ["", "| scene kind | difficulty | executed | success |", "| --- | --- | --- | --- |"]
+    for row in stats["scene_kinds"]:
+        lines.append(f"| {row['scene_kind']} | {row['difficulty']} | {row['executed']} "
+                     f"| {_percent(row['success_rate'])} |")
+    lines += ["", "| kind | executed | BLC solved, robot failed | BLC and robot disagree |",
+              "| --- | --- | --- | --- |"]
+    for row in stats["kinds"]:
+        lines.append(f"| {row['kind']} | {row['executed']} | {_percent(row['blc_solved_but_robot_failed'])} "
+                     f"| {_percent(row['disagreement'])} |")
+    total = sum(stats["failure_reasons"].values())
+    lines += ["", "| failure reason | executed trials | share of failures |", "| --- | --- | --- |"]
+    for reason, count in sorted(stats["failure_reasons"].items(), key=lambda item: -item[1]):
+        lines.append(f"| {reason} | {count} | {_percent(count / total)} |")
+    if stats["stairs_up"]:
+        lines += ["", "| rise [m] | topology | up-stairs moves | success | 95 % interval |",
+                  "| --- | --- | --- | --- | --- |"]
+        for row in stats["stairs_up"]:
+            low, high = row["rise_m"]
+            lo, hi = row["ci95"]
+            lines.append(f"| {low:.2f}-{high:.2f} | {row['topology']} | {row['executed']} "
+                         f"| {row['successes']} ({_percent(row['success_rate'])}) "
+                         f"| {100 * lo:.0f}-{100 * hi:.0f} % |")
+    return "\n".join(lines)
+
+
 def run_stats(args) -> int:
     stats = dataset_stats(args.dataset)
     if args.json:
         print(json.dumps(stats))
+        return 0
+    if args.markdown:
+        print(stats_markdown(stats))
         return 0
     print(f"{stats['dataset']}: {stats['executed']} executed, {stats['invalid_starts']} invalid starts, "
           f"{stats['errors']} errors, {stats['successes']} successes")
@@ -215,7 +261,9 @@ def register(subparsers) -> None:
 
     p = sub.add_parser("stats", help="summarise a capability dataset")
     p.add_argument("dataset", help="dataset folder")
-    p.add_argument("--json", action="store_true", help="print one JSON line")
+    output = p.add_mutually_exclusive_group()
+    output.add_argument("--json", action="store_true", help="print one JSON line")
+    output.add_argument("--markdown", action="store_true", help="print the summary as Markdown tables")
     p.set_defaults(func=run_stats)
 
     p = sub.add_parser("recertify", help="re-run a sample of a dataset's trials with this code; "

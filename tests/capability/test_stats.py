@@ -33,3 +33,23 @@ def test_only_moves_heading_up_a_rising_flight_are_compared():
     assert row["rise_m"] == [0.10, 0.16] and row["topology"] == "front_bend"
     assert row["executed"] == 2 and row["successes"] == 1 and row["success_rate"] == 0.5
     assert row["ci95"] == list(wilson_interval(1, 2))
+
+
+def test_markdown_summary_lists_every_row_and_the_failure_shares():
+    from qz_drake.capability.commands import stats_markdown
+
+    stats = {
+        "trials": 12, "executed": 10, "invalid_starts": 2, "errors": 0, "successes": 6, "fingerprint": "abc",
+        "rows": [{"topology": "nominal", "kind": "turn", "executed": 10, "successes": 6, "blc_successes": 8,
+                  "success_rate": 0.6, "blc_disagreement": 0.2}],
+        "scene_kinds": [{"scene_kind": "stairs", "difficulty": "hard", "executed": 10, "success_rate": 0.6}],
+        "kinds": [{"kind": "turn", "executed": 10, "blc_solved_but_robot_failed": 0.2, "disagreement": 0.2}],
+        "failure_reasons": {"slip": 1, "blc_time_limit": 3},
+        "stairs_up": [],
+    }
+    text = stats_markdown(stats)
+    assert "| nominal | turn | 10 | 60 % | 80 % | 20 % |" in text
+    assert "| stairs | hard | 10 | 60 % |" in text
+    # Reasons by count, each with its share of the failures.
+    assert text.index("| blc_time_limit | 3 | 75 % |") < text.index("| slip | 1 | 25 % |")
+    assert "rise [m]" not in text
