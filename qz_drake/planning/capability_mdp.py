@@ -67,6 +67,11 @@ MOTIONS = ("forward", "turn_left", "turn_right")
 # The runner-up's successor is valued one evaluation behind, so in principle the greedy policy
 # could cycle; measured: 43 evaluations on the 100 m world, 11-16 on 20 m.
 MAX_EVALUATIONS = 200
+# Passes of each policy evaluation (_compile_kernels' greedy_values): the runner-up's successor is valued at
+# the previous pass's values. Measured 2026-12-02 on the bench's 100 m map: 1 pass 51
+# iterations (43 evaluations), 2 passes 32, 3-4 passes 29-32 at more time a pass; the same
+# path. 2: the fastest (BENCHMARKS "plan").
+GREEDY_PASSES = 2
 # Cell step (dx, dy) of a forward move along heading k.
 HEADING_STEPS = np.array([(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1)])
 
@@ -180,8 +185,6 @@ class CapabilityMdp:
     then ``goal_state`` and ``failure_state``. Action a = t * 3 + m, m indexing MOTIONS.
     """
 
-    # A sparse (S, S) CSR matrices.
-    P: list
     # (S, A) expected immediate rewards.
     R: np.ndarray
     # (A, S) success probability of each action from each state (0 in the absorbing states).
@@ -201,6 +204,29 @@ class CapabilityMdp:
     # Where the planning failures' probabilities came from: "model, per state" (a factored
     # model), "model cards' shares" (plan_failure_share above) or "config".
     plan_failure_source: str = ""
+
+    @property
+    def P(self) -> list:
+        """The transition matrices, A sparse (S, S) CSR, in pymdptoolbox's convention, built
+        from the arrays each time (the solver reads the arrays; forbid_action writes them): with
+        probability p the next state, q the same state (the planning failure's stay), the rest
+        the failure state; an absorbing state stays."""
+        import scipy.sparse as sp
+
+        A, S = self.success.shape
+        grid, failure = self.goal_state, self.failure_state
+        rows = np.arange(S)
+        absorbing = rows >= grid
+        stand = np.zeros((A, S)) if self.stand is None else self.stand
+        matrices = []
+        for a in range(A):
+            p, q = self.success[a], stand[a]
+            stays = np.flatnonzero(q > 0)
+            data = np.concatenate([np.where(absorbing, 1.0, p), (1.0 - p - q)[~absorbing], q[stays]])
+            cols = np.concatenate([np.where(absorbing, rows, self.next_state[a]), np.full(grid, failure), stays])
+            matrices.append(sp.csr_matrix((data, (np.concatenate([rows, rows[~absorbing], stays]), cols)),
+                                          shape=(S, S)))
+        return matrices
 
     @property
     def grid_shape(self) -> tuple[int, int, int, int]:
@@ -288,12 +314,10 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
     """The MDP of a CapabilityMap (qz_drake.capability.model.predict_map) and a goal position;
     ``switchable`` (ny, nx): where a topology change can succeed (:func:`switchable_cells`;
     None: everywhere)."""
-    import scipy.sparse as sp
-
     T, K, ny, nx = capability_map.forward.shape
     config = (config or CapabilityMdpConfig()).check().for_grid(nx, ny)
     topologies = tuple(capability_map.topologies)
-    mdp = CapabilityMdp(P=[], R=np.empty(0), success=np.empty(0), next_state=np.empty(0),
+    mdp = CapabilityMdp(R=np.empty(0), success=np.empty(0), next_state=np.empty(0),
                         xs=np.asarray(capability_map.xs), ys=np.asarray(capability_map.ys), topologies=topologies,
                         goal_cell=(0, 0), config=config)
     # A goal in the map's edge strip outside the whole cells belongs to the nearest cell.
@@ -348,19 +372,7 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
             stand[a, :grid] = np.where(at_goal, 0.0, q)
             next_state[a, :grid] = np.where(at_goal, goal, nxt)
             R[:grid, a] = np.where(at_goal, 0.0, reward)
-    rows = np.arange(S)
-    absorbing = rows >= grid
-    matrices = []
-    for a in range(A):
-        p, q = success[a], stand[a]
-        # Every grid row keeps its failure entry (forbid_action writes there); the self-loop
-        # only where the robot may stand.
-        stays = np.flatnonzero(q > 0)
-        data = np.concatenate([np.where(absorbing, 1.0, p), (1.0 - p - q)[~absorbing], q[stays]])
-        cols = np.concatenate([np.where(absorbing, rows, next_state[a]), np.full(grid, failure), stays])
-        matrices.append(sp.csr_matrix((data, (np.concatenate([rows, rows[~absorbing], stays]), cols)),
-                                      shape=(S, S)))
-    mdp.P, mdp.R, mdp.success, mdp.next_state, mdp.stand = matrices, R, success, next_state, stand
+    mdp.R, mdp.success, mdp.next_state, mdp.stand = R, success, next_state, stand
     return mdp
 
 
@@ -391,12 +403,8 @@ def forbid_action(mdp: CapabilityMdp, state: int, action: int) -> None:
     state from now on, and its reward is a failed action's)."""
     if not (0 <= state < mdp.goal_state):
         raise bad_value("state", state, f"expected a grid state 0..{mdp.goal_state - 1}")
-    if not (0 <= action < len(mdp.P)):
-        raise bad_value("action", action, f"expected an action 0..{len(mdp.P) - 1}")
-    matrix = mdp.P[action]
-    row = slice(matrix.indptr[state], matrix.indptr[state + 1])
-    # Zeros stay stored: every grid row keeps its failure entry for a later call.
-    matrix.data[row] = np.where(matrix.indices[row] == mdp.failure_state, 1.0, 0.0)
+    if not (0 <= action < mdp.success.shape[0]):
+        raise bad_value("action", action, f"expected an action 0..{mdp.success.shape[0] - 1}")
     t0 = np.unravel_index(state, mdp.grid_shape)[0]
     config = mdp.config
     if mdp.stand is not None:
@@ -514,7 +522,7 @@ def solve_capability_mdp(mdp: CapabilityMdp, V0=None) -> ValueIterationResult:
 
     Iterates Eq. 9 in Q form, Q(s, a) = r + gamma (p V(n) + q max_{b != a} Q(s, b)), and, with
     ``config.policy_evaluation`` (the default), values each new greedy policy before the next
-    improvement (modified policy iteration, Puterman 6.5: :func:`_evaluate_greedy`), which
+    improvement (modified policy iteration, Puterman 6.5; see the kernels below), which
     removes the slow tail where values settle at gamma per iteration. Stops when one iteration
     changes no Q(s, a) by more than epsilon (1 - gamma) / (2 gamma): Q is then within epsilon / 2
     of the fixed point, whichever way it got there. ``iterations`` counts improvements and
@@ -526,8 +534,6 @@ def solve_capability_mdp(mdp: CapabilityMdp, V0=None) -> ValueIterationResult:
     zeros took on the 20 m world, to the same policy (BENCHMARKS "plan"). Any start converges
     to the same fixed point; only the iteration count differs.
     """
-    import scipy.sparse as sp
-
     config = mdp.config
     A, S = mdp.success.shape
     gamma = float(config.discount)
@@ -537,93 +543,172 @@ def solve_capability_mdp(mdp: CapabilityMdp, V0=None) -> ValueIterationResult:
     stand = np.zeros((A, S)) if mdp.stand is None else np.asarray(mdp.stand, dtype=float)
     if not stand.any() and not config.policy_evaluation:
         return value_iteration(mdp.P, mdp.R, gamma, epsilon=config.epsilon, max_iter=config.max_iter, V0=V0)
-    stacked = sp.vstack(mdp.P, format="csr")
-    r = np.ascontiguousarray(np.asarray(mdp.R, dtype=float).T)
+    kernels = _kernels()
+    # The MDP's arrays state-major, as the compiled kernels read them: (S, A).
+    arrays = (np.ascontiguousarray(np.asarray(mdp.success, dtype=float).T), np.ascontiguousarray(stand.T),
+              np.ascontiguousarray(np.asarray(mdp.R, dtype=float)), np.ascontiguousarray(mdp.next_state.T, dtype=np.int64))
     threshold = config.epsilon * (1.0 - gamma) / (2.0 * gamma) if gamma < 1.0 else config.epsilon
-    columns = np.arange(S)
+    first_absorbing, failure = int(mdp.goal_state), int(mdp.failure_state)
+    no_policy = np.empty(0, np.int64)
 
-    def backup(V, best=None, second=None):
-        # Q = r + gamma P V, where P holds the stay as a self-loop on V(s); for the action
-        # that is best in s the stay is worth the second best instead (for any other action it
-        # is worth the best, V(s) itself).
-        Q = (stacked @ V).reshape(A, S)
-        if best is not None:
-            Q[best, columns] += stand[best, columns] * (second - V)
-        Q *= gamma
-        Q += r
-        return Q
+    def backup(V, best, second, out):
+        # Q = r + gamma P V, from the arrays P is made of (the same entries: success to the next
+        # state, the stay, the rest to failure); the stay is worth V(s), except for the action
+        # that is best in s, whose stay is worth the second best.
+        return kernels.backup(*arrays, V, best, second, gamma, first_absorbing, failure, out)
 
-    Q = backup(np.array(V0, dtype=float).reshape(S))
+    Q, spare = np.empty((S, A)), np.empty((S, A))
+    backup(np.array(V0, dtype=float).reshape(S), no_policy, np.empty(0), Q)
+    V, second = np.empty(S), np.empty(S)
+    best, runner_up = np.empty(S, np.int64), np.empty(S, np.int64)
     change, converged, iterations, evaluated, evaluations = np.inf, False, 0, None, 0
-    ranks = (A - np.arange(A)).astype(np.int8 if A < 127 else np.int32)[:, None]
-
-    def argmax(Q, V):
-        # Q.argmax(axis=0), the lowest index among ties, 3x faster on (18, 470 450).
-        return A - ((Q == V) * ranks).max(axis=0)
-
     for iterations in range(1, int(config.max_iter) + 1):
-        V = Q.max(axis=0)
-        best = argmax(Q, V)
-        if evaluated is not None:
-            # Policy iteration's rule: keep the evaluated action unless another is better by
-            # more than a rounding error (a tie between two turns need not be evaluated again).
-            keep = Q[evaluated, columns] >= V - 1e-9 * np.maximum(1.0, np.abs(V))
-            best = np.where(keep, evaluated, best)
-            V = Q[best, columns]
-        Q[best, columns] = -np.inf
-        second = Q.max(axis=0)
+        # V, the greedy action (the lowest index among ties), the best other action's Q and
+        # that action. After an evaluation, policy iteration's rule: keep the evaluated action
+        # unless another is better by more than a rounding error (a tie between two turns
+        # need not be evaluated again).
+        kernels.improve(Q, no_policy if evaluated is None else evaluated, V, best, second, runner_up)
         if (config.policy_evaluation and evaluations < MAX_EVALUATIONS
                 and (evaluated is None or np.any(best != evaluated))):
             # A new greedy policy: value it (policy iteration's evaluation step) and improve on
             # that; Eq. 9 alone creeps there at gamma per iteration far from the goal.
-            runner_up = argmax(Q, second)
-            Q[best, columns] = V
-            evaluated, evaluations = best, evaluations + 1
-            Q = _evaluate_greedy(mdp, stand, best, runner_up, V, r, gamma, backup)
+            evaluated, evaluations = best.copy(), evaluations + 1
+            values, stay = V, None
+            for _ in range(GREEDY_PASSES):
+                values, stay = kernels.greedy_values(*arrays, evaluated, runner_up, values, gamma, first_absorbing)
+            backup(values, evaluated, stay, Q)
             continue
         # One iteration of Eq. 9 in Q form (the best action's stay worth the second best). Its
         # residual over every Q(s, a) below the threshold: Q is within epsilon / 2 of the
         # fixed point and the greedy policy epsilon-optimal.
-        Q[best, columns] = V
-        Q_next = backup(V, best, second)
-        change = float(np.max(np.abs(Q_next - Q)))
-        Q, evaluated = Q_next, None
+        backup(V, best, second, spare)
+        change = float(np.max(np.abs(spare - Q)))
+        Q, spare, evaluated = spare, Q, None
         if change < threshold:
             converged = True
             break
-    return ValueIterationResult(V=Q.max(axis=0), policy=np.argmax(Q, axis=0), Q=np.ascontiguousarray(Q.T),
+    return ValueIterationResult(V=Q.max(axis=1), policy=np.argmax(Q, axis=1), Q=Q,
                                 iterations=iterations, max_change=change, converged=converged)
 
 
-def _evaluate_greedy(mdp: CapabilityMdp, stand, best, runner_up, V, r, gamma: float, backup) -> np.ndarray:
-    """Q after valuing the greedy policy ``best`` (policy iteration's evaluation step).
+# The policy evaluation (modified policy iteration, solve_capability_mdp): in state s the best
+# action a reaches n_a with probability p_a, stays with q_a and is then worth the runner-up b's
+# Q, whose own stay is worth V(s):
+# V(s) = r_a + gamma (p_a V(n_a) + q_a (r_b + gamma (p_b V(n_b) + q_b V(s)))). With V(n_b) held
+# at the previous pass's values this is V(s) = c(s) + g(s) V(n_a(s)): one successor per state,
+# solved exactly along its chains (greedy_values below), GREEDY_PASSES times.
+_KERNELS = None
 
-    In state s the best action a reaches n_a with probability p_a, stays with q_a and is then
-    worth the runner-up b's Q, whose own stay is worth V(s):
-    V(s) = r_a + gamma (p_a V(n_a) + q_a (r_b + gamma (p_b V(n_b) + q_b V(s)))). With V(n_b)
-    held at its current value this is V(s) = c(s) + g(s) V(n_a(s)): one successor per state, a
-    chain solved by pointer doubling (after j rounds V(s) = c_j(s) + g_j(s) V(n_j(s)) with n_j
-    2^j actions ahead, g_j at most gamma^(2^j), loops of turns included). Then Q from those
-    values, the best action's stay valued at the runner-up's Q.
-    """
-    S = len(best)
-    states = np.arange(S)
-    p_a, q_a = mdp.success[best, states], stand[best, states]
-    p_b, q_b = mdp.success[runner_up, states], stand[runner_up, states]
-    # The runner-up's Q without its stay, which is worth V(s) (solved for below).
-    rest_b = r[runner_up, states] + gamma * p_b * V[mdp.next_state[runner_up, states]]
-    loop = 1.0 - gamma * gamma * q_a * q_b
-    c = (r[best, states] + gamma * q_a * rest_b) / loop
-    g = gamma * p_a / loop
-    n = mdp.next_state[best, states].copy()
-    absorbing = states >= mdp.goal_state
-    c[absorbing], g[absorbing], n[absorbing] = 0.0, 0.0, states[absorbing]
-    # The remainder g_j V(n_j), |V| a few hundred at most, far below the stop's threshold.
-    while g.max() > 1e-10:
-        c += g * c[n]
-        g *= g[n]
-        n = n[n]
-    return backup(c, best, rest_b + gamma * q_b * c)
+
+def _kernels():
+    """The solver's compiled loops (numba is imported and they are compiled, or read from its
+    cache, on first use)."""
+    global _KERNELS
+    if _KERNELS is None:
+        _KERNELS = _compile_kernels()
+    return _KERNELS
+
+
+def _compile_kernels():
+    import types
+
+    import numba
+
+    @numba.njit(cache=True)
+    def backup(success, stand, r, next_state, V, best, second, gamma, first_absorbing, failure, out):
+        """out[s, a] = r + gamma (p V(n) + (1 - p - q) V(failure) + q stay), the stay worth
+        V(s), or second[s] for a == best[s] (when a policy is given); V(s) itself from an
+        absorbing state."""
+        S, A = success.shape
+        with_policy = best.shape[0] == S
+        v_failure = V[failure]
+        for s in range(S):
+            if s >= first_absorbing:
+                for a in range(A):
+                    out[s, a] = r[s, a] + gamma * V[s]
+                continue
+            for a in range(A):
+                p, q = success[s, a], stand[s, a]
+                stay = second[s] if with_policy and best[s] == a else V[s]
+                out[s, a] = r[s, a] + gamma * (p * V[next_state[s, a]] + (1.0 - p - q) * v_failure + q * stay)
+        return out
+
+    @numba.njit(cache=True)
+    def improve(Q, evaluated, V, best, second, runner_up):
+        """Per state: the greedy action (the first among ties; the evaluated one where it is
+        within a rounding error of the best), its Q, the best other Q and its action."""
+        S, A = Q.shape
+        keep = evaluated.shape[0] == S
+        for s in range(S):
+            top, b = Q[s, 0], 0
+            for a in range(1, A):
+                if Q[s, a] > top:
+                    top, b = Q[s, a], a
+            if keep:
+                e = evaluated[s]
+                if Q[s, e] >= top - 1e-9 * max(1.0, abs(top)):
+                    b = e
+            other, o = -np.inf, -1
+            for a in range(A):
+                if a != b and Q[s, a] > other:
+                    other, o = Q[s, a], a
+            V[s], best[s], second[s], runner_up[s] = Q[s, b], b, other, o
+
+    @numba.njit(cache=True)
+    def greedy_values(success, stand, r, next_state, best, runner_up, V, gamma, first_absorbing):
+        """(V, the best action's stay: the runner-up's Q) of the greedy policy, V(s) = c(s) +
+        g(s) V(n(s)) solved exactly. The successor graph is functional: from any state the
+        chain ends in a cycle (an absorbing state's is its self-loop). Each chain is walked once;
+        a new cycle's first state is solved in closed form, V = C / (1 - G) with C and G
+        composed around it (G < 1: the policy is discounted), and the walk's states are then
+        valued backwards from wherever it stopped. O(S), where pointer doubling took
+        log2(horizon) rounds of gathers over every state."""
+        S = best.shape[0]
+        c, g = np.empty(S), np.empty(S)
+        n = np.empty(S, np.int64)
+        rest_b, q_b = np.empty(S), np.empty(S)
+        for s in range(S):
+            if s >= first_absorbing:
+                c[s], g[s], n[s], rest_b[s], q_b[s] = 0.0, 0.0, s, 0.0, 0.0
+                continue
+            a, b = best[s], runner_up[s]
+            q_a, q_b[s] = stand[s, a], stand[s, b]
+            # The runner-up's Q without its stay, which is worth V(s) (solved for below).
+            rest_b[s] = r[s, b] + gamma * success[s, b] * V[next_state[s, b]]
+            loop = 1.0 - gamma * gamma * q_a * q_b[s]
+            c[s] = (r[s, a] + gamma * q_a * rest_b[s]) / loop
+            g[s] = gamma * success[s, a] / loop
+            n[s] = next_state[s, a]
+        values = np.empty(S)
+        state = np.zeros(S, np.int8)  # 0 unseen, 1 on the current walk, 2 valued
+        walk = np.empty(S, np.int64)
+        for first in range(S):
+            if state[first] == 2:
+                continue
+            top, s = 0, first
+            while state[s] == 0:
+                state[s] = 1
+                walk[top] = s
+                top += 1
+                s = n[s]
+            if state[s] == 1:  # a new cycle through s: V(s) = C + G V(s)
+                C, G, u = 0.0, 1.0, s
+                while True:
+                    C += G * c[u]
+                    G *= g[u]
+                    u = n[u]
+                    if u == s:
+                        break
+                values[s] = C / (1.0 - G)
+                state[s] = 2
+            for i in range(top - 1, -1, -1):
+                u = walk[i]
+                if state[u] != 2:
+                    values[u] = c[u] + g[u] * values[n[u]]
+                    state[u] = 2
+        return values, rest_b + gamma * q_b * values
+
+    return types.SimpleNamespace(backup=backup, improve=improve, greedy_values=greedy_values)
 
 
 def plan_on_map(capability_map, start_xy, start_heading: int, goal_xy, *, start_topology: str = "nominal",

@@ -362,3 +362,45 @@ def test_no_topology_change_beside_an_obstacle_within_the_legs_reach():
     xs, ys = np.array([3.0, 1.0, 4.3]), np.array([3.0])  # the box 0.5, 2.5 and 0.8 m away
     assert switchable_cells(heightmap, xs, ys).tolist() == [[False, True, False]]
     assert switchable_cells(heightmap, xs, ys, CapabilityMdpConfig(switch_max_step=0.2)).tolist() == [[True] * 3]
+
+
+def test_a_greedy_policy_is_valued_exactly_along_its_chains_and_cycles():
+    """The policy evaluation's compiled solve of V(s) = r(s) + gamma (p V(n(s)) + q Q_b(s)) on
+    a random one-successor graph (chains into cycles of every length, self-loops, absorbing
+    states), against a dense linear solve of the same equations."""
+    from qz_drake.planning.capability_mdp import _kernels
+
+    rng = np.random.default_rng(3)
+    A, S, absorbing = 3, 400, 2
+    grid = S - absorbing
+    success = np.zeros((A, S))
+    success[:, :grid] = rng.uniform(0.2, 1.0, (A, grid))
+    stand = np.zeros((A, S))
+    stand[:, :grid] = rng.uniform(0.0, 1.0, (A, grid)) * (1.0 - success[:, :grid])
+    r = rng.normal(0.0, 1.0, (A, S))
+    r[:, grid:] = 0.0
+    next_state = rng.integers(0, S, (A, S))
+    next_state[:, :40] = (np.arange(40) + 1) % 40  # one long cycle
+    next_state[:, 40:45] = np.arange(40, 45)  # self-loops
+    next_state[:, grid:] = np.arange(grid, S)
+    best, runner_up = rng.integers(0, A, S), rng.integers(0, A, S)
+    runner_up = np.where(runner_up == best, (best + 1) % A, runner_up)
+    V_old = rng.normal(0.0, 5.0, S)
+    gamma = 0.97
+
+    state_major = [np.ascontiguousarray(x.T) for x in (success, stand, r, next_state)]
+    values, second = _kernels().greedy_values(*state_major, best, runner_up, V_old, gamma, grid)
+
+    states = np.arange(grid)
+    a, b = best[:grid], runner_up[:grid]
+    # V(s) = r_a + gamma (p_a V(n_a) + q_a (r_b + gamma (p_b V_old(n_b) + q_b V(s)))).
+    M = np.eye(S)
+    rhs = np.zeros(S)
+    M[states, next_state[a, states]] -= gamma * success[a, states]
+    M[states, states] -= gamma * gamma * stand[a, states] * stand[b, states]
+    rest_b = r[b, states] + gamma * success[b, states] * V_old[next_state[b, states]]
+    rhs[:grid] = r[a, states] + gamma * stand[a, states] * rest_b
+    expected = np.linalg.solve(M, rhs)
+    np.testing.assert_allclose(values, expected, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(second[:grid], rest_b + gamma * stand[b, states] * expected[:grid], rtol=1e-10)
+    assert np.all(values[grid:] == 0.0)
