@@ -64,9 +64,27 @@ def expected_calibration_error(labels, probabilities, bins: int = 10) -> float:
     return float(np.sum(weights * np.abs(prob_true - prob_pred)))
 
 
+def ece_floor(probabilities, bins: int = 10, draws: int = 400, seed: int = 0) -> float:
+    """The ECE a perfectly calibrated model with these predictions would score on this many
+    trials, on average: labels drawn as Bernoulli(p), ``draws`` times (seeded). ECE is biased
+    upwards on small samples (each bin's observed rate is noisy), so a test set of ~150 trials
+    puts this floor at a few hundredths; an ECE near it is as calibrated as the test can show.
+    Per draw, ECE = sum_b |successes_b - sum of p_b| / N (expected_calibration_error's bins)."""
+    p = np.clip(np.asarray(probabilities, dtype=float).ravel(), 0.0, 1.0)
+    if len(p) == 0:
+        return float("nan")
+    ids = _bin_ids(p, bins)
+    labels = np.random.default_rng(seed).random((draws, len(p))) < p
+    # (draws, bins): successes per bin, minus the predictions' sum per bin.
+    observed = np.stack([np.bincount(ids, weights=row, minlength=bins) for row in labels.astype(float)])
+    predicted = np.bincount(ids, weights=p, minlength=bins)
+    return float(np.mean(np.abs(observed - predicted).sum(axis=1)) / len(p))
+
+
 def binary_metrics(labels, probabilities, *, bins: int = 10) -> dict:
-    """n, positives, accuracy at 0.5, ROC AUC (None for one class), Brier score, ECE,
-    confusion matrix [[TN, FP], [FN, TP]] and the reliability curve."""
+    """n, positives, accuracy at 0.5, ROC AUC (None for one class), Brier score, ECE and its
+    small-sample floor (:func:`ece_floor`), confusion matrix [[TN, FP], [FN, TP]] and the
+    reliability curve."""
     from sklearn.calibration import calibration_curve
     from sklearn.metrics import accuracy_score, brier_score_loss, confusion_matrix, roc_auc_score
 
@@ -74,7 +92,7 @@ def binary_metrics(labels, probabilities, *, bins: int = 10) -> dict:
     p = np.clip(np.asarray(probabilities, dtype=float), 0.0, 1.0)
     if len(y) == 0:
         return {"n": 0, "positives": 0, "accuracy": None, "auc": None, "brier": None, "ece": None,
-                "confusion": [[0, 0], [0, 0]], "reliability": {"predicted": [], "observed": [], "count": []}}
+                "ece_floor": None, "confusion": [[0, 0], [0, 0]], "reliability": {"predicted": [], "observed": [], "count": []}}
     two_classes = 0 < y.sum() < len(y)
     prob_true, prob_pred = calibration_curve(y, p, n_bins=bins, strategy="uniform")
     counts = np.bincount(_bin_ids(p, bins), minlength=bins)
@@ -85,6 +103,7 @@ def binary_metrics(labels, probabilities, *, bins: int = 10) -> dict:
         "auc": float(roc_auc_score(y, p)) if two_classes else None,
         "brier": float(brier_score_loss(y, p, pos_label=True)),
         "ece": expected_calibration_error(y, p, bins),
+        "ece_floor": ece_floor(p, bins),
         "confusion": confusion_matrix(y, p >= 0.5, labels=[False, True]).tolist(),
         "reliability": {"predicted": prob_pred.tolist(), "observed": prob_true.tolist(),
                         "count": counts[counts > 0].tolist()},

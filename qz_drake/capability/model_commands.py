@@ -7,7 +7,8 @@ dataset (split by scene), writes the model directory (safetensors + JSON cards) 
 
 ``qz capability evaluate [--model DIR] --dataset DIR [--json] [--out DIR]`` scores a model on
 every trial of a dataset whose fingerprints are the model's; the JSON has one entry per
-network with topology, kind, n, positives, auc, brier, ece, accuracy.
+network with topology, kind, n, positives, auc, brier, ece, ece_floor (the ECE a calibrated
+model would score on so few trials), accuracy.
 
 ``qz capability map --model DIR --terrain NAME|FILE --topology T --out FILE.png`` draws the
 predicted success of moving forward from every 1 m cell and heading over the heightmap.
@@ -23,7 +24,7 @@ from pathlib import Path
 
 from qz_drake.errors import ConfigError, bad_value
 
-SUMMARY_KEYS = ("topology", "kind", "n", "positives", "auc", "brier", "ece", "accuracy")
+SUMMARY_KEYS = ("topology", "kind", "n", "positives", "auc", "brier", "ece", "ece_floor", "accuracy")
 
 
 def load_dataset(path) -> tuple[dict, dict]:
@@ -48,11 +49,11 @@ def _print_table(rows: list[dict], title: str, extra: tuple[tuple[str, str], ...
 
     table = Table(title=title)
     table.add_column("network", no_wrap=True, min_width=21)
-    for column in ("n", "pos", "AUC", "Brier", "ECE", "acc") + tuple(name for name, _ in extra):
+    for column in ("n", "pos", "AUC", "Brier", "ECE", "ECE floor", "acc") + tuple(name for name, _ in extra):
         table.add_column(column, justify="right", no_wrap=True)
     for row in rows:
         table.add_row(f"{row['topology']}/{row['kind']}", str(row["n"]), str(row["positives"]), _fmt(row["auc"]),
-                      _fmt(row["brier"]), _fmt(row["ece"]), _fmt(row["accuracy"]),
+                      _fmt(row["brier"]), _fmt(row["ece"]), _fmt(row.get("ece_floor")), _fmt(row["accuracy"]),
                       *(str(row.get(key, "-")) for _, key in extra))
     console = Console()
     # Piped output (a log file) gets the table's natural width instead of 80 columns.

@@ -144,6 +144,20 @@ def test_expected_calibration_error_by_hand():
     assert sum(ev.binary_metrics(y, p)["reliability"]["count"]) == 5
 
 
+def test_ece_floor_is_what_a_perfectly_calibrated_model_scores_on_so_few_trials():
+    rng = np.random.default_rng(5)
+    p = rng.uniform(0.0, 1.0, 150)
+    floor = ev.ece_floor(p, 10)
+    # Labels drawn from the predictions themselves: their ECE scatters around the floor.
+    draws = [ev.expected_calibration_error(rng.random(150) < p, p, 10) for _ in range(300)]
+    assert floor == pytest.approx(np.mean(draws), rel=0.1)
+    assert 0.04 < floor < 0.15
+    # It shrinks with the number of trials (about as 1 / sqrt(N)), and is zero for certainties.
+    assert ev.ece_floor(np.tile(p, 16), 10) < floor / 3
+    assert ev.ece_floor(np.array([0.0, 1.0, 1.0]), 10) == 0.0
+    assert ev.binary_metrics(rng.random(150) < p, p)["ece_floor"] == pytest.approx(floor)
+
+
 def test_patch_features_see_each_patch_alone(monkeypatch):
     flat = np.zeros((20, 20))
     step = flat.copy()
