@@ -88,6 +88,36 @@ def stairs_up_rows(arrays: dict, seed: int) -> list[dict]:
     return rows
 
 
+# Rises from which paper 000's claims are about higher stairs (the upper two RISE_BINS). [m]
+HIGH_STAIRS_RISE = 0.10
+
+
+def stairs_up_comparisons(rows: list[dict], reference: str = "nominal") -> list[dict]:
+    """Each topology against ``reference`` going up stairs of rise >= HIGH_STAIRS_RISE (the
+    stairs_up rows pooled): successes / moves of both and the two-sided Fisher exact p-value of
+    the difference (scipy.stats.fisher_exact), the test paper 000's topology claims need."""
+    from scipy.stats import fisher_exact
+
+    pooled: dict[str, list[int]] = {}
+    for row in rows:
+        if row["rise_m"][0] >= HIGH_STAIRS_RISE - 1e-9:
+            k, n = pooled.setdefault(row["topology"], [0, 0]), row
+            k[0] += n["successes"]
+            k[1] += n["executed"]
+    if reference not in pooled:
+        return []
+    ref_k, ref_n = pooled[reference]
+    out = []
+    for topology, (k, n) in sorted(pooled.items()):
+        if topology == reference or n == 0 or ref_n == 0:
+            continue
+        _, p = fisher_exact([[k, n - k], [ref_k, ref_n - ref_k]])
+        out.append({"topology": topology, "reference": reference, "min_rise_m": HIGH_STAIRS_RISE,
+                    "successes": k, "executed": n, "reference_successes": ref_k, "reference_executed": ref_n,
+                    "p_value": float(p)})
+    return out
+
+
 def dataset_stats(path) -> dict:
     """Per topology and kind: executed trials, successes, BLC-only successes, errors; per
     scene kind too; and the manifest's fingerprints."""
@@ -135,7 +165,8 @@ def dataset_stats(path) -> dict:
             "invalid_starts": int((arrays["status"] == "invalid").sum()),
             "successes": int(arrays["success"][executed].sum()),
             "rows": rows, "scene_kinds": scene_rows, "kinds": kind_rows, "failure_reasons": reasons,
-            "stairs_up": stairs_up_rows(arrays, int(manifest.get("seed", 0))),
+            "stairs_up": (stairs := stairs_up_rows(arrays, int(manifest.get("seed", 0)))),
+            "stairs_up_against_nominal": stairs_up_comparisons(stairs),
             "seed": manifest.get("seed"), "fingerprint": manifest.get("fingerprint"),
             "fingerprints": manifest.get("fingerprints")}
 
@@ -180,6 +211,14 @@ def stats_markdown(stats: dict) -> str:
             lines.append(f"| {low:.2f}-{high:.2f} | {row['topology']} | {row['executed']} "
                          f"| {row['successes']} ({_percent(row['success_rate'])}) "
                          f"| {100 * lo:.0f}-{100 * hi:.0f} % |")
+    if stats.get("stairs_up_against_nominal"):
+        lines += ["", "| topology | up-stairs moves, rise >= 0.10 m | success | nominal's | Fisher exact p |",
+                  "| --- | --- | --- | --- | --- |"]
+        for row in stats["stairs_up_against_nominal"]:
+            lines.append(f"| {row['topology']} | {row['executed']} | {row['successes']} "
+                         f"({_percent(row['successes'] / row['executed'])}) | {row['reference_successes']} / "
+                         f"{row['reference_executed']} ({_percent(row['reference_successes'] / row['reference_executed'])}) "
+                         f"| {row['p_value']:.2g} |")
     return "\n".join(lines)
 
 

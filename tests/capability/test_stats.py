@@ -53,3 +53,23 @@ def test_markdown_summary_lists_every_row_and_the_failure_shares():
     # Reasons by count, each with its share of the failures.
     assert text.index("| blc_time_limit | 3 | 75 % |") < text.index("| slip | 1 | 25 % |")
     assert "rise [m]" not in text
+
+
+def test_topologies_are_compared_with_nominal_on_the_higher_stairs_by_fishers_test():
+    from scipy.stats import fisher_exact
+
+    from qz_drake.capability.commands import stairs_up_comparisons
+
+    rows = [{"rise_m": [0.04, 0.10], "topology": "front_bend", "executed": 30, "successes": 30},
+            {"rise_m": [0.10, 0.16], "topology": "front_bend", "executed": 30, "successes": 12},
+            {"rise_m": [0.16, 0.27], "topology": "front_bend", "executed": 40, "successes": 8},
+            {"rise_m": [0.04, 0.10], "topology": "nominal", "executed": 30, "successes": 0},
+            {"rise_m": [0.10, 0.16], "topology": "nominal", "executed": 30, "successes": 5},
+            {"rise_m": [0.16, 0.27], "topology": "nominal", "executed": 40, "successes": 1}]
+    [row] = stairs_up_comparisons(rows)
+    # The low stairs are left out of both; the higher two bins pooled.
+    assert (row["topology"], row["successes"], row["executed"]) == ("front_bend", 20, 70)
+    assert (row["reference_successes"], row["reference_executed"]) == (6, 70)
+    assert row["p_value"] == pytest.approx(fisher_exact([[20, 50], [6, 64]])[1])
+    assert row["p_value"] < 0.01
+    assert stairs_up_comparisons(rows[:3]) == []  # no nominal rows: nothing to compare with
