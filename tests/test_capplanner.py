@@ -68,6 +68,44 @@ def test_the_fig9_pipeline_runs_a_tiny_task_per_planner(synthetic_model_dir, tmp
     assert again["ran"] == 0 and (tmp_path / "results.csv").is_file()
 
 
+def test_the_claim_is_checked_on_paired_tasks_and_reported_as_tables(tmp_path, capsys):
+    """Both planners walk the same worlds: the comparison pairs them by task and tests the
+    discordant ones (McNemar's exact test); `qz experiment report` prints the tables of a
+    results folder, a run in progress included."""
+    import json
+
+    from scipy.stats import binomtest
+
+    from qz_drake.cli import main
+    from qz_drake.experiments.fig9 import RESULTS, compare_planners
+
+    def record(difficulty, seed, planner, success, reason=""):
+        return {"key": f"stairs-{difficulty}-{seed}-{planner}", "terrain": "stairs", "difficulty": difficulty,
+                "seed": seed, "planner": planner, "success": success,
+                "reason": reason or ("" if success else "leg_contact"), "displacement_ratio": 1.1,
+                "wall_time_s": 10.0}
+
+    # medium: CapPlanner walks seeds 0-7, A* seeds 6-7 and 8; seed 9 failed by an error (left out).
+    records = [record("medium", s, "capplanner", s < 8) for s in range(9)]
+    records += [record("medium", s, "astar", s in (6, 7, 8)) for s in range(9)]
+    records += [record("medium", 9, "capplanner", False, "error"), record("medium", 9, "astar", True)]
+    records += [record("hard", 0, "capplanner", False)]  # no A* record yet: not paired
+    rows = compare_planners(records)
+    cell = next(r for r in rows if (r["terrain"], r["difficulty"]) == ("stairs", "medium"))
+    assert (cell["tasks"], cell["both"], cell["only_capplanner"], cell["only_astar"], cell["neither"]) == (9, 2, 6, 1, 0)
+    assert cell["p_value"] == pytest.approx(binomtest(6, 7, 0.5).pvalue)
+    assert not any(r["difficulty"] == "hard" for r in rows)
+    assert rows[-1]["terrain"] == rows[-1]["difficulty"] == "all" and rows[-1]["tasks"] == 9
+
+    (tmp_path / RESULTS).write_text("".join(json.dumps(r) + "\n" for r in records))
+    assert main(["experiment", "report", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert "| stairs | medium | 8/9 (89 %) | 4/10 (40 %) |" in text
+    assert "| stairs | medium | 9 | 2 | 6 | 1 | 0 |" in text and "| capplanner | leg_contact 2 |" in text
+    assert main(["experiment", "report", str(tmp_path / "nothing")]) == 2
+    assert "results" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_astar_is_tuned_on_worlds_that_are_not_the_experiments(tmp_path):
     from qz_drake.experiments.fig9 import ExperimentConfig, read_results, tune_astar

@@ -35,6 +35,14 @@ def run_fig9(args) -> int:
     return 0
 
 
+def run_report(args) -> int:
+    from qz_drake.experiments.fig9 import report, report_markdown
+
+    summary = report(args.out)
+    print(json.dumps(summary) if args.json else report_markdown(summary))
+    return 0
+
+
 def _numbers(text, field) -> tuple[float, ...] | None:
     from qz_drake.errors import bad_value
 
@@ -133,6 +141,11 @@ def register(subparsers) -> None:
     p.add_argument("--ray-address", default=None, help="run the tasks on this Ray cluster (host:port)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.set_defaults(func=run_fig9)
+
+    p = sub.add_parser("report", help="the tables of a capplanner-vs-astar results folder (a run in progress too)")
+    p.add_argument("out", help="results folder of qz experiment capplanner-vs-astar")
+    p.add_argument("--json", action="store_true", help="print one JSON line instead of Markdown tables")
+    p.set_defaults(func=run_report)
 
     p = sub.add_parser("tune-astar", help="choose the A* baseline's thresholds on tuning worlds "
                                           "(seeds from 1000, never the experiment's)")

@@ -184,6 +184,100 @@ def summarise(records: list[dict]) -> list[dict]:
     return rows
 
 
+def compare_planners(records: list[dict], planner: str = "capplanner", baseline: str = "astar") -> list[dict]:
+    """The paper's claim, cell by cell: ``planner`` against ``baseline`` on the same tasks.
+
+    Both planners walk the same worlds (a task is a terrain, difficulty and seed), so the test
+    is paired: of the tasks both finished (errors left out), how many both walked, only one of
+    them walked, neither; and McNemar's exact test (a two-sided binomial test of the discordant
+    tasks, scipy.stats.binomtest) of "the two succeed equally often". One row per (terrain,
+    difficulty), then one per difficulty over the terrains and one over all."""
+    from scipy.stats import binomtest
+
+    outcome = {}
+    for r in records:
+        if r.get("reason") != "error" and r["planner"] in (planner, baseline):
+            outcome[(r["terrain"], r["difficulty"], r["seed"], r["planner"])] = bool(r["success"])
+    paired = {(t, d, s): (outcome[(t, d, s, planner)], outcome[(t, d, s, baseline)])
+              for (t, d, s, p) in outcome if p == planner and (t, d, s, baseline) in outcome}
+
+    def row(terrain, difficulty, keys):
+        pairs = [paired[k] for k in keys]
+        only_planner = sum(a and not b for a, b in pairs)
+        only_baseline = sum(b and not a for a, b in pairs)
+        discordant = only_planner + only_baseline
+        return {"terrain": terrain, "difficulty": difficulty, "tasks": len(pairs),
+                f"{planner}_successes": sum(a for a, _ in pairs), f"{baseline}_successes": sum(b for _, b in pairs),
+                "both": sum(a and b for a, b in pairs), f"only_{planner}": only_planner,
+                f"only_{baseline}": only_baseline, "neither": sum(not a and not b for a, b in pairs),
+                "p_value": float(binomtest(only_planner, discordant, 0.5).pvalue) if discordant else 1.0}
+
+    rows = []
+    for terrain in TERRAINS:
+        for difficulty in DIFFICULTIES:
+            keys = [k for k in paired if k[:2] == (terrain, difficulty)]
+            if keys:
+                rows.append(row(terrain, difficulty, keys))
+    for difficulty in DIFFICULTIES:
+        keys = [k for k in paired if k[1] == difficulty]
+        if keys:
+            rows.append(row("all", difficulty, keys))
+    if paired:
+        rows.append(row("all", "all", list(paired)))
+    return rows
+
+
+def report(out) -> dict:
+    """The summary of a results folder as it stands (a run in progress included): rows,
+    comparisons, failure reasons per planner, and how many tasks are done."""
+    out = Path(out)
+    if not (out / RESULTS).is_file():
+        raise bad_value("results", str(out), f"no {RESULTS} there (run qz experiment capplanner-vs-astar)")
+    records = read_results(out)
+    reasons: dict[str, dict[str, int]] = {}
+    errors: dict[str, int] = {}
+    for r in records:
+        if r["reason"] == "error":  # a crashed task: rerun on resume, not a failure of the planner
+            errors[r["planner"]] = errors.get(r["planner"], 0) + 1
+        elif not r["success"]:
+            bucket = reasons.setdefault(r["planner"], {})
+            bucket[r["reason"]] = bucket.get(r["reason"], 0) + 1
+    return {"rows": summarise(records), "comparisons": compare_planners(records), "failure_reasons": reasons,
+            "errors": errors, "tasks_done": len(records), "wall_time_s": float(sum(r.get("wall_time_s", 0.0) for r in records))}
+
+
+def report_markdown(summary: dict) -> str:
+    """The report as Markdown tables: per cell both planners' success and displacement ratio,
+    the paired comparison, and the failure reasons."""
+    def rate(row):
+        return "-" if row is None or row["success_rate"] is None else \
+            f"{row['successes']}/{row['tasks']} ({100 * row['success_rate']:.0f} %)"
+
+    def ratio(row):
+        return "-" if row is None or row["displacement_ratio"] is None else f"{row['displacement_ratio']:.3f}"
+
+    by_cell = {(r["terrain"], r["difficulty"], r["planner"]): r for r in summary["rows"]}
+    lines = ["| terrain | difficulty | CapPlanner success | A* success | CapPlanner displacement ratio "
+             "| A* displacement ratio |", "| --- | --- | --- | --- | --- | --- |"]
+    for terrain in TERRAINS:
+        for difficulty in DIFFICULTIES:
+            cap, astar = by_cell.get((terrain, difficulty, "capplanner")), by_cell.get((terrain, difficulty, "astar"))
+            if cap or astar:
+                lines.append(f"| {terrain} | {difficulty} | {rate(cap)} | {rate(astar)} | {ratio(cap)} | {ratio(astar)} |")
+    if summary["comparisons"]:
+        lines += ["", "| terrain | difficulty | paired tasks | both | only CapPlanner | only A* | neither "
+                      "| McNemar exact p |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for c in summary["comparisons"]:
+            lines.append(f"| {c['terrain']} | {c['difficulty']} | {c['tasks']} | {c['both']} | {c['only_capplanner']} "
+                         f"| {c['only_astar']} | {c['neither']} | {c['p_value']:.2g} |")
+    if summary["failure_reasons"]:
+        lines += ["", "| planner | failures by reason |", "| --- | --- |"]
+        for planner, reasons in sorted(summary["failure_reasons"].items()):
+            text = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
+            lines.append(f"| {planner} | {text} |")
+    return "\n".join(lines)
+
+
 def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficulties=DIFFICULTIES,
                    tasks: int = TASKS_PER_CELL, workers: int = 1, ray_address: str | None = None,
                    config: ExperimentConfig = ExperimentConfig(), progress: bool = True,
@@ -271,9 +365,11 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
                 pool.close()
     records = [r for r in read_results(out) if r["key"] in {s.key for s in specs}]
     rows = summarise(records)
-    (out / "results.json").write_text(json.dumps({"rows": rows, "records": records}, indent=1))
+    comparisons = compare_planners(records)
+    (out / "results.json").write_text(json.dumps({"rows": rows, "comparisons": comparisons, "records": records},
+                                                 indent=1))
     _write_csv(out / "results.csv", records)
-    return {"rows": rows, "ran": len(todo), "already_done": len(specs) - len(todo),
+    return {"rows": rows, "comparisons": comparisons, "ran": len(todo), "already_done": len(specs) - len(todo),
             "wall_time_s": time.perf_counter() - clock, "out": str(out)}
 
 
