@@ -66,6 +66,15 @@ def test_the_fig9_pipeline_runs_a_tiny_task_per_planner(synthetic_model_dir, tmp
     again = run_experiment(tmp_path, terrains=("obstacles",), difficulties=("simple",), tasks=1, config=config,
                            progress=False)
     assert again["ran"] == 0 and (tmp_path / "results.csv").is_file()
+    # What the model expected of the task: the walk's first plan, replanned from settings.json.
+    from qz_drake.experiments.fig9 import predict_routes
+
+    (prediction,) = predict_routes(tmp_path)
+    cap = next(r for r in records if r["planner"] == "capplanner")
+    assert prediction["key"] == cap["key"] and prediction["reaches"] == (cap["reason"] != "unreachable")
+    assert 0.0 < prediction["success"] <= prediction["fall_free"] <= 1.0 and prediction["actions"] >= 1
+    assert predict_routes(tmp_path) == [prediction]  # resumed: nothing replanned, nothing appended
+    assert len((tmp_path / "predictions.jsonl").read_text().splitlines()) == 1
 
 
 def test_the_claim_is_checked_on_paired_tasks_and_reported_as_tables(tmp_path, capsys):
@@ -103,6 +112,40 @@ def test_the_claim_is_checked_on_paired_tasks_and_reported_as_tables(tmp_path, c
     assert "| stairs | medium | 8/9 (89 %) | 4/10 (40 %) |" in text
     assert "| stairs | medium | 9 | 2 | 6 | 1 | 0 |" in text and "| capplanner | leg_contact 2 |" in text
     assert main(["experiment", "report", str(tmp_path / "nothing")]) == 2
+    assert "results" in capsys.readouterr().err
+
+
+def test_route_calibration_sets_predicted_against_walked_and_counts_declined_tasks(tmp_path, capsys):
+    """CapPlanner's first plan per task against the walk: the mean predicted chance of no fall
+    of the tasks it set out on beside the share it walked; a task with no path is declined,
+    and the table says how many of those A* walked."""
+    import json
+
+    from qz_drake.cli import main
+    from qz_drake.experiments.fig9 import PREDICTIONS, RESULTS, route_calibration
+
+    def record(seed, planner, success):
+        return {"key": f"obstacles-hard-{seed}-{planner}", "terrain": "obstacles", "difficulty": "hard",
+                "seed": seed, "planner": planner, "success": success, "reason": "" if success else "leg_contact",
+                "displacement_ratio": 1.2 if success else None, "wall_time_s": 5.0}
+
+    # CapPlanner set out on seeds 0-3 (predicted 0.9, 0.7, 0.5, 0.3) and walked 0 and 1; it
+    # declined seeds 4 and 5, of which A* walked 5.
+    records = [record(s, "capplanner", s < 2) for s in range(6)] + [record(s, "astar", s == 5) for s in range(6)]
+    predictions = [{"key": f"obstacles-hard-{s}-capplanner", "terrain": "obstacles", "difficulty": "hard", "seed": s,
+                    "reaches": s < 4, "fall_free": [0.9, 0.7, 0.5, 0.3, 0.0, 0.0][s],
+                    "success": 0.5, "actions": 9, "topology_changes": 0} for s in range(6)]
+    cell, by_difficulty, overall = route_calibration(records, predictions)
+    assert (cell["terrain"], cell["difficulty"], cell["tasks"], cell["started"]) == ("obstacles", "hard", 6, 4)
+    assert cell["predicted_fall_free"] == pytest.approx(0.6) and cell["walked_rate"] == pytest.approx(0.5)
+    assert (cell["declined"], cell["declined_walked_by_astar"]) == (2, 1)
+    assert by_difficulty["terrain"] == "all" and overall["difficulty"] == "all" and overall["started"] == 4
+
+    (tmp_path / RESULTS).write_text("".join(json.dumps(r) + "\n" for r in records))
+    (tmp_path / PREDICTIONS).write_text("".join(json.dumps(p) + "\n" for p in predictions))
+    assert main(["experiment", "report", str(tmp_path)]) == 0
+    assert "| obstacles | hard | 4/6 | 0.60 | 0.50 | 2 | 1 |" in capsys.readouterr().out
+    assert main(["experiment", "report", str(tmp_path / "nothing"), "--predict"]) == 2
     assert "results" in capsys.readouterr().err
 
 

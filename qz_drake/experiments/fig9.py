@@ -227,6 +227,98 @@ def compare_planners(records: list[dict], planner: str = "capplanner", baseline:
     return rows
 
 
+PREDICTIONS = "predictions.jsonl"
+
+
+def predict_route(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig(), model=None) -> dict:
+    """What CapPlanner's model expected of a task before walking it: the plan from the start
+    (the walk's first plan: same model, MDP settings, start cell and heading), its predicted
+    chance that no action ends the walk (fall_free), the product of the actions' success
+    (success), the actions and topology changes; reaches False where it found no path."""
+    from qz_drake.capability.model import CapabilityModel
+    from qz_drake.capability.patches import KINDS
+    from qz_drake.planning.capability_mdp import plan
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+    from qz_drake.simulation import mdp_config
+
+    model = model or CapabilityModel.load(config.capability_model or None)
+    task = make_task(spec.terrain, spec.difficulty, spec.seed, scale=config.scale)
+    topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
+    mdp = mdp_config(dict(failure_reward=config.capplanner_failure_reward,
+                          topology_change_cost=config.capplanner_topology_change_cost), topologies)
+    heading = int(round(task.start_yaw / (np.pi / 4))) % 8
+    result = plan(model, task.heightmap, task.start, heading, task.goal, config=mdp)
+    return {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,
+            "reaches": bool(result.reaches_goal),
+            "fall_free": result.fall_free_probability if result.reaches_goal else 0.0,
+            "success": result.success_probability if result.reaches_goal else 0.0,
+            "actions": len(result.steps), "topology_changes": result.topology_changes}
+
+
+def predict_routes(out, config: ExperimentConfig | None = None, model=None, progress: bool = False) -> list[dict]:
+    """:func:`predict_route` for every CapPlanner task of a results folder, appended to
+    ``predictions.jsonl`` (resumable: a task already predicted is skipped); returns them all.
+    The config is the run's (settings.json) unless given."""
+    from qz_drake.capability.model import CapabilityModel
+
+    out = Path(out)
+    if not (out / RESULTS).is_file():
+        raise bad_value("results", str(out), f"no {RESULTS} there (run qz experiment capplanner-vs-astar)")
+    records = [r for r in read_results(out) if r["planner"] == "capplanner" and r["reason"] != "error"]
+    if config is None:
+        settings = json.loads((out / "settings.json").read_text()) if (out / "settings.json").is_file() else {}
+        names = {f.name for f in dataclasses.fields(ExperimentConfig)}
+        config = ExperimentConfig(**{k: v for k, v in settings.items() if k in names})
+        identity = settings.get(MODEL_IDENTITY)
+    else:
+        identity = None
+    model = model or CapabilityModel.load(config.capability_model or None)
+    if identity and model.identity != identity:
+        raise bad_value("capability model", model.identity,
+                        f"the run at {out} walked with model {identity}; predict with that one")
+    path = out / PREDICTIONS
+    done = {p["key"]: p for p in (json.loads(line) for line in path.read_text().splitlines() if line.strip())} \
+        if path.is_file() else {}
+    with path.open("a") as f:
+        for i, r in enumerate(records):
+            if r["key"] in done:
+                continue
+            p = predict_route(TaskSpec(r["terrain"], r["difficulty"], r["seed"], "capplanner"), config, model)
+            done[p["key"]] = p
+            f.write(json.dumps(p) + "\n")
+            f.flush()
+            if progress:
+                print(f"\r{i + 1}/{len(records)} routes predicted", end="", file=__import__("sys").stderr)
+    return [done[r["key"]] for r in records if r["key"] in done]
+
+
+def route_calibration(records: list[dict], predictions: list[dict]) -> list[dict]:
+    """CapPlanner's route-level calibration per (terrain, difficulty), then per difficulty and
+    over all: of the tasks it set out on (a path found), the mean predicted chance of no fall
+    along the first plan against the share walked to the goal, and the share of tasks it
+    declined (no path: the goal predicted unreachable) with how many of those A* walked."""
+    walked = {r["key"]: bool(r["success"]) for r in records if r["reason"] != "error"}
+    astar = {(r["terrain"], r["difficulty"], r["seed"]): bool(r["success"])
+             for r in records if r["planner"] == "astar" and r["reason"] != "error"}
+    usable = [p for p in predictions if p["key"] in walked]
+
+    def row(terrain, difficulty, cell):
+        started = [p for p in cell if p["reaches"]]
+        declined = [p for p in cell if not p["reaches"]]
+        return {"terrain": terrain, "difficulty": difficulty, "tasks": len(cell), "started": len(started),
+                "predicted_fall_free": float(np.mean([p["fall_free"] for p in started])) if started else None,
+                "walked_rate": float(np.mean([walked[p["key"]] for p in started])) if started else None,
+                "declined": len(declined),
+                "declined_walked_by_astar": sum(astar.get((p["terrain"], p["difficulty"], p["seed"]), False)
+                                                for p in declined)}
+
+    rows = [row(t, d, [p for p in usable if (p["terrain"], p["difficulty"]) == (t, d)])
+            for t in TERRAINS for d in DIFFICULTIES]
+    rows += [row("all", d, [p for p in usable if p["difficulty"] == d]) for d in DIFFICULTIES]
+    rows.append(row("all", "all", usable))
+    return [r for r in rows if r["tasks"]]
+
+
 def report(out) -> dict:
     """The summary of a results folder as it stands (a run in progress included): rows,
     comparisons, failure reasons per planner, and how many tasks are done."""
@@ -242,8 +334,13 @@ def report(out) -> dict:
         elif not r["success"]:
             bucket = reasons.setdefault(r["planner"], {})
             bucket[r["reason"]] = bucket.get(r["reason"], 0) + 1
-    return {"rows": summarise(records), "comparisons": compare_planners(records), "failure_reasons": reasons,
-            "errors": errors, "tasks_done": len(records), "wall_time_s": float(sum(r.get("wall_time_s", 0.0) for r in records))}
+    summary = {"rows": summarise(records), "comparisons": compare_planners(records), "failure_reasons": reasons,
+               "errors": errors, "tasks_done": len(records),
+               "wall_time_s": float(sum(r.get("wall_time_s", 0.0) for r in records))}
+    if (out / PREDICTIONS).is_file():  # written by qz experiment report --predict
+        predictions = [json.loads(line) for line in (out / PREDICTIONS).read_text().splitlines() if line.strip()]
+        summary["route_calibration"] = route_calibration(records, predictions)
+    return summary
 
 
 def report_markdown(summary: dict) -> str:
@@ -270,6 +367,14 @@ def report_markdown(summary: dict) -> str:
         for c in summary["comparisons"]:
             lines.append(f"| {c['terrain']} | {c['difficulty']} | {c['tasks']} | {c['both']} | {c['only_capplanner']} "
                          f"| {c['only_astar']} | {c['neither']} | {c['p_value']:.2g} |")
+    if summary.get("route_calibration"):
+        lines += ["", "| terrain | difficulty | CapPlanner set out | predicted no-fall | walked | declined "
+                      "(no path) | of those, A* walked |", "| --- | --- | --- | --- | --- | --- | --- |"]
+        for c in summary["route_calibration"]:
+            pred = "-" if c["predicted_fall_free"] is None else f"{c['predicted_fall_free']:.2f}"
+            real = "-" if c["walked_rate"] is None else f"{c['walked_rate']:.2f}"
+            lines.append(f"| {c['terrain']} | {c['difficulty']} | {c['started']}/{c['tasks']} | {pred} | {real} "
+                         f"| {c['declined']} | {c['declined_walked_by_astar']} |")
     if summary["failure_reasons"]:
         lines += ["", "| planner | failures by reason |", "| --- | --- |"]
         for planner, reasons in sorted(summary["failure_reasons"].items()):
