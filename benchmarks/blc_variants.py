@@ -22,10 +22,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from qz_drake.trajopt.parameters import DEFAULT_CONSTRAINTS  # noqa: E402
+
 VARIANTS = {
     "default": {},
     "stance": {"foothold_guess": "stance"},
     "stance_free": {"foothold_guess": "stance", "optimize_phase_durations": True},
+    # The BLC before the stance-support constraint (the default since session 25).
+    "no_support": {"constraints": tuple(c for c in DEFAULT_CONSTRAINTS if c != "support")},
 }
 
 

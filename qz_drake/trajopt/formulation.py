@@ -115,9 +115,26 @@ class BlcFormulation:
                                                           self.extra_samples[key]])))
         self.nonlinear: list[SampledConstraint] = []
         self.linear: list[LinearConstraintTerm] = []
+        # Where a stance foot has support (trajopt/support.py), for the constraint, the guess
+        # and the verdict; None without the "support" constraint.
+        self.support = self._support_field() if params.enabled("support") else None
         self._build_bounds()
         if realized is None:
             self._build_constraints()
+
+    def _support_field(self):
+        from qz_drake.trajopt.support import support_field
+
+        # A closed-form terrain is sampled over the footholds' reach along the task.
+        reach = float(np.abs(self.robot.nominal_footholds[:, :2]).max() + self.robot.box_half_sizes[:, :2].max()) + 0.3
+        xs = [self.start_position[0], self.target[0], *self.start_feet[:, 0]]
+        ys = [self.start_position[1], self.target[1], *self.start_feet[:, 1]]
+        region = (min(xs) - reach, max(xs) + reach, min(ys) - reach, max(ys) + reach)
+        field = support_field(self.terrain, self.robot.foot_radius + self.params.support_margin,
+                              self.params.support_drop, region)
+        # Where every foothold in reach is supported the constraint could only change Ipopt's
+        # path (measured: inactive rows took a 0.05 m stairs solve from 12 to 25 iterations).
+        return field if field.any_unsupported(region) else None
 
     # -- bounds (Eq. 6 and the body's attitude range) ----------------------------------------
     def _build_bounds(self) -> None:
@@ -181,6 +198,13 @@ class BlcFormulation:
             if clearance is not None:
                 self.nonlinear.append(TerrainConstraint(
                     clearance, terrain, robot.foot_radius, 0.0, np.inf, name="terrain/swing"))
+        if self.support is not None:
+            from qz_drake.trajopt.support import SupportConstraint
+
+            stance = [self._foothold_samples(leg, s) for leg in range(v.num_legs)
+                      for s in range(1, len(v.footholds[leg]))]
+            if stance:
+                self.nonlinear.append(SupportConstraint(LinearSamples.concatenate(stance), self.support))
         if p.enabled("swing"):
             apex = self._swing_samples((0.5,))
             if apex is not None:

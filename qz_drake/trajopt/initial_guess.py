@@ -185,6 +185,13 @@ def straight_line_guess(formulation) -> np.ndarray:
                 choose_foothold(robot, terrain, leg, body[k, :2], body_yaw[k],
                                 body[k, 2] + feet_z[leg])
                 for k in range(len(mids))])
+        if f.support is not None and len(footholds) > 1:
+            # Off unsupported ground: to the nearest supported cell, on the terrain there.
+            moved = f.support.unsupported_at(footholds[1:, 0], footholds[1:, 1])
+            if moved.any():
+                xy = f.support.nearest_supported(footholds[1:, 0], footholds[1:, 1])[moved]
+                footholds[1:][moved] = np.column_stack(
+                    [xy, terrain.height(xy[:, 0], xy[:, 1]) + robot.foot_radius])
         x0[v.footholds[leg]] = footholds
         if len(stances) > 1:
             mid = 0.5 * (footholds[:-1] + footholds[1:])

@@ -20,8 +20,12 @@ CONSTRAINT_REASONS: dict[str, str] = {
     "force": "normal force in [f_min, f_max] and inside the friction pyramid of the "
              "terrain's tangent frame (Eq. 5)",
     "swing": "swing apex at least swing_apex_height above the terrain",
+    "support": "each free stance foothold on supported ground: the raw heightmap within the "
+               "foot's radius plus support_margin stays within support_drop of the foothold's "
+               "height (off edges and away from risers; trajopt/support.py)",
 }
-DEFAULT_CONSTRAINTS = ("dynamics", "base_acceleration", "kinematics", "terrain", "force", "swing")
+DEFAULT_CONSTRAINTS = ("dynamics", "base_acceleration", "kinematics", "terrain", "force", "swing",
+                       "support")
 
 # Every cost the formulation knows; none is on by default: Eq. 1-6 is a feasibility problem.
 COST_REASONS: dict[str, str] = {
@@ -160,6 +164,15 @@ class BlcParameters:
     # boxes at the stance's start and end, with the ground around it level (looks past a gap
     # that fills the mid-stance box).
     foothold_guess: str = "mid"
+    # Support under a stance foot (constraint "support", trajopt/support.py): within the foot's
+    # radius plus support_margin the raw ground stays within support_drop of the foothold. The
+    # margin covers the tracker's few centimetres of foot error: the demo's seed-0 crossing
+    # stood a foot's centre 3 cm from a 0.2 m pit's rim and it slid 9.3 cm off. A drop of 5 cm
+    # within 8 cm is also ground steeper than 32 degrees, beyond the friction cone (mu 0.6).
+    support_margin: float = 0.05  # [m]
+    support_drop: float = 0.05  # [m]
+    # The dense verdict fails a stance foothold deeper than this inside unsupported ground. [m]
+    dense_support_tolerance: float = 0.01
     # Ipopt iteration limit.
     max_iterations: int = 3000
     # Ipopt linear solver (the pip wheel of Drake ships SPRAL only).
@@ -182,7 +195,8 @@ class BlcParameters:
                      "time_limit", "tolerance", "constraint_tolerance", "violation_tolerance",
                      "stand_duration", "nominal_speed", "dense_check_rate",
                      "dense_clearance_tolerance", "dense_box_tolerance", "dense_force_tolerance",
-                     "dense_residual_limit", "dense_residual_lever"):
+                     "dense_residual_limit", "dense_residual_lever", "support_margin",
+                     "support_drop", "dense_support_tolerance"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and value > 0):
                 raise bad_value(f"blc.{name}", value, "must be positive", ConfigError)

@@ -8,6 +8,8 @@ the .npz is saved at) on the terrain model the problem was solved on:
 
 * swing feet: sphere centre height minus ``foot_radius`` above the terrain (Eq. 4);
 * stance feet inside their kinematic boxes (Eq. 1; swing feet are reported);
+* free stance footholds on supported ground (support.py: no edge or riser within the foot's
+  radius plus a margin);
 * stance forces: normal part at least zero, inside the friction pyramid of the terrain frame at
   the foothold (Eq. 5);
 * single-rigid-body residuals (Eq. 2): the linear one ``|m (r'' - g) - sum f| / (m g)`` and the
@@ -46,6 +48,9 @@ class DenseCheck:
     max_box_excess: float
     # The same for swing feet (reported, not failed: the issue asks for stance feet). [m]
     max_swing_box_excess: float
+    # Least signed distance of a free stance foothold to unsupported ground (support.py;
+    # negative: inside it); +inf without the support check. [m]
+    min_support_margin: float
     # Least stance normal force. [body weights]
     min_normal_force: float
     # Largest tangential force beyond the friction pyramid (0 inside). [body weights]
@@ -141,6 +146,23 @@ def dense_check(formulation, x: np.ndarray, rate: float | None = None) -> DenseC
         failures.append(f"{names[leg]} stance foot {max_box:.3f} m outside its kinematic box "
                         f"along {'xyz'[axis]} at t = {times[k]:.2f} s")
 
+    # Support under the free stance footholds (the start's are given, not planned).
+    min_support = np.inf
+    if f.support is not None:
+        for leg in range(v.num_legs):
+            holds = x[v.footholds[leg][1:]].reshape(-1, 3)
+            if not len(holds):
+                continue
+            margin = f.support.margin(holds[:, 0], holds[:, 1])
+            k = int(np.argmin(margin))
+            if margin[k] < min_support:
+                min_support = float(margin[k])
+            if margin[k] < -p.dense_support_tolerance:
+                t = v.schedule.stance_intervals(leg)[k + 1][0]
+                relief = f.support.relief_at(holds[k, 0], holds[k, 1])
+                failures.append(f"{names[leg]} stance foot on unsupported ground from t = {t:.2f} s "
+                                f"(the ground within {f.support.radius:.2f} m differs by {relief:.2f} m)")
+
     # Stance forces (Eq. 5): normal >= 0, inside the friction pyramid.
     min_normal, max_friction = np.inf, 0.0
     worst_normal = worst_friction = None
@@ -189,7 +211,7 @@ def dense_check(formulation, x: np.ndarray, rate: float | None = None) -> DenseC
                     f"{label} single-rigid-body residual {value:.3f} body weights at the "
                     f"{q:g}th percentile (worst {values[k]:.3f} at t = {far[k]:.2f} s)")
     return DenseCheck(min_swing_clearance=min_clearance, max_box_excess=max_box,
-                      max_swing_box_excess=max_swing_box,
+                      max_swing_box_excess=max_swing_box, min_support_margin=min_support,
                       min_normal_force=min_normal, max_friction_excess=max_friction,
                       linear_residual=linear, angular_residual=angular, num_samples=len(times),
                       num_residual_samples=len(far), failures=failures, refine_times=refine)
