@@ -144,7 +144,8 @@ def test_route_calibration_sets_predicted_against_walked_and_counts_declined_tas
     (tmp_path / RESULTS).write_text("".join(json.dumps(r) + "\n" for r in records))
     (tmp_path / PREDICTIONS).write_text("".join(json.dumps(p) + "\n" for p in predictions))
     assert main(["experiment", "report", str(tmp_path)]) == 0
-    assert "| obstacles | hard | 4/6 | 0.60 | 0.50 | 2 | 1 |" in capsys.readouterr().out
+    assert cell["predicted_success"] == pytest.approx(0.5)
+    assert "| obstacles | hard | 4/6 | 0.60 | 0.50 | 0.50 | 2 | 1 |" in capsys.readouterr().out
     assert main(["experiment", "report", str(tmp_path / "nothing"), "--predict"]) == 2
     assert "results" in capsys.readouterr().err
 

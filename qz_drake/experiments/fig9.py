@@ -295,7 +295,8 @@ def predict_routes(out, config: ExperimentConfig | None = None, model=None, prog
 def route_calibration(records: list[dict], predictions: list[dict]) -> list[dict]:
     """CapPlanner's route-level calibration per (terrain, difficulty), then per difficulty and
     over all: of the tasks it set out on (a path found), the mean predicted chance of no fall
-    along the first plan against the share walked to the goal, and the share of tasks it
+    along the first plan (and the mean product of its actions' success, counting a planning
+    failure as a failure too) against the share walked to the goal, and the share of tasks it
     declined (no path: the goal predicted unreachable) with how many of those A* walked."""
     walked = {r["key"]: bool(r["success"]) for r in records if r["reason"] != "error"}
     astar = {(r["terrain"], r["difficulty"], r["seed"]): bool(r["success"])
@@ -307,6 +308,7 @@ def route_calibration(records: list[dict], predictions: list[dict]) -> list[dict
         declined = [p for p in cell if not p["reaches"]]
         return {"terrain": terrain, "difficulty": difficulty, "tasks": len(cell), "started": len(started),
                 "predicted_fall_free": float(np.mean([p["fall_free"] for p in started])) if started else None,
+                "predicted_success": float(np.mean([p["success"] for p in started])) if started else None,
                 "walked_rate": float(np.mean([walked[p["key"]] for p in started])) if started else None,
                 "declined": len(declined),
                 "declined_walked_by_astar": sum(astar.get((p["terrain"], p["difficulty"], p["seed"]), False)
@@ -368,13 +370,17 @@ def report_markdown(summary: dict) -> str:
             lines.append(f"| {c['terrain']} | {c['difficulty']} | {c['tasks']} | {c['both']} | {c['only_capplanner']} "
                          f"| {c['only_astar']} | {c['neither']} | {c['p_value']:.2g} |")
     if summary.get("route_calibration"):
-        lines += ["", "| terrain | difficulty | CapPlanner set out | predicted no-fall | walked | declined "
-                      "(no path) | of those, A* walked |", "| --- | --- | --- | --- | --- | --- | --- |"]
+        lines += ["", "| terrain | difficulty | CapPlanner set out | predicted no-fall | predicted success "
+                      "| walked | declined (no path) | of those, A* walked |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+
+        def num(v):
+            return "-" if v is None else f"{v:.2f}"
+
         for c in summary["route_calibration"]:
-            pred = "-" if c["predicted_fall_free"] is None else f"{c['predicted_fall_free']:.2f}"
-            real = "-" if c["walked_rate"] is None else f"{c['walked_rate']:.2f}"
-            lines.append(f"| {c['terrain']} | {c['difficulty']} | {c['started']}/{c['tasks']} | {pred} | {real} "
-                         f"| {c['declined']} | {c['declined_walked_by_astar']} |")
+            lines.append(f"| {c['terrain']} | {c['difficulty']} | {c['started']}/{c['tasks']} "
+                         f"| {num(c['predicted_fall_free'])} | {num(c.get('predicted_success'))} "
+                         f"| {num(c['walked_rate'])} | {c['declined']} | {c['declined_walked_by_astar']} |")
     if summary["failure_reasons"]:
         lines += ["", "| planner | failures by reason |", "| --- | --- |"]
         for planner, reasons in sorted(summary["failure_reasons"].items()):
