@@ -2,21 +2,18 @@
 a solve that keeps its footholds off a pit's rim, and the dense verdict failing a plan that
 stands a foot on an edge."""
 
-import types
-
 import numpy as np
 import pytest
 
 from qz_drake.terrain.heightmap import HeightMap
 from qz_drake.trajopt import terrain as tt
-from qz_drake.trajopt.formulation import BlcFormulation
-from qz_drake.trajopt.gait import make_gait
 from qz_drake.trajopt.initial_guess import straight_line_guess
 from qz_drake.trajopt.parameters import BlcParameters
 from qz_drake.trajopt.robot_model import qingzhui
-from qz_drake.trajopt.solver import BlcTask, solve_blc, standing_start
+from qz_drake.trajopt.solver import BlcTask, solve_blc
 from qz_drake.trajopt.support import SupportConstraint, field_from_grid, support_field
 from qz_drake.trajopt.verdict import dense_check
+from tests.trajopt.test_blc_constraints import _formulation
 
 RES = 0.05
 
@@ -56,13 +53,7 @@ def test_the_field_marks_both_sides_of_an_edge_and_points_out_of_it():
 def test_support_constraint_jacobian_matches_finite_differences():
     """At footholds on the rim (where the field is not clipped), the analytic Jacobian of the
     support rows equals central differences over the whole decision vector."""
-    terrain = tt.as_terrain(_pit_map(x0=0.3, x1=0.7))
-    robot = qingzhui("nominal")
-    params = BlcParameters()
-    schedule = make_gait("tripod", robot.num_legs, 1.2, stand_duration=params.stand_duration)
-    start, rpy, feet = standing_start(robot, terrain)
-    f = BlcFormulation(robot, terrain, params, schedule, start_position=start, start_rpy=rpy,
-                       start_feet=feet, target=(0.4, 0.0, 0.0))
+    f = _formulation(tt.as_terrain(_pit_map(x0=0.3, x1=0.7)), 1.2, (0.4, 0.0, 0.0))
     [c] = [c for c in f.nonlinear if isinstance(c, SupportConstraint)]
     x = straight_line_guess(f)
     v = f.variables
@@ -82,8 +73,7 @@ def test_support_constraint_jacobian_matches_finite_differences():
     assert np.abs(fd).max() > 0.5  # the field does vary there
     np.testing.assert_allclose(J, fd, atol=1e-5)
     # Where every foothold in reach is supported the program has no support rows at all.
-    flat = BlcFormulation(robot, tt.flat(), params, schedule, start_position=start, start_rpy=rpy,
-                          start_feet=feet, target=(0.4, 0.0, 0.0))
+    flat = _formulation(tt.flat(), 1.2, (0.4, 0.0, 0.0))
     assert flat.support is None and not any(isinstance(c, SupportConstraint) for c in flat.nonlinear)
 
 
@@ -117,13 +107,8 @@ def test_a_walk_beside_a_pit_keeps_every_stance_foot_off_its_rim():
 def test_the_dense_verdict_fails_a_foot_on_an_edge():
     """Without the support constraint the optimiser may stand a foot on a rim; the verdict
     (support still checked) names the foot and the drop."""
-    terrain = tt.as_terrain(_pit_map(x0=0.5, x1=0.9))
-    robot = qingzhui("nominal")
-    params = BlcParameters()
-    schedule = make_gait("tripod", robot.num_legs, 2.0, stand_duration=params.stand_duration)
-    start, rpy, feet = standing_start(robot, terrain)
-    f = BlcFormulation(robot, terrain, params, schedule, start_position=start, start_rpy=rpy,
-                       start_feet=feet, target=(0.2, 0.0, 0.0))
+    f = _formulation(tt.as_terrain(_pit_map(x0=0.5, x1=0.9)), 2.0, (0.2, 0.0, 0.0))
+    robot, feet = f.robot, f.start_feet
     x = straight_line_guess(f)
     assert dense_check(f, x).min_support_margin > 0.0
     idx = f.variables.footholds[0][1]  # leg 0's first free foothold onto the rim
