@@ -93,14 +93,15 @@ def run_tune_astar(args) -> int:
 
 
 def run_tune_capplanner(args) -> int:
-    from qz_drake.experiments.fig9 import (TUNING_FAILURE_REWARDS, TUNING_TOPOLOGY_CHANGE_COSTS,
-                                           ExperimentConfig, tune_capplanner)
+    from qz_drake.experiments.fig9 import (TUNING_FAILURE_REWARDS, TUNING_PLAN_FAILURE_RISKS,
+                                           TUNING_TOPOLOGY_CHANGE_COSTS, ExperimentConfig, tune_capplanner)
     from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS
 
     _check_tasks(args)
     report = tune_capplanner(
         args.out, failure_rewards=_numbers(args.failure_rewards, "--failure-rewards") or TUNING_FAILURE_REWARDS,
         topology_change_costs=_numbers(args.switch_costs, "--switch-costs") or TUNING_TOPOLOGY_CHANGE_COSTS,
+        plan_failure_risks=_numbers(args.plan_failure_risks, "--plan-failure-risks") or TUNING_PLAN_FAILURE_RISKS,
         terrains=_names(args.terrains, "--terrains", TERRAINS),
         difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
@@ -169,5 +170,8 @@ def register(subparsers) -> None:
     p.add_argument("--failure-rewards", default=None,
                    help="comma-separated failure rewards, negative (default -100,-200; the goal is +100)")
     p.add_argument("--switch-costs", default=None, help="comma-separated topology-change costs (default 2,6)")
+    p.add_argument("--plan-failure-risks", default=None,
+                   help="comma-separated shares of predicted planning failures counted as falls, in [0, 1] "
+                        "(default 0: the model's split)")
     p.add_argument("--model", default=None, help="CapPlanner's capability model folder (default: shipped)")
     p.set_defaults(func=run_tune_capplanner)

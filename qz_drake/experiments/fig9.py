@@ -54,6 +54,9 @@ class ExperimentConfig:
     # the same tuning worlds as A*'s.
     capplanner_failure_reward: float = -100.0
     capplanner_topology_change_cost: float = 2.0
+    # The share of predicted planning failures CapPlanner counts as falls
+    # (capability_mdp.CapabilityMdpConfig.plan_failure_risk).
+    capplanner_plan_failure_risk: float = 0.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,6 +93,13 @@ def _capplanner(task, config):
     return Route(True, "", [], 0.0, np.zeros((0, 2))), "capplanner", [(*task.goal, 0.0, "nominal")]
 
 
+def _mdp_overrides(config: ExperimentConfig) -> dict:
+    """CapPlanner's MDP settings of a run (scenario.controller.capability_mdp)."""
+    return dict(failure_reward=config.capplanner_failure_reward,
+                topology_change_cost=config.capplanner_topology_change_cost,
+                plan_failure_risk=config.capplanner_plan_failure_risk)
+
+
 # Top-level controllers: name -> (task, config) -> (Route, walking planner, waypoints).
 PLANNERS = {"astar": _astar, "capplanner": _capplanner}
 
@@ -124,8 +134,7 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
             controller=ControllerConfig(kind="walk", planner=walking_planner, mission_length=config.mission_length,
                                         speed=config.speed, phase_duration=config.phase_duration,
                                         capability_model=config.capability_model,
-                                        capability_mdp=dict(failure_reward=config.capplanner_failure_reward,
-                                                            topology_change_cost=config.capplanner_topology_change_cost),
+                                        capability_mdp=_mdp_overrides(config),
                                         route=[Waypoint(x=x, y=y, yaw=a, topology=t) for x, y, a, t in waypoints]))
         # One BLC for both planners, as paper 000 has it: first solves only (the trials' BLC, and
         # the one the A* settings were tuned with); what differs is the TLC, including
@@ -244,8 +253,7 @@ def predict_route(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig(),
     model = model or CapabilityModel.load(config.capability_model or None)
     task = make_task(spec.terrain, spec.difficulty, spec.seed, scale=config.scale)
     topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
-    mdp = mdp_config(dict(failure_reward=config.capplanner_failure_reward,
-                          topology_change_cost=config.capplanner_topology_change_cost), topologies)
+    mdp = mdp_config(_mdp_overrides(config), topologies)
     heading = int(round(task.start_yaw / (np.pi / 4))) % 8
     result = plan(model, task.heightmap, task.start, heading, task.goal, config=mdp)
     return {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,
@@ -508,7 +516,8 @@ TUNING_BODY_RADII = (0.7, 0.9)
 ASTAR_TUNED = {"max_step_height": "astar_max_step_height", "max_slope_deg": "astar_max_slope_deg",
                "body_radius": "astar_body_radius"}
 CAPPLANNER_TUNED = {"failure_reward": "capplanner_failure_reward",
-                    "topology_change_cost": "capplanner_topology_change_cost"}
+                    "topology_change_cost": "capplanner_topology_change_cost",
+                    "plan_failure_risk": "capplanner_plan_failure_risk"}
 
 
 def _tuned_settings(path, names: dict, flag: str, command: str) -> dict:
@@ -604,19 +613,25 @@ def tune_astar(out, *, step_heights=TUNING_STEP_HEIGHTS, slopes_deg=TUNING_SLOPE
 # network's noise alone can look like a gain).
 TUNING_FAILURE_REWARDS = (-100.0, -200.0)
 TUNING_TOPOLOGY_CHANGE_COSTS = (2.0, 6.0)
+# How much of the predicted planning failures counts as falls (0: none, the model's split).
+TUNING_PLAN_FAILURE_RISKS = (0.0,)
 
 
 def tune_capplanner(out, *, failure_rewards=TUNING_FAILURE_REWARDS,
-                    topology_change_costs=TUNING_TOPOLOGY_CHANGE_COSTS, terrains=TERRAINS,
+                    topology_change_costs=TUNING_TOPOLOGY_CHANGE_COSTS,
+                    plan_failure_risks=TUNING_PLAN_FAILURE_RISKS, terrains=TERRAINS,
                     difficulties=DIFFICULTIES, tasks: int = 2, workers: int = 1, ray_address: str | None = None,
                     config: ExperimentConfig = ExperimentConfig(), progress: bool = True) -> dict:
     """Tunes CapPlanner's failure reward and topology-change cost the way A* is tuned: every
     pair of the grid on the same tuning worlds (``_tune``)."""
     _check_numbers("--failure-rewards", failure_rewards, lambda v: v < 0, "expected negative numbers")
     _check_numbers("--switch-costs", topology_change_costs, lambda v: v >= 0, "expected numbers >= 0")
-    grid = [{"failure_reward": float(f), "topology_change_cost": float(c)}
-            for f in failure_rewards for c in topology_change_costs]
+    _check_numbers("--plan-failure-risks", plan_failure_risks, lambda v: 0 <= v <= 1, "expected numbers in [0, 1]")
+    grid = [{"failure_reward": float(f), "topology_change_cost": float(c), "plan_failure_risk": float(r)}
+            for r in plan_failure_risks for f in failure_rewards for c in topology_change_costs]
+    # Folders of the settings without a risk keep the names they had before it was a setting.
     return _tune(out, "capplanner", grid, CAPPLANNER_TUNED,
-                 lambda g: f"failure{-g['failure_reward']:g}_switch{g['topology_change_cost']:g}",
+                 lambda g: f"failure{-g['failure_reward']:g}_switch{g['topology_change_cost']:g}"
+                           + (f"_risk{g['plan_failure_risk']:g}" if g["plan_failure_risk"] else ""),
                  terrains=terrains, difficulties=difficulties, tasks=tasks, workers=workers,
                  ray_address=ray_address, config=config, progress=progress)

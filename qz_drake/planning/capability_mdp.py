@@ -95,6 +95,13 @@ class CapabilityMdpConfig:
     # walk). A constant share is a poor guess where it matters: 58 % of the obstacle trials'
     # failures are the BLC's against 77 % overall, and near a tall obstacle fewer.
     plan_failure_share: float | None = None
+    # Share of the predicted planning failures counted as falls instead (0: the model's split
+    # as it is; 1: every failure ends the walk, i.e. plan by the actions' success alone). In
+    # the Fig. 9 experiment (BENCHMARKS "fig9") the walks on box fields ended as often as the
+    # success product predicted (0.35 walked, 0.37 predicted on obstacles-medium), not as the
+    # no-fall probability did (0.77): the failures the model took for harmless planning
+    # failures were legs on boxes. A knob to tune on the tuning worlds, 0 by default.
+    plan_failure_risk: float = 0.0
     # Cost of a planning failure: the robot stood while the BLC searched, and the TLC replans;
     # about one action's time.
     plan_failure_cost: float = 1.0
@@ -169,6 +176,8 @@ class CapabilityMdpConfig:
                                       and 0.0 <= share <= 1.0):
             raise bad_value("capability_mdp.plan_failure_share", share, "must be a number in [0, 1] or null "
                             "(the model's measured shares)")
+        if not (np.isfinite(self.plan_failure_risk) and 0.0 <= self.plan_failure_risk <= 1.0):
+            raise bad_value("capability_mdp.plan_failure_risk", self.plan_failure_risk, "must be in [0, 1]")
         if not (0.0 < self.discount < 1.0):
             raise bad_value("capability_mdp.discount", self.discount, "must be in (0, 1)")
         for t in self.topologies:
@@ -360,7 +369,7 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
                 q = np.clip(1.0 - planned[m], 0.0, 1.0 - p)
             else:
                 q = (1.0 - p) * shares[m]
-            q = q * (on_grid if m == 0 else 1.0)
+            q = q * (on_grid if m == 0 else 1.0) * (1.0 - config.plan_failure_risk)
             if switchable is not None:  # a topology change where the robot cannot make one fails
                 refused = (t0 != t) & ~np.asarray(switchable, dtype=bool)[iy, ix]
                 p, q = np.where(refused, 0.0, p), np.where(refused, 0.0, q)

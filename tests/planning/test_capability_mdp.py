@@ -347,6 +347,16 @@ def test_a_factored_model_says_per_state_which_failures_leave_the_robot_standing
     # A fixed share in the config overrides the model's per-state view.
     fixed = build_capability_mdp(capability_map, (5.5, 1.5), CapabilityMdpConfig(plan_failure_share=0.5))
     assert fixed.plan_failure_source == "config" and fixed.stand[0, obstacle] == pytest.approx(0.29)
+    # plan_failure_risk counts that share of the predicted planning failures as falls: at 0.5
+    # half of the 0.55 stay moves to the failure state, at 1 every failure ends the walk.
+    half = build_capability_mdp(capability_map, (5.5, 1.5), CapabilityMdpConfig(plan_failure_risk=0.5))
+    assert half.stand[0, blc] == pytest.approx(0.275)
+    assert half.P[0][blc, half.failure_state] == pytest.approx(0.03 + 0.275)
+    assert half.R[blc, 0] < mdp.R[blc, 0]  # the riskier move is worth less
+    full = build_capability_mdp(capability_map, (5.5, 1.5), CapabilityMdpConfig(plan_failure_risk=1.0))
+    assert not full.stand.any() and full.P[0][blc, full.failure_state] == pytest.approx(0.58)
+    with pytest.raises(QzError, match=r"capability_mdp.plan_failure_risk.*1.5"):
+        build_capability_mdp(capability_map, (5.5, 1.5), CapabilityMdpConfig(plan_failure_risk=1.5))
 
 
 def test_no_topology_change_beside_an_obstacle_within_the_legs_reach():
