@@ -193,7 +193,8 @@ def test_capplanner_is_tuned_on_the_same_tuning_worlds_as_astar(synthetic_model_
         assert settings["capplanner_failure_reward"] == g["failure_reward"]
     assert report["chosen"]["failure_reward"] in (-100.0, -300.0)
     assert capplanner_settings(tmp_path) == {"capplanner_failure_reward": report["chosen"]["failure_reward"],
-                                             "capplanner_topology_change_cost": 2.0}
+                                             "capplanner_topology_change_cost": 2.0,
+                                             "capplanner_plan_failure_risk": 0.0}
 
 
 def test_capplanner_results_are_not_resumed_with_another_model(synthetic_model_dir, tmp_path):
@@ -292,8 +293,10 @@ def test_experiment_takes_a_tuning_and_refuses_a_missing_or_foreign_one(tmp_path
 
     (tmp_path / "capplanner.json").write_text(json.dumps(
         {"planner": "capplanner", "chosen": {"failure_reward": -200.0, "topology_change_cost": 6.0}}))
+    # A tuning from before plan_failure_risk was a setting: the risk's default (0).
     assert capplanner_settings(tmp_path / "capplanner.json") == {"capplanner_failure_reward": -200.0,
-                                                                 "capplanner_topology_change_cost": 6.0}
+                                                                 "capplanner_topology_change_cost": 6.0,
+                                                                 "capplanner_plan_failure_risk": 0.0}
     with pytest.raises(QzError, match="--astar-tuning"):
         astar_settings(tmp_path / "capplanner.json")
     with pytest.raises(QzError, match="--capplanner-tuning"):
