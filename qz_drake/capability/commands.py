@@ -171,6 +171,49 @@ def dataset_stats(path) -> dict:
             "fingerprints": manifest.get("fingerprints")}
 
 
+def paired_against(path, other) -> dict:
+    """The same trials in two datasets (the same seed, so a trial index is the same scene,
+    heading, topology and kind; e.g. collected again after a BLC change): of the trials
+    executed in both, how many each walked, how many only the new one (``path``) or only the
+    other walked, and McNemar's exact test of the difference (a two-sided binomial test of the
+    discordant trials), over all, per kind and per scene kind and difficulty."""
+    from scipy.stats import binomtest
+
+    from qz_drake.capability.dataset import load_records
+    from qz_drake.errors import bad_value
+
+    new, new_manifest = load_records(path)
+    old, old_manifest = load_records(other)
+    if new_manifest.get("seed") != old_manifest.get("seed"):
+        raise bad_value("--against", str(other), f"its seed {old_manifest.get('seed')} is not this dataset's "
+                                                  f"{new_manifest.get('seed')}: its trials are other trials")
+    where = {int(i): k for k, i in enumerate(old["index"])}
+    pairs = [(where[int(i)], k) for k, i in enumerate(new["index"]) if int(i) in where
+             and old["status"][where[int(i)]] == "executed" and new["status"][k] == "executed"]
+    o = np.array([a for a, _ in pairs], dtype=int)
+    n = np.array([b for _, b in pairs], dtype=int)
+
+    def row(mask, **labels):
+        was, now = old["success"][o[mask]].astype(bool), new["success"][n[mask]].astype(bool)
+        up, down = int(np.sum(now & ~was)), int(np.sum(was & ~now))
+        return {**labels, "trials": int(mask.sum()), "other_successes": int(was.sum()),
+                "successes": int(now.sum()), "only_this": up, "only_other": down,
+                "p_value": float(binomtest(up, up + down, 0.5).pvalue) if up + down else 1.0}
+
+    everything = np.ones(len(pairs), dtype=bool)
+    kinds = new["kind"][n] if len(pairs) else np.array([])
+    scene_kinds = new["scene_kind"][n] if len(pairs) else np.array([])
+    difficulty = new["difficulty"][n] if len(pairs) else np.array([])
+    rows = [row(everything, group="all")]
+    rows += [row(kinds == k, group=f"kind {k}") for k in sorted(set(kinds.tolist()))]
+    for scene_kind in sorted(set(scene_kinds.tolist())):
+        for low, high, name in ((0.0, 1 / 3, "easy"), (1 / 3, 2 / 3, "medium"), (2 / 3, 1.01, "hard")):
+            mask = (scene_kinds == scene_kind) & (difficulty >= low) & (difficulty < high)
+            if mask.any():
+                rows.append(row(mask, group=f"{scene_kind} {name}"))
+    return {"other": str(other), "other_fingerprint": old_manifest.get("fingerprint"), "rows": rows}
+
+
 def _percent(rate) -> str:
     return "-" if rate is None else f"{100 * rate:.0f} %"
 
@@ -219,11 +262,21 @@ def stats_markdown(stats: dict) -> str:
                          f"({_percent(row['successes'] / row['executed'])}) | {row['reference_successes']} / "
                          f"{row['reference_executed']} ({_percent(row['reference_successes'] / row['reference_executed'])}) "
                          f"| {row['p_value']:.2g} |")
+    if stats.get("against"):
+        lines += ["", f"Against `{stats['against']['other']}` (fingerprint `{stats['against']['other_fingerprint']}`), "
+                      "the trials executed in both:", "",
+                  "| group | executed in both | walked there | walked here | only here | only there "
+                  "| McNemar exact p |", "| --- | --- | --- | --- | --- | --- | --- |"]
+        for row in stats["against"]["rows"]:
+            lines.append(f"| {row['group']} | {row['trials']} | {row['other_successes']} | {row['successes']} "
+                         f"| {row['only_this']} | {row['only_other']} | {row['p_value']:.2g} |")
     return "\n".join(lines)
 
 
 def run_stats(args) -> int:
     stats = dataset_stats(args.dataset)
+    if args.against:
+        stats["against"] = paired_against(args.dataset, args.against)
     if args.json:
         print(json.dumps(stats))
         return 0
@@ -243,6 +296,11 @@ def run_stats(args) -> int:
             lo, hi = row["ci95"]
             print(f"    {low:.2f}-{high:.2f} m {row['topology']:>13}: {row['successes']}/{row['executed']} "
                   f"({100 * row['success_rate']:.0f} %, 95 % CI {100 * lo:.0f}-{100 * hi:.0f} %)")
+    if stats.get("against"):
+        print(f"  against {stats['against']['other']} (the trials executed in both):")
+        for row in stats["against"]["rows"]:
+            print(f"    {row['group']:>18}: {row['successes']}/{row['trials']} here, {row['other_successes']} there "
+                  f"(only here {row['only_this']}, only there {row['only_other']}, McNemar p {row['p_value']:.2g})")
     return 0
 
 
@@ -303,6 +361,9 @@ def register(subparsers) -> None:
     output = p.add_mutually_exclusive_group()
     output.add_argument("--json", action="store_true", help="print one JSON line")
     output.add_argument("--markdown", action="store_true", help="print the summary as Markdown tables")
+    p.add_argument("--against", default=None, metavar="DIR",
+                   help="another dataset of the same trials (the same seed, e.g. collected with another BLC): "
+                        "the trials executed in both, paired, with McNemar's exact test")
     p.set_defaults(func=run_stats)
 
     p = sub.add_parser("recertify", help="re-run a sample of a dataset's trials with this code; "

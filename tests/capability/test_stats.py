@@ -73,3 +73,47 @@ def test_topologies_are_compared_with_nominal_on_the_higher_stairs_by_fishers_te
     assert row["p_value"] == pytest.approx(fisher_exact([[20, 50], [6, 64]])[1])
     assert row["p_value"] < 0.01
     assert stairs_up_comparisons(rows[:3]) == []  # no nominal rows: nothing to compare with
+
+
+def test_two_collections_of_the_same_trials_are_compared_pair_by_pair(monkeypatch, capsys):
+    """`qz capability stats NEW --against OLD`: trials matched by index (executed in both),
+    who walked what, McNemar's exact test of the discordant pairs; another seed is refused."""
+    from scipy.stats import binomtest
+
+    from qz_drake.capability import dataset
+    from qz_drake.cli import main
+
+    def records(success, status=None, index=None, seed=0):
+        m = len(success)
+        arrays = {"index": np.asarray(index if index is not None else np.arange(m)),
+                  "status": np.asarray(status or ["executed"] * m), "success": np.asarray(success, dtype=bool),
+                  "kind": np.asarray(["orthogonal", "turn"] * (m // 2)),
+                  "scene_kind": np.asarray(["gap"] * m), "difficulty": np.full(m, 0.9)}
+        return arrays, {"seed": seed, "fingerprint": f"fp{seed}{m}"}
+
+    # Trials 0-7 in both (trial 7 invalid in the new one), trial 8 only in the old one.
+    old = records([False, False, False, False, True, True, False, True, True], index=np.arange(9))
+    new = records([True, True, True, False, True, False, False, True], index=np.arange(8),
+                  status=["executed"] * 7 + ["invalid"])
+    other_seed = records([True] * 8, seed=1)
+    folders = {"new": new, "old": old, "seed1": other_seed}
+    monkeypatch.setattr(dataset, "load_records", lambda path: folders[str(path)])
+    from qz_drake.capability.commands import paired_against
+
+    result = paired_against("new", "old")
+    everything = result["rows"][0]
+    assert everything["group"] == "all" and everything["trials"] == 7
+    assert (everything["other_successes"], everything["successes"]) == (2, 4)
+    assert (everything["only_this"], everything["only_other"]) == (3, 1)
+    assert everything["p_value"] == pytest.approx(binomtest(3, 4, 0.5).pvalue)
+    groups = {r["group"]: r for r in result["rows"]}
+    assert groups["kind orthogonal"]["trials"] + groups["kind turn"]["trials"] == 7
+    assert groups["gap hard"]["trials"] == 7
+
+    monkeypatch.setattr("qz_drake.capability.commands.dataset_stats", lambda path: {
+        "trials": 8, "executed": 7, "invalid_starts": 1, "errors": 0, "successes": 4, "fingerprint": "x",
+        "rows": [], "scene_kinds": [], "kinds": [], "failure_reasons": {}, "stairs_up": []})
+    assert main(["capability", "stats", "new", "--against", "old", "--markdown"]) == 0
+    assert "| all | 7 | 2 | 4 | 3 | 1 |" in capsys.readouterr().out
+    assert main(["capability", "stats", "new", "--against", "seed1"]) == 2
+    assert "--against" in capsys.readouterr().err
