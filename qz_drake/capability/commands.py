@@ -118,6 +118,10 @@ def stairs_up_comparisons(rows: list[dict], reference: str = "nominal") -> list[
     return out
 
 
+# A scene's difficulty in [0, 1] read as easy / medium / hard (low <= d < high).
+DIFFICULTY_BINS = ((0.0, 1 / 3, "easy"), (1 / 3, 2 / 3, "medium"), (2 / 3, 1.01, "hard"))
+
+
 def dataset_stats(path) -> dict:
     """Per topology and kind: executed trials, successes, BLC-only successes, errors; per
     scene kind too; and the manifest's fingerprints."""
@@ -143,7 +147,7 @@ def dataset_stats(path) -> dict:
                          if ex.any() else None})
     scene_rows = []
     for scene_kind in sorted(set(arrays["scene_kind"].tolist())):
-        for low, high, name in ((0.0, 1 / 3, "easy"), (1 / 3, 2 / 3, "medium"), (2 / 3, 1.01, "hard")):
+        for low, high, name in DIFFICULTY_BINS:
             ex = executed & (arrays["scene_kind"] == scene_kind) & (arrays["difficulty"] >= low) \
                 & (arrays["difficulty"] < high)
             if ex.any():
@@ -177,9 +181,8 @@ def paired_against(path, other) -> dict:
     executed in both, how many each walked, how many only the new one (``path``) or only the
     other walked, and McNemar's exact test of the difference (a two-sided binomial test of the
     discordant trials), over all, per kind and per scene kind and difficulty."""
-    from scipy.stats import binomtest
-
     from qz_drake.capability.dataset import load_records
+    from qz_drake.capability.evaluation import mcnemar_exact_p
     from qz_drake.errors import bad_value
 
     new, new_manifest = load_records(path)
@@ -198,7 +201,7 @@ def paired_against(path, other) -> dict:
         up, down = int(np.sum(now & ~was)), int(np.sum(was & ~now))
         return {**labels, "trials": int(mask.sum()), "other_successes": int(was.sum()),
                 "successes": int(now.sum()), "only_this": up, "only_other": down,
-                "p_value": float(binomtest(up, up + down, 0.5).pvalue) if up + down else 1.0}
+                "p_value": mcnemar_exact_p(up, down)}
 
     everything = np.ones(len(pairs), dtype=bool)
     kinds = new["kind"][n] if len(pairs) else np.array([])
@@ -207,7 +210,7 @@ def paired_against(path, other) -> dict:
     rows = [row(everything, group="all")]
     rows += [row(kinds == k, group=f"kind {k}") for k in sorted(set(kinds.tolist()))]
     for scene_kind in sorted(set(scene_kinds.tolist())):
-        for low, high, name in ((0.0, 1 / 3, "easy"), (1 / 3, 2 / 3, "medium"), (2 / 3, 1.01, "hard")):
+        for low, high, name in DIFFICULTY_BINS:
             mask = (scene_kinds == scene_kind) & (difficulty >= low) & (difficulty < high)
             if mask.any():
                 rows.append(row(mask, group=f"{scene_kind} {name}"))

@@ -81,6 +81,16 @@ def ece_floor(probabilities, bins: int = 10, draws: int = 400, seed: int = 0) ->
     return float(np.mean(np.abs(observed - predicted).sum(axis=1)) / len(p))
 
 
+def mcnemar_exact_p(only_a: int, only_b: int) -> float:
+    """McNemar's exact test of two paired outcomes (the same trials or tasks, two systems):
+    the two-sided binomial test of the discordant pairs, ``only_a`` succeeding only under the
+    first and ``only_b`` only under the second (scipy.stats.binomtest); 1 without any."""
+    from scipy.stats import binomtest
+
+    n = int(only_a) + int(only_b)
+    return float(binomtest(int(only_a), n, 0.5).pvalue) if n else 1.0
+
+
 def binary_metrics(labels, probabilities, *, bins: int = 10) -> dict:
     """n, positives, accuracy at 0.5, ROC AUC (None for one class), Brier score, ECE and its
     small-sample floor (:func:`ece_floor`), confusion matrix [[TN, FP], [FN, TP]] and the

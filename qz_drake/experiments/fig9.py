@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -201,7 +202,7 @@ def compare_planners(records: list[dict], planner: str = "capplanner", baseline:
     them walked, neither; and McNemar's exact test (a two-sided binomial test of the discordant
     tasks, scipy.stats.binomtest) of "the two succeed equally often". One row per (terrain,
     difficulty), then one per difficulty over the terrains and one over all."""
-    from scipy.stats import binomtest
+    from qz_drake.capability.evaluation import mcnemar_exact_p
 
     outcome = {}
     for r in records:
@@ -214,12 +215,11 @@ def compare_planners(records: list[dict], planner: str = "capplanner", baseline:
         pairs = [paired[k] for k in keys]
         only_planner = sum(a and not b for a, b in pairs)
         only_baseline = sum(b and not a for a, b in pairs)
-        discordant = only_planner + only_baseline
         return {"terrain": terrain, "difficulty": difficulty, "tasks": len(pairs),
                 f"{planner}_successes": sum(a for a, _ in pairs), f"{baseline}_successes": sum(b for _, b in pairs),
                 "both": sum(a and b for a, b in pairs), f"only_{planner}": only_planner,
                 f"only_{baseline}": only_baseline, "neither": sum(not a and not b for a, b in pairs),
-                "p_value": float(binomtest(only_planner, discordant, 0.5).pvalue) if discordant else 1.0}
+                "p_value": mcnemar_exact_p(only_planner, only_baseline)}
 
     rows = []
     for terrain in TERRAINS:
@@ -296,7 +296,7 @@ def predict_routes(out, config: ExperimentConfig | None = None, model=None, prog
             f.write(json.dumps(p) + "\n")
             f.flush()
             if progress:
-                print(f"\r{i + 1}/{len(records)} routes predicted", end="", file=__import__("sys").stderr)
+                print(f"\r{i + 1}/{len(records)} routes predicted", end="", file=sys.stderr)
     return [done[r["key"]] for r in records if r["key"] in done]
 
 
