@@ -183,9 +183,8 @@ class BlcFormulation:
         if p.enabled("kinematics"):
             self.nonlinear.append(KinematicsConstraint(v, self.kinematics_times,
                                                        robot.nominal_footholds, robot.box_half_sizes))
+        stance = self._free_stance_footholds()
         if p.enabled("terrain"):
-            stance = [self._foothold_samples(leg, s) for leg in range(v.num_legs)
-                      for s in range(1, len(v.footholds[leg]))]
             if stance:
                 self.nonlinear.append(TerrainConstraint(
                     LinearSamples.concatenate(stance), terrain, robot.foot_radius, 0.0, 0.0,
@@ -201,8 +200,6 @@ class BlcFormulation:
         if self.support is not None:
             from qz_drake.trajopt.support import SupportConstraint
 
-            stance = [self._foothold_samples(leg, s) for leg in range(v.num_legs)
-                      for s in range(1, len(v.footholds[leg]))]
             if stance:
                 self.nonlinear.append(SupportConstraint(LinearSamples.concatenate(stance), self.support))
         if p.enabled("swing"):
@@ -267,6 +264,11 @@ class BlcFormulation:
                     self.nonlinear.append(PhaseContinuityConstraint(
                         spline, t, order, left, right, h,
                         name=f"phase_continuity/{label}/{'velocity' if order == 1 else 'acceleration'}"))
+
+    def _free_stance_footholds(self) -> list[LinearSamples]:
+        """Every foothold the program chooses (each leg's stances after its given first one)."""
+        v = self.variables
+        return [self._foothold_samples(leg, s) for leg in range(v.num_legs) for s in range(1, len(v.footholds[leg]))]
 
     def _foothold_samples(self, leg: int, stance: int) -> LinearSamples:
         idx = self.variables.footholds[leg][stance]

@@ -38,8 +38,7 @@ CLOSED_FORM_RESOLUTION = 0.02
 class SupportField:
     """Where a stance foot has support, on a grid (see the module docstring)."""
 
-    # Grid: heights[iy, ix] at origin + (ix, iy) * resolution. [m]
-    heights: np.ndarray
+    # Grid: cell (ix, iy) at origin + (ix, iy) * resolution. [m]
     resolution: float
     origin: tuple[float, float]
     # The support radius and the largest height difference within it. [m]
@@ -130,7 +129,7 @@ def field_from_grid(heights: np.ndarray, resolution: float, origin, radius: floa
         signed = np.where(unsupported, -(inside - 0.5), outside - 0.5) * resolution
         signed = np.clip(signed, -_CLIP, _CLIP)
     grid = types.SimpleNamespace(heights=signed, resolution=resolution, origin=tuple(origin))
-    return SupportField(heights=heights, resolution=float(resolution), origin=tuple(float(v) for v in origin),
+    return SupportField(resolution=float(resolution), origin=tuple(float(v) for v in origin),
                         radius=float(radius), drop=float(drop), relief=relief, unsupported=unsupported, nearest=nearest,
                         distance=GridTerrain(grid))
 
