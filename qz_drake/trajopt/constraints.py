@@ -18,6 +18,7 @@ without evaluating Python.
 from __future__ import annotations
 
 import abc
+import copy
 
 import numpy as np
 import scipy.sparse as sp
@@ -148,6 +149,23 @@ class SampledConstraint(abc.ABC):
         self._blocks = blocks
         self.rows = np.concatenate([b.rows for b in blocks])
         self.cols = np.concatenate([b.cols for b in blocks])
+        # (start, stop) -> the Drake binding's columns and sparsity (formulation.py), shared
+        # by the copies ``on`` makes: they have the same rows and columns.
+        self.binding_structure: dict = {}
+
+    def on(self, **data) -> "SampledConstraint":
+        """This constraint for other data (e.g. ``terrain=``, ``field=``): a shallow copy that
+        shares its samples, bounds and Jacobian pattern, which depend on the contact schedule
+        only (formulation.py builds them once per schedule). Names that are not attributes of
+        the constraint raise AttributeError."""
+        for name in data:
+            if name not in self.__dict__:
+                raise AttributeError(f"{type(self).__name__} has no data {name!r}")
+        if all(self.__dict__[name] is value for name, value in data.items()):
+            return self
+        clone = copy.copy(self)
+        clone.__dict__.update(data)
+        return clone
 
     @property
     def num_constraints(self) -> int:

@@ -14,6 +14,7 @@ stays correct for any seeding. Linear pieces are Drake linear constraints (no Py
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 
 import numpy as np
 import scipy.sparse as sp
@@ -27,6 +28,7 @@ from qz_drake.trajopt.constraints import (AngularDynamicsConstraint, ForceConstr
                                           TerrainConstraint, acceleration_continuity_matrix,
                                           linear_dynamics_matrix)
 from qz_drake.trajopt.splines import LinearSamples
+from qz_drake.trajopt.terrain import FlatTerrain
 from qz_drake.trajopt.variables import BlcVariables
 
 
@@ -50,6 +52,54 @@ class LinearConstraintTerm:
     def violation(self, x) -> np.ndarray:
         g = self.evaluate(x)
         return np.maximum(0.0, np.maximum(self.lower - g, g - self.upper))
+
+
+_MISSING = object()
+
+
+class ScheduleParts:
+    """The parts of a formulation that depend on the robot, the parameters and the contact
+    schedule only: the decision variables, the samples, the constraints' Jacobian patterns and
+    the Drake bindings' structure. A task of the same schedule (the missions of a walk, the
+    trials of one kind) takes them from here instead of building them again; the data of its
+    own (terrain, support field, start, target) are put in with ``SampledConstraint.on``."""
+
+    def __init__(self):
+        self._parts: dict = {}
+
+    def get(self, key, build, **data):
+        """The part ``key``: ``build()`` the first time, afterwards the stored part (``.on(**data)``
+        when data are given: the stored part with this task's terrain or field)."""
+        part = self._parts.get(key, _MISSING)
+        if part is _MISSING:
+            part = self._parts[key] = build()
+            return part
+        return part.on(**data) if data and part is not None else part
+
+
+# Schedules whose parts are kept (least recently used dropped first): a walk's missions and a
+# trial kind's share a handful of schedules.
+SCHEDULE_PARTS_CACHE_SIZE = 16
+_schedule_parts: OrderedDict = OrderedDict()
+
+
+def schedule_parts(robot, params, schedule, extra_samples: dict) -> ScheduleParts:
+    """The cached ScheduleParts of (robot, params, schedule, extra constraint samples)."""
+    key = (robot, repr(params), schedule,
+           tuple(sorted((k, np.asarray(t, dtype=float).tobytes()) for k, t in extra_samples.items())))
+    parts = _schedule_parts.get(key)
+    if parts is None:
+        parts = _schedule_parts[key] = ScheduleParts()
+        while len(_schedule_parts) > SCHEDULE_PARTS_CACHE_SIZE:
+            _schedule_parts.popitem(last=False)
+    else:
+        _schedule_parts.move_to_end(key)
+    return parts
+
+
+def clear_schedule_parts() -> None:
+    """Forgets every cached ScheduleParts (the next formulations build theirs anew)."""
+    _schedule_parts.clear()
 
 
 class BlcFormulation:
@@ -88,10 +138,18 @@ class BlcFormulation:
         self.target = np.array([target[0], target[1], 0.0])
         # The equivalent of the target yaw nearest the start yaw: turn the short way round.
         self.target_yaw = self.start_rpy[2] + math.remainder(target[2] - self.start_rpy[2], 2 * math.pi)
+        self.extra_samples = {k: np.asarray(t, dtype=float) for k, t in (extra_samples or {}).items()}
+        for key in self.extra_samples:
+            if key not in ("dynamics", "linear_dynamics", "kinematics"):
+                raise ValueError(f"extra_samples: unknown constraint {key!r}")
+        # Fixed timing: the schedule's parts are shared with earlier tasks of the same schedule.
+        self.parts = (schedule_parts(robot, params, schedule, self.extra_samples)
+                      if layout is None and realized is None else ScheduleParts())
         if realized is not None:
             self.variables = v = BlcVariables(schedule, params, realized[0], realized[1])
         else:
-            self.variables = v = BlcVariables(schedule, params, layout)
+            self.variables = v = self.parts.get("variables",
+                                                lambda: BlcVariables(schedule, params, layout))
         T = v.duration
         self.dynamics_times = np.arange(0.5 * params.dynamics_dt, T, params.dynamics_dt)
         self.linear_dynamics_times = np.arange(0.5 * params.linear_dynamics_dt, T,
@@ -106,10 +164,7 @@ class BlcFormulation:
             self.linear_dynamics_times = _segment_samples(b, params.linear_dynamics_dt)
         kin = np.arange(0.0, T - 1e-9, params.kinematics_dt)
         self.kinematics_times = np.append(kin, T)
-        self.extra_samples = {k: np.asarray(t, dtype=float) for k, t in (extra_samples or {}).items()}
         for key in self.extra_samples:
-            if key not in ("dynamics", "linear_dynamics", "kinematics"):
-                raise ValueError(f"extra_samples: unknown constraint {key!r}")
             name = f"{key}_times"
             setattr(self, name, np.unique(np.concatenate([getattr(self, name),
                                                           self.extra_samples[key]])))
@@ -125,6 +180,8 @@ class BlcFormulation:
     def _support_field(self):
         from qz_drake.trajopt.support import support_field
 
+        if isinstance(self.terrain, FlatTerrain):
+            return None
         # A closed-form terrain is sampled over the footholds' reach along the task.
         reach = float(np.abs(self.robot.nominal_footholds[:, :2]).max() + self.robot.box_half_sizes[:, :2].max()) + 0.3
         xs = [self.start_position[0], self.target[0], *self.start_feet[:, 0]]
@@ -168,68 +225,85 @@ class BlcFormulation:
     # -- constraints --------------------------------------------------------------------------
     def _build_constraints(self) -> None:
         v, p, robot, terrain = self.variables, self.params, self.robot, self.terrain
+        parts = self.parts
         weight = robot.weight
         if self.layout is not None:
             self._build_timed_dynamics()
         elif p.enabled("dynamics"):
-            A, b = linear_dynamics_matrix(v, self.linear_dynamics_times, robot.gravity)
-            self.linear.append(LinearConstraintTerm("dynamics/linear", A, b, b))
-            self.nonlinear.append(AngularDynamicsConstraint(v, self.dynamics_times,
-                                                            robot.inertia_matrix / weight))
+            def linear_dynamics():
+                A, b = linear_dynamics_matrix(v, self.linear_dynamics_times, robot.gravity)
+                return LinearConstraintTerm("dynamics/linear", A, b, b)
+            self.linear.append(parts.get("dynamics/linear", linear_dynamics))
+            self.nonlinear.append(parts.get("dynamics", lambda: AngularDynamicsConstraint(
+                v, self.dynamics_times, robot.inertia_matrix / weight)))
         if p.enabled("base_acceleration") and self.layout is None:
-            A = acceleration_continuity_matrix(v)
-            if A is not None:
-                self.linear.append(LinearConstraintTerm("base_acceleration", A, 0.0, 0.0))
+            def continuity():
+                A = acceleration_continuity_matrix(v)
+                return None if A is None else LinearConstraintTerm("base_acceleration", A, 0.0, 0.0)
+            term = parts.get("base_acceleration", continuity)
+            if term is not None:
+                self.linear.append(term)
         if p.enabled("kinematics"):
-            self.nonlinear.append(KinematicsConstraint(v, self.kinematics_times,
-                                                       robot.nominal_footholds, robot.box_half_sizes))
-        stance = self._free_stance_footholds()
+            self.nonlinear.append(parts.get("kinematics", lambda: KinematicsConstraint(
+                v, self.kinematics_times, robot.nominal_footholds, robot.box_half_sizes)))
+        stance = parts.get("stance footholds", self._free_stance_footholds)
         if p.enabled("terrain"):
-            if stance:
-                self.nonlinear.append(TerrainConstraint(
-                    LinearSamples.concatenate(stance), terrain, robot.foot_radius, 0.0, 0.0,
-                    name="terrain/stance"))
+            if stance is not None:
+                self.nonlinear.append(parts.get("terrain/stance", lambda: TerrainConstraint(
+                    stance, terrain, robot.foot_radius, 0.0, 0.0, name="terrain/stance"),
+                    terrain=terrain))
             dt = p.swing_clearance_dt
             if self.layout is not None:
                 # Nominal time: a swing stretched by rho has its samples rho dt apart.
                 dt = dt / float(self.layout.scale_upper.max())
-            clearance = self._swing_samples(p.swing_clearance_fractions, dt)
+            clearance = parts.get("swing samples",
+                                  lambda: self._swing_samples(p.swing_clearance_fractions, dt))
             if clearance is not None:
-                self.nonlinear.append(TerrainConstraint(
-                    clearance, terrain, robot.foot_radius, 0.0, np.inf, name="terrain/swing"))
-        if self.support is not None:
+                self.nonlinear.append(parts.get("terrain/swing", lambda: TerrainConstraint(
+                    clearance, terrain, robot.foot_radius, 0.0, np.inf, name="terrain/swing"),
+                    terrain=terrain))
+        if self.support is not None and stance is not None:
             from qz_drake.trajopt.support import SupportConstraint
 
-            if stance:
-                self.nonlinear.append(SupportConstraint(LinearSamples.concatenate(stance), self.support))
+            self.nonlinear.append(parts.get("support", lambda: SupportConstraint(
+                stance, self.support), field=self.support))
         if p.enabled("swing"):
-            apex = self._swing_samples((0.5,))
+            apex = parts.get("apex samples", lambda: self._swing_samples((0.5,)))
             if apex is not None:
-                self.nonlinear.append(TerrainConstraint(
+                self.nonlinear.append(parts.get("swing/apex", lambda: TerrainConstraint(
                     apex, terrain, robot.foot_radius, p.swing_apex_height, np.inf,
-                    name="swing/apex"))
+                    name="swing/apex"), terrain=terrain))
         if p.enabled("force"):
-            f_max = robot.max_normal_forces if p.max_normal_force is None else \
-                np.full(v.num_legs, p.max_normal_force)
-            forces, footholds, limits, lows, segments = [], [], [], [], []
-            for leg in range(v.num_legs):
-                f, h, at_node = self._force_samples(leg)
-                if f is None:
-                    continue
-                start = sum(len(x.weights) for x in forces)
-                forces.append(f)
-                footholds.append(h)
-                limits.append(np.full(f.num_samples, f_max[leg] / weight))
-                # f_min at the force nodes; inner control points only push (>= 0), which
-                # keeps the whole polynomial pushing without pinning its rates (measured:
-                # f_min at every control point stalled Ipopt on the wave gait).
-                lows.append(np.where(at_node, p.min_normal_force / weight, 0.0))
-                segments.append((start, start + f.num_samples))
-            if forces:
-                self.nonlinear.append(ForceConstraint(
-                    LinearSamples.concatenate(forces), LinearSamples.concatenate(footholds),
-                    terrain, p.friction_coefficient, np.concatenate(lows),
-                    np.concatenate(limits), segments=segments))
+            force = parts.get("force", self._build_force_constraint, terrain=terrain)
+            if force is not None:
+                self.nonlinear.append(force)
+
+    def _build_force_constraint(self):
+        """Eq. 5 at every stance force point of every foot, or None without stances."""
+        v, p, robot = self.variables, self.params, self.robot
+        weight = robot.weight
+        f_max = robot.max_normal_forces if p.max_normal_force is None else \
+            np.full(v.num_legs, p.max_normal_force)
+        forces, footholds, limits, lows, segments = [], [], [], [], []
+        for leg in range(v.num_legs):
+            f, h, at_node = self._force_samples(leg)
+            if f is None:
+                continue
+            start = sum(len(x.weights) for x in forces)
+            forces.append(f)
+            footholds.append(h)
+            limits.append(np.full(f.num_samples, f_max[leg] / weight))
+            # f_min at the force nodes; inner control points only push (>= 0), which
+            # keeps the whole polynomial pushing without pinning its rates (measured:
+            # f_min at every control point stalled Ipopt on the wave gait).
+            lows.append(np.where(at_node, p.min_normal_force / weight, 0.0))
+            segments.append((start, start + f.num_samples))
+        if not forces:
+            return None
+        return ForceConstraint(
+            LinearSamples.concatenate(forces), LinearSamples.concatenate(footholds),
+            self.terrain, p.friction_coefficient, np.concatenate(lows),
+            np.concatenate(limits), segments=segments)
 
     def _build_timed_dynamics(self) -> None:
         """Eq. 2 and the body's continuity with free phase durations (timing.py): samples in
@@ -265,10 +339,13 @@ class BlcFormulation:
                         spline, t, order, left, right, h,
                         name=f"phase_continuity/{label}/{'velocity' if order == 1 else 'acceleration'}"))
 
-    def _free_stance_footholds(self) -> list[LinearSamples]:
-        """Every foothold the program chooses (each leg's stances after its given first one)."""
+    def _free_stance_footholds(self) -> LinearSamples | None:
+        """Every foothold the program chooses (each leg's stances after its given first one),
+        or None when there is none."""
         v = self.variables
-        return [self._foothold_samples(leg, s) for leg in range(v.num_legs) for s in range(1, len(v.footholds[leg]))]
+        holds = [self._foothold_samples(leg, s) for leg in range(v.num_legs)
+                 for s in range(1, len(v.footholds[leg]))]
+        return LinearSamples.concatenate(holds) if holds else None
 
     def _foothold_samples(self, leg: int, stance: int) -> LinearSamples:
         idx = self.variables.footholds[leg][stance]
@@ -352,14 +429,16 @@ class BlcFormulation:
     # -- costs ------------------------------------------------------------------------------
     def cost_terms(self):
         """[(name, Q, columns)] of the enabled costs."""
-        out = []
-        for name, weight in self.params.costs:
-            if weight <= 0:
-                continue
-            A = cost_terms.cost_matrix(name, self.variables, self.dynamics_times)
-            Q, columns = cost_terms.quadratic_cost_terms(A, weight)
-            out.append((name, Q, columns))
-        return out
+        def build():
+            out = []
+            for name, weight in self.params.costs:
+                if weight <= 0:
+                    continue
+                A = cost_terms.cost_matrix(name, self.variables, self.dynamics_times)
+                Q, columns = cost_terms.quadratic_cost_terms(A, weight)
+                out.append((name, Q, columns))
+            return out
+        return self.parts.get("costs", build)
 
     # -- the program --------------------------------------------------------------------------
     @property
@@ -509,11 +588,17 @@ def add_constraint_rows(prog: MathematicalProgram, group: ConstraintGroupCache, 
     """Binds rows [start, stop) of a constraint to prog on only the variables they touch, with
     their sparsity pattern declared and their analytic Jacobian returned for AutoDiff inputs."""
     c = group.constraint
-    entries = np.flatnonzero((c.rows >= start) & (c.rows < stop))
-    columns = np.unique(c.cols[entries])
+    structure = c.binding_structure.get((start, stop))
+    if structure is None:
+        entries = np.flatnonzero((c.rows >= start) & (c.rows < stop))
+        columns = np.unique(c.cols[entries])
+        n = len(columns)
+        flat = (c.rows[entries] - start) * n + np.searchsorted(columns, c.cols[entries])
+        pattern = np.unique(flat)
+        structure = c.binding_structure[(start, stop)] = (
+            entries, columns, flat, list(zip((pattern // n).tolist(), (pattern % n).tolist())))
+    entries, columns, flat, pattern = structure
     n, m = len(columns), stop - start
-    flat = (c.rows[entries] - start) * n + np.searchsorted(columns, c.cols[entries])
-    pattern = np.unique(flat)
 
     def evaluate(z):
         if z.dtype == object:
@@ -529,6 +614,5 @@ def add_constraint_rows(prog: MathematicalProgram, group: ConstraintGroupCache, 
 
     binding = prog.AddConstraint(evaluate, c.lower[start:stop], c.upper[start:stop],
                                  x_vars[columns], f"{c.name}[{start}:{stop}]")
-    binding.evaluator().SetGradientSparsityPattern(
-        list(zip((pattern // n).tolist(), (pattern % n).tolist())))
+    binding.evaluator().SetGradientSparsityPattern(pattern)
     return binding

@@ -107,6 +107,9 @@ def dense_check(formulation, x: np.ndarray, rate: float | None = None) -> DenseC
     f = formulation
     v, p, robot, terrain = f.variables, f.params, f.robot, f.terrain
     rate = p.dense_check_rate if rate is None else rate
+    # The samples and constraint structures depend on the schedule only: shared with the
+    # earlier plans of this schedule (formulation.ScheduleParts).
+    parts = f.parts
     names = robot.leg_names
     T = v.duration
     times = dense_times(T, rate)
@@ -119,8 +122,9 @@ def dense_check(formulation, x: np.ndarray, rate: float | None = None) -> DenseC
         ts = swing_sample_times(v.schedule, leg, times)
         if not len(ts):
             continue
-        c = TerrainConstraint(v.foot_position[leg].sample(ts, 0), terrain, robot.foot_radius,
-                              0.0, np.inf)
+        c = parts.get(("dense", rate, "clearance", leg), lambda: TerrainConstraint(
+            v.foot_position[leg].sample(ts, 0), terrain, robot.foot_radius, 0.0, np.inf),
+            terrain=terrain)
         g = c.evaluate(x)
         k = int(np.argmin(g))
         if g[k] < min_clearance:
@@ -133,7 +137,8 @@ def dense_check(formulation, x: np.ndarray, rate: float | None = None) -> DenseC
     # Kinematic boxes (Eq. 1).
     box = robot.box_half_sizes
     contact = v.schedule.in_contact(times)
-    kin = KinematicsConstraint(v, times, robot.nominal_footholds, box)
+    kin = parts.get(("dense", rate, "kinematics"),
+                    lambda: KinematicsConstraint(v, times, robot.nominal_footholds, box))
     offset = kin.evaluate(x).reshape(len(times), v.num_legs, 3)
     excess = np.maximum(np.abs(offset) - box[None], 0.0)
     max_swing_box = float((excess * ~contact[..., None]).max())
@@ -170,10 +175,13 @@ def dense_check(formulation, x: np.ndarray, rate: float | None = None) -> DenseC
         ts = times[contact[:, leg]]
         if not len(ts):
             continue
-        stance = v.stance_of(leg, ts)
-        holds = LinearSamples(np.ones((len(ts), 1, 3)), v.footholds[leg][stance][:, None, :])
-        c = ForceConstraint(v.foot_force[leg].sample(ts, 0), holds, terrain,
-                            p.friction_coefficient, 0.0, np.inf)
+
+        def force(leg=leg, ts=ts):
+            stance = v.stance_of(leg, ts)
+            holds = LinearSamples(np.ones((len(ts), 1, 3)), v.footholds[leg][stance][:, None, :])
+            return ForceConstraint(v.foot_force[leg].sample(ts, 0), holds, terrain,
+                                   p.friction_coefficient, 0.0, np.inf)
+        c = parts.get(("dense", rate, "force", leg), force, terrain=terrain)
         g = c.evaluate(x).reshape(len(ts), 5)
         k = int(np.argmin(g[:, 0]))
         if g[k, 0] < min_normal:
@@ -196,9 +204,10 @@ def dense_check(formulation, x: np.ndarray, rate: float | None = None) -> DenseC
     far = times[switch_distance(v.schedule, times) > p.dense_switch_margin]
     linear = angular = 0.0
     if len(far):
-        A, b = linear_dynamics_matrix(v, far, robot.gravity)
+        (A, b), ang_c = parts.get(("dense", rate, "residuals"), lambda: (
+            linear_dynamics_matrix(v, far, robot.gravity),
+            AngularDynamicsConstraint(v, far, robot.inertia_matrix / weight)))
         lin = np.linalg.norm((A @ x - b).reshape(-1, 3), axis=1)
-        ang_c = AngularDynamicsConstraint(v, far, robot.inertia_matrix / weight)
         ang = np.linalg.norm(ang_c.evaluate(x).reshape(-1, 3), axis=1) / p.dense_residual_lever
         q = p.dense_residual_percentile
         linear, angular = float(np.percentile(lin, q)), float(np.percentile(ang, q))
