@@ -1,7 +1,7 @@
 """BLC variants side by side (issue 11): the bench cases, or a spread sample of stored
 capability trials re-run in Drake, with BlcParameters variants against the defaults.
 
-    python benchmarks/blc_variants.py cases [CASE_SUBSTRING ...]
+    python benchmarks/blc_variants.py cases [--variants default,stance] [CASE_SUBSTRING ...]
     python benchmarks/blc_variants.py trials --dataset data/capability --per-kind 30 \
         --variant stance --out out/variants/stance.jsonl
 
@@ -28,12 +28,14 @@ VARIANTS = {
     "default": {},
     "stance": {"foothold_guess": "stance"},
     "stance_free": {"foothold_guess": "stance", "optimize_phase_durations": True},
+    # The stance guess with up to two check-and-refine re-solves (session 26).
+    "stance_refine": {"foothold_guess": "stance", "max_refinements": 2},
     # The BLC before the stance-support constraint (the default since session 25).
     "no_support": {"constraints": tuple(c for c in DEFAULT_CONSTRAINTS if c != "support")},
 }
 
 
-def run_cases(only: list[str]) -> None:
+def run_cases(only: list[str], variants: list[str] | None = None) -> None:
     from bench_blc import all_cases
 
     from qz_drake.trajopt.parameters import BlcParameters
@@ -44,6 +46,8 @@ def run_cases(only: list[str]) -> None:
             continue
         row = {"case": name}
         for label, extra in VARIANTS.items():
+            if variants and label not in variants:
+                continue
             s = solve_blc(task, robot, terrain, BlcParameters(**extra))
             row[label] = [bool(s.success), round(s.solve_time, 2), s.iterations, s.reason[:120]]
         print(json.dumps(row), flush=True)
@@ -83,7 +87,9 @@ def run_trials(dataset: str, per_kind: int, variant: str, out: Path, seed: int =
                 "stored_blc": bool(arrays["blc_success"][k]), "blc": bool(r["blc_success"]),
                 "stored_iterations": int(arrays["blc_iterations"][k]),
                 "iterations": int(r["blc_iterations"]), "reason": r["reason"],
-                "time_solve": r["time_solve_s"], "time_total": r["time_total_s"]}) + "\n")
+                "time_solve": r["time_solve_s"], "time_total": r["time_total_s"],
+                "stored_time_solve": float(arrays["time_solve_s"][k]),
+                "stored_time_total": float(arrays["time_total_s"][k])}) + "\n")
             f.flush()
 
 
@@ -92,6 +98,8 @@ def main() -> None:
     sub = parser.add_subparsers(dest="mode", required=True)
     cases = sub.add_parser("cases")
     cases.add_argument("only", nargs="*")
+    cases.add_argument("--variants", default="",
+                       help=f"comma-separated, of {', '.join(VARIANTS)} (default: all)")
     tr = sub.add_parser("trials")
     tr.add_argument("--dataset", default="data/capability")
     tr.add_argument("--per-kind", type=int, default=30)
@@ -99,7 +107,11 @@ def main() -> None:
     tr.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()
     if args.mode == "cases":
-        run_cases(args.only)
+        variants = [v for v in args.variants.split(",") if v]
+        unknown = sorted(set(variants) - set(VARIANTS))
+        if unknown:
+            parser.error(f"--variants: unknown {', '.join(unknown)} (valid: {', '.join(VARIANTS)})")
+        run_cases(args.only, variants)
     else:
         run_trials(args.dataset, args.per_kind, args.variant, args.out)
 
