@@ -132,6 +132,18 @@ def straight_line_body(formulation) -> tuple[np.ndarray, np.ndarray]:
     return np.column_stack([xy, z]), np.column_stack([roll, pitch, yaw])
 
 
+def foothold_guess(formulation) -> str:
+    """The foothold guess a formulation's straight-line guess uses, "mid" or "stance":
+    ``params.foothold_guess``, where "auto" is "stance" when the body travels at least the
+    shortest half length of the kinematic boxes and "mid" for a turn in place."""
+    f = formulation
+    choice = f.params.foothold_guess
+    if choice != "auto":
+        return choice
+    travel = float(np.hypot(*(f.target[:2] - f.start_position[:2])))
+    return "stance" if travel >= float(f.robot.box_half_sizes[:, 0].min()) else "mid"
+
+
 def straight_line_guess(formulation) -> np.ndarray:
     """The straight-line initial guess x0 for a formulation."""
     f = formulation
@@ -168,11 +180,12 @@ def straight_line_guess(formulation) -> np.ndarray:
 
     schedule = v.schedule
     feet_z = robot.nominal_footholds[:, 2] - robot.foot_radius  # sole below the CoM
+    window = foothold_guess(f) == "stance"
     for leg in range(v.num_legs):
         stances = schedule.stance_intervals(leg)
         mids = np.array([0.5 * (a + b) for a, b in stances])
         body, body_yaw = body_at(mids)
-        if params.foothold_guess == "stance":
+        if window:
             ends, end_yaw = body_at(np.array(stances).reshape(-1))
             footholds = [f.start_feet[leg]]
             for k in range(1, len(mids)):

@@ -60,3 +60,37 @@ def test_stance_foothold_guess_looks_past_a_gap_that_fills_the_mid_stance_box(ga
                                     np.zeros(2), 0.0)
     assert chosen[0] > GAP_START + GAP_WIDTH + robot.foot_radius
     assert chosen[2] == pytest.approx(robot.foot_radius, abs=1e-6)
+
+
+def test_the_default_guess_looks_past_the_gap_on_a_move_and_keeps_mid_stance_on_a_turn(gap_map):
+    """foothold_guess "auto" (the default): the stance window for a task that travels, the
+    mid-stance box for a turn in place (measured on the capability trials: the window helped
+    moves and not turns)."""
+    from qz_drake.trajopt.formulation import BlcFormulation
+    from qz_drake.trajopt.gait import make_gait
+    from qz_drake.trajopt.initial_guess import foothold_guess, straight_line_guess
+    from qz_drake.trajopt.robot_model import qingzhui
+    from qz_drake.trajopt.solver import standing_start
+    from qz_drake.trajopt.terrain import as_terrain
+
+    robot, terrain = qingzhui("nominal"), as_terrain(gap_map)
+    assert BlcParameters().foothold_guess == "auto"
+    start, rpy, feet = standing_start(robot, terrain)
+
+    def guess(target, choice):
+        params = BlcParameters(foothold_guess=choice)
+        schedule = make_gait("tripod", robot.num_legs, 3.0, stand_duration=params.stand_duration)
+        f = BlcFormulation(robot, terrain, params, schedule, start_position=start,
+                           start_rpy=rpy, start_feet=feet, target=target)
+        return foothold_guess(f), straight_line_guess(f)
+
+    move, turn = (1.5, 0.0, 0.0), (0.0, 0.0, 0.8)
+    (used, x_auto), (_, x_stance), (_, x_mid) = (guess(move, c) for c in ("auto", "stance", "mid"))
+    assert used == "stance"
+    np.testing.assert_array_equal(x_auto, x_stance)
+    assert np.abs(x_auto - x_mid).max() > 0.05
+    (used, x_auto), (_, x_mid) = (guess(turn, c) for c in ("auto", "mid"))
+    assert used == "mid"
+    np.testing.assert_array_equal(x_auto, x_mid)
+    with pytest.raises(Exception, match="blc.foothold_guess"):
+        BlcParameters(foothold_guess="window")
