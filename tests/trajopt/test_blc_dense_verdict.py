@@ -21,9 +21,11 @@ from tests.trajopt.npz_checks import assert_plan_holds
 # failure.
 PARAMS = BlcParameters(time_limit=60.0)
 # The BLC before issue 11: swing clearance at 25 % and 75 % of a swing only, forces at nodes
-# and midpoints, both halves of Eq. 2 on TOWR's 0.1 s / 0.05 s grid, boxes every 0.08 s.
+# and midpoints, both halves of Eq. 2 on TOWR's 0.1 s / 0.05 s grid, boxes every 0.08 s, the
+# mid-stance foothold guess.
 BEFORE_ISSUE_11 = dict(swing_clearance_dt=0.0, force_points="samples", dynamics_dt=0.1,
-                       kinematics_dt=0.08, max_refinements=0, time_limit=60.0)
+                       kinematics_dt=0.08, max_refinements=0, time_limit=60.0,
+                       foothold_guess="mid")
 
 
 def _hyq_stairs_formulation(params):
@@ -118,8 +120,8 @@ def saved(tmp_path_factory):
                             BlcTask(target=(1.5, 0.0, 0.0), duration=3.0), PARAMS),
         "hyq_stairs_towr": (hyq(), tt.stairs(start_x=1.0, run=0.4, rises=(0.2, 0.2)),
                             BlcTask(target=(1.0, 0.0, 0.0), duration=2.4), PARAMS),
-        # TOWR's block, 0.3 m high instead of 0.5 (which the BLC does not solve: BENCHMARKS).
-        "hyq_block_0.3": (hyq(), tt.block(start_x=0.7, height=0.3),
+        # TOWR's block, 0.2 m high instead of 0.5 (which the BLC does not solve: BENCHMARKS).
+        "hyq_block_0.2": (hyq(), tt.block(start_x=0.7, height=0.2),
                           BlcTask(target=(1.0, 0.0, 0.0), duration=2.4), PARAMS),
         # TOWR's 0.5 m gap, the target 0.1 m further than TOWR's so that the front feet's final
         # box holds supported ground (BENCHMARKS "blc"); the stance-window foothold guess.
@@ -137,7 +139,7 @@ def saved(tmp_path_factory):
 
 @pytest.mark.parametrize("name", ["qz_flat", "qz_slope_15deg", "qz_stairs_0.15", "qz_block_0.2",
                                   "hyq_flat", "hyq_slope_15deg", "hyq_stairs_towr",
-                                  "hyq_block_0.3", "hyq_gap"])
+                                  "hyq_block_0.2", "hyq_gap"])
 def test_solved_plans_hold_between_samples_checked_from_the_npz(saved, name):
     solution, data = saved[name]
     assert solution.success, solution.reason
