@@ -100,8 +100,10 @@ def choose_stance_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_y
     r = 2 * robot.foot_radius + 0.01
     # The body's plane sags over a hole that most feet straddle: the reference is the highest
     # of it, the upper quartile of the ground in the window and the foot's previous foothold
-    # (sole height).
-    plane_z = max(plane_z, float(np.percentile(terrain.height(x, y), 75)), previous_z)
+    # (sole height); the quartile no higher than the box reaches above the plane, or a wall or
+    # a tall box in the window would make its top the ground to stand on.
+    quartile = min(float(np.percentile(terrain.height(x, y), 75)), plane_z + float(box[2]))
+    plane_z = max(plane_z, quartile, previous_z)
     rough = np.zeros_like(x)
     for dx, dy in ((0, 0), (r, 0), (-r, 0), (0, r), (0, -r)):
         rough = np.maximum(rough, np.abs(terrain.height(x + dx, y + dy) - plane_z))

@@ -94,3 +94,22 @@ def test_the_default_guess_looks_past_the_gap_on_a_move_and_keeps_mid_stance_on_
     np.testing.assert_array_equal(x_auto, x_mid)
     with pytest.raises(Exception, match="blc.foothold_guess"):
         BlcParameters(foothold_guess="window")
+
+
+def test_the_stance_guess_does_not_stand_a_foot_on_top_of_a_wall():
+    """The window's upper quartile of heights is the reference ground over a hole; beside a
+    1 m wall that fills most of the window it must not become the wall's top, out of the
+    leg's reach (the walking test into a wall then failed its first mission)."""
+    from qz_drake.trajopt.initial_guess import choose_stance_foothold
+    from qz_drake.trajopt.robot_model import qingzhui
+    from qz_drake.trajopt.terrain import as_terrain
+
+    robot = qingzhui("nominal")
+    wall = as_terrain(make_heightmap(TerrainConfig(kind="step", params=dict(height=1.0,
+                                                                              start_x=1.0))))
+    # MF (leg 0, nominal x = 0.75 m, box +-0.15 m) with the body from x = 0.2 to 0.4: its
+    # window spans x = 0.8 to 1.3 m, 60 % of it on the wall.
+    chosen = choose_stance_foothold(robot, wall, 0, np.array([[0.2, 0.0], [0.4, 0.0]]),
+                                    np.zeros(2), 0.0)
+    assert chosen[0] < 1.0 - robot.foot_radius
+    assert chosen[2] == pytest.approx(robot.foot_radius, abs=1e-6)
