@@ -53,7 +53,8 @@ def run_cases(only: list[str], variants: list[str] | None = None) -> None:
         print(json.dumps(row), flush=True)
 
 
-def run_trials(dataset: str, per_kind: int, variant: str, out: Path, seed: int = 7) -> None:
+def run_trials(dataset: str, per_kind: int, variant: str, out: Path, seed: int = 7,
+               kinds: tuple[str, ...] = ("orthogonal", "diagonal", "turn")) -> None:
     from qz_drake.capability import trials
     from qz_drake.capability.dataset import load_records
     from qz_drake.trajopt.parameters import BlcParameters
@@ -66,9 +67,11 @@ def run_trials(dataset: str, per_kind: int, variant: str, out: Path, seed: int =
     executed = np.flatnonzero(arrays["status"] == "executed")
     rng = np.random.default_rng(seed)
     chosen = []
-    for kind in ("orthogonal", "diagonal", "turn"):
+    for kind in ("orthogonal", "diagonal", "turn"):  # drawn for all kinds: the same sample
         pool = executed[arrays["kind"][executed] == kind]
-        chosen += sorted(rng.choice(pool, min(per_kind, len(pool)), replace=False).tolist())
+        drawn = sorted(rng.choice(pool, min(per_kind, len(pool)), replace=False).tolist())
+        if kind in kinds:
+            chosen += drawn
     out.parent.mkdir(parents=True, exist_ok=True)
     done = {json.loads(line)["index"] for line in out.open()} if out.exists() else set()
     with out.open("a") as f:
@@ -105,6 +108,8 @@ def main() -> None:
     tr.add_argument("--per-kind", type=int, default=30)
     tr.add_argument("--variant", choices=sorted(VARIANTS), required=True)
     tr.add_argument("--out", type=Path, required=True)
+    tr.add_argument("--kinds", default="orthogonal,diagonal,turn",
+                    help="comma-separated: which kinds of the sample to run (to split it over processes)")
     args = parser.parse_args()
     if args.mode == "cases":
         variants = [v for v in args.variants.split(",") if v]
@@ -113,7 +118,8 @@ def main() -> None:
             parser.error(f"--variants: unknown {', '.join(unknown)} (valid: {', '.join(VARIANTS)})")
         run_cases(args.only, variants)
     else:
-        run_trials(args.dataset, args.per_kind, args.variant, args.out)
+        run_trials(args.dataset, args.per_kind, args.variant, args.out,
+                   kinds=tuple(k for k in args.kinds.split(",") if k))
 
 
 if __name__ == "__main__":
