@@ -32,6 +32,8 @@ VARIANTS = {
     "stance_refine": {"foothold_guess": "stance", "max_refinements": 2},
     # The BLC before the stance-support constraint (the default since session 25).
     "no_support": {"constraints": tuple(c for c in DEFAULT_CONSTRAINTS if c != "support")},
+    # Drake's IpoptSolver with SPRAL (the default before session 27's Ipopt with MUMPS).
+    "spral": {"linear_solver": "spral"},
 }
 
 

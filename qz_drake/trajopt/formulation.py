@@ -9,10 +9,13 @@ of samples (``samples_per_binding``), each on only the variables its rows touch.
 function receives the AutoDiff vector, takes its values and derivative matrix once, evaluates the
 analytic sparse Jacobian, and returns AutoDiff outputs built by the chain rule (J @ dz), so it
 stays correct for any seeding. Linear pieces are Drake linear constraints (no Python at all).
+The default solver (ipopt_mumps, Ipopt with MUMPS) reads the same program but evaluates each
+nonlinear constraint's rows in one numpy call (``BlcProgram.vectorised``), with no AutoDiff.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import OrderedDict
 
@@ -27,6 +30,7 @@ from qz_drake.trajopt.constraints import (AngularDynamicsConstraint, ForceConstr
                                           SampledConstraint, ScaledLinearDynamicsConstraint,
                                           TerrainConstraint, acceleration_continuity_matrix,
                                           linear_dynamics_matrix)
+from qz_drake.trajopt.ipopt_mumps import VectorisedRows
 from qz_drake.trajopt.splines import LinearSamples
 from qz_drake.trajopt.terrain import FlatTerrain
 from qz_drake.trajopt.variables import BlcVariables
@@ -447,9 +451,13 @@ class BlcFormulation:
         return (sum(c.num_constraints for c in self.nonlinear)
                 + sum(c.num_constraints for c in self.linear))
 
-    def build_program(self):
-        """Returns (prog, x_vars, counter); counter['jacobians'] counts AutoDiff evaluations
-        of the first nonlinear binding (one per Ipopt iterate)."""
+    def build_program(self, *, drake_ipopt: bool = True) -> "BlcProgram":
+        """The Drake MathematicalProgram of the task (BlcProgram).
+
+        ``drake_ipopt``: also bind what Drake's IpoptSolver needs to share one vectorised
+        evaluation between a constraint's bindings (a visualization callback and a one-row
+        capture constraint, below). ipopt_mumps evaluates a constraint's rows in one call
+        (``BlcProgram.vectorised``) and does without them."""
         v = self.variables
         prog = MathematicalProgram()
         x_vars = prog.NewContinuousVariables(v.num_vars, "x")
@@ -459,22 +467,28 @@ class BlcFormulation:
             prog.AddBoundingBoxConstraint(self.lower[idx], self.upper[idx], x_vars[idx])
         counter = {"jacobians": 0}
         cache = EvaluationCache(v.num_vars)
-        # The constraint bindings reuse one vectorised evaluation per constraint instead of one
-        # per binding, which needs the whole x. Drake calls visualization callbacks with it when
-        # Ipopt evaluates the objective; at trial points Ipopt often asks for the constraints
-        # first, so a free one-row constraint on all variables, bound before the others (Drake
-        # evaluates constraints in order), hands x over then too. Its Jacobian is structurally
-        # empty but for one zero entry.
-        prog.AddVisualizationCallback(cache.set_x, x_vars)
-        capture = prog.AddConstraint(_capture_function(cache), [-np.inf], [np.inf], x_vars,
-                                     "capture x")
-        capture.evaluator().SetGradientSparsityPattern([(0, 0)])
+        if drake_ipopt:
+            # The constraint bindings reuse one vectorised evaluation per constraint instead of
+            # one per binding, which needs the whole x. Drake calls visualization callbacks with
+            # it when Ipopt evaluates the objective; at trial points Ipopt often asks for the
+            # constraints first, so a free one-row constraint on all variables, bound before the
+            # others (Drake evaluates constraints in order), hands x over then too. Its Jacobian
+            # is structurally empty but for one zero entry.
+            prog.AddVisualizationCallback(cache.set_x, x_vars)
+            capture = prog.AddConstraint(_capture_function(cache), [-np.inf], [np.inf], x_vars,
+                                         "capture x")
+            capture.evaluator().SetGradientSparsityPattern([(0, 0)])
+        vectorised = []
         first = True
         for c in self.nonlinear:
             group = ConstraintGroupCache(c, cache)
+            bindings = []
             for start, stop in c.binding_ranges(self.params.samples_per_binding):
-                add_constraint_rows(prog, group, start, stop, x_vars, counter if first else None)
+                bindings.append(add_constraint_rows(prog, group, start, stop, x_vars,
+                                                    counter if first else None))
                 first = False
+            vectorised.append(VectorisedRows(bindings, c.rows, c.cols, c.evaluate,
+                                             c.evaluate_with_jacobian))
         for c in self.linear:
             A = sp.csc_matrix(c.A)
             columns = np.flatnonzero(np.diff(A.indptr))
@@ -486,7 +500,7 @@ class BlcFormulation:
             binding.evaluator().set_description(c.name)
         for name, Q, columns in self.cost_terms():
             prog.AddQuadraticCost(Q, np.zeros(len(columns)), x_vars[columns], is_convex=True)
-        return prog, x_vars, counter
+        return BlcProgram(prog, x_vars, counter, vectorised)
 
     # -- verdict ------------------------------------------------------------------------------
     def violations(self, x: np.ndarray) -> list[tuple[str, float, str]]:
@@ -528,6 +542,18 @@ def _describe_row(c: SampledConstraint, row: int) -> str:
         return f"row {row}"
     per_sample = c.num_constraints // len(times)
     return f"t = {times[min(row // max(per_sample, 1), len(times) - 1)]:.2f} s"
+
+
+@dataclasses.dataclass
+class BlcProgram:
+    """A task's MathematicalProgram: its decision variables (in the formulation's order), a
+    counter of Jacobian evaluations of its first nonlinear binding by Drake's IpoptSolver (one
+    per iterate) and its nonlinear constraints as ipopt_mumps.VectorisedRows."""
+
+    prog: MathematicalProgram
+    x_vars: np.ndarray
+    counter: dict
+    vectorised: list
 
 
 class EvaluationCache:

@@ -28,6 +28,7 @@ DEFAULT_CONSTRAINTS = ("dynamics", "base_acceleration", "kinematics", "terrain",
                        "support")
 
 # How the straight-line guess chooses footholds (BlcParameters.foothold_guess).
+LINEAR_SOLVERS = ("mumps", "spral")
 FOOTHOLD_GUESSES = ("auto", "mid", "stance")
 
 # Every cost the formulation knows; none is on by default: Eq. 1-6 is a feasibility problem.
@@ -182,8 +183,10 @@ class BlcParameters:
     dense_support_tolerance: float = 0.01
     # Ipopt iteration limit.
     max_iterations: int = 3000
-    # Ipopt linear solver (the pip wheel of Drake ships SPRAL only).
-    linear_solver: str = "spral"
+    # Ipopt's linear solver: "mumps", Ipopt 3.14 with MUMPS from the cyipopt wheel on the
+    # task's MathematicalProgram (ipopt_mumps.py); "spral", Drake's IpoptSolver, whose pip
+    # wheel ships SPRAL only. Measured (issue 11, BENCHMARKS "blc"): MUMPS about twice as fast.
+    linear_solver: str = "mumps"
     # numpy BLAS threads during a solve; 0: unchanged. One measured 1.5-2x faster on the
     # 2-core machine (threads.py).
     blas_threads: int = 1
@@ -231,6 +234,9 @@ class BlcParameters:
         if self.foothold_guess not in FOOTHOLD_GUESSES:
             raise bad_value("blc.foothold_guess", self.foothold_guess,
                             f"expected one of {', '.join(FOOTHOLD_GUESSES)}")
+        if self.linear_solver not in LINEAR_SOLVERS:
+            raise bad_value("blc.linear_solver", self.linear_solver,
+                            f"expected one of {', '.join(LINEAR_SOLVERS)}")
         if self.force_points not in ("bernstein", "samples"):
             raise bad_value("blc.force_points", self.force_points,
                             "expected 'bernstein' or 'samples'")

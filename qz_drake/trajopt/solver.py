@@ -1,8 +1,10 @@
 """``solve_blc``: one BLC solve, from a task to a BlcSolution with an honest verdict
 (paper 000 section II-A; the 5 s limit of its section III-A).
 
-Ipopt settings: the limited-memory Hessian (the pip wheel of Drake has no exact Hessian for
-Python constraints), SPRAL (the only linear solver in that wheel), a wall-time limit, and
+The task's Drake MathematicalProgram is solved by Ipopt: by default Ipopt 3.14 with MUMPS from
+the cyipopt wheel (ipopt_mumps.py, about twice as fast on these programs), or with
+``linear_solver: spral`` by Drake's IpoptSolver, whose pip wheel ships SPRAL only. Settings: the
+limited-memory Hessian (no exact Hessian for Python constraints), a wall-time limit, and
 tolerances from BlcParameters. After Ipopt returns, every constraint is evaluated at the returned
 point; the solve succeeds only if Ipopt converged and the worst violation is below
 ``violation_tolerance``, and the plan then also holds at every 100 Hz sample (verdict.py:
@@ -23,6 +25,7 @@ import numpy as np
 from pydrake.solvers import IpoptSolver, SolverOptions
 
 from qz_drake.errors import ConfigError, bad_value
+from qz_drake.trajopt import ipopt_mumps
 from qz_drake.trajopt.formulation import BlcFormulation
 from qz_drake.trajopt.gait import make_gait
 from qz_drake.trajopt.initial_guess import (shifted_solution_guess, straight_line_guess,
@@ -151,29 +154,46 @@ def reachable_distance(robot: RobotModel, schedule, margin: float = 0.01) -> flo
     return min(ends) if ends else math.inf
 
 
-def ipopt_options(params: BlcParameters, wall_time: float) -> SolverOptions:
-    solver_id = IpoptSolver.id()
-    options = SolverOptions()
-    for key, value in (
-            ("hessian_approximation", "limited-memory"),
-            ("linear_solver", params.linear_solver),
-            ("tol", params.tolerance),
-            ("constr_viol_tol", params.constraint_tolerance),
-            ("acceptable_tol", params.acceptable_tol),
-            ("acceptable_iter", int(params.acceptable_iter)),
-            ("acceptable_constr_viol_tol", 0.1 * params.violation_tolerance),
-            ("max_iter", int(params.max_iterations)),
-            ("max_wall_time", max(wall_time, 0.05)),
-            ("max_cpu_time", max(wall_time, 0.05) * 4),
-            ("print_level", int(params.print_level)),
-    ):
-        options.SetOption(solver_id, key, value)
+def ipopt_options(params: BlcParameters, wall_time: float) -> dict:
+    """Ipopt's options for a solve with ``wall_time`` seconds left, by name."""
+    options = {
+        "hessian_approximation": "limited-memory",
+        "linear_solver": params.linear_solver,
+        "tol": float(params.tolerance),
+        "constr_viol_tol": float(params.constraint_tolerance),
+        "acceptable_tol": float(params.acceptable_tol),
+        "acceptable_iter": int(params.acceptable_iter),
+        "acceptable_constr_viol_tol": 0.1 * float(params.violation_tolerance),
+        "max_iter": int(params.max_iterations),
+        "max_wall_time": max(float(wall_time), 0.05),
+        "max_cpu_time": max(float(wall_time), 0.05) * 4,
+        "print_level": int(params.print_level),
+    }
     if params.linear_solver == "spral":
         # Measured on the BLC's KKT systems (about 2000 rows): SPRAL's default matching-based
         # scaling and supernode amalgamation (nemin 32) made factorisation 3-5x slower.
-        options.SetOption(solver_id, "spral_scaling", "none")
-        options.SetOption(solver_id, "spral_nemin", 4)
+        options["spral_scaling"] = "none"
+        options["spral_nemin"] = 4
     return options
+
+
+def _drake_ipopt(program, x0, options: dict) -> tuple[np.ndarray, str, int]:
+    """Drake's IpoptSolver (SPRAL) on the program: (x, status, iterations)."""
+    solver_options = SolverOptions()
+    for key, value in options.items():
+        solver_options.SetOption(IpoptSolver.id(), key, value)
+    result = IpoptSolver().Solve(program.prog, x0, solver_options)
+    status = result.get_solver_details().ConvertStatusToString()
+    return result.GetSolution(program.x_vars), status, max(program.counter["jacobians"] - 1, 0)
+
+
+def _mumps_ipopt(program, x0, options: dict) -> tuple[np.ndarray, str, int]:
+    """Ipopt with MUMPS (ipopt_mumps) on the same program: (x, status, iterations)."""
+    if not ipopt_mumps.available():
+        raise bad_value("blc.linear_solver", "mumps", "needs the package cyipopt-wheels "
+                        "(installed by `make setup`); or choose 'spral'", ConfigError)
+    result = ipopt_mumps.solve(program.prog, x0, options, program.vectorised)
+    return result.x, result.status, result.iterations
 
 
 def solve_blc(task: BlcTask, robot: RobotModel | None = None, terrain=None,
@@ -222,21 +242,20 @@ def solve_blc(task: BlcTask, robot: RobotModel | None = None, terrain=None,
         return solution
     iterations, ipopt_time, extra = 0, 0.0, {}
     for refinement in range(int(params.max_refinements) + 1):
-        prog, x_vars, counter = formulation.build_program()
+        mumps = params.linear_solver == "mumps"
+        program = formulation.build_program(drake_ipopt=not mumps)
         # Ipopt checks its wall-time limit once per iteration; the margin covers the iteration
         # in flight and the verdict, so that the whole call ends within params.time_limit.
         remaining = params.time_limit - (time.perf_counter() - clock) - VERDICT_MARGIN
         options = ipopt_options(params, remaining)
         if refinement:
             # From a converged point: a small barrier parameter keeps Ipopt near it.
-            options.SetOption(IpoptSolver.id(), "mu_init", params.refine_mu_init)
+            options["mu_init"] = float(params.refine_mu_init)
         ipopt_clock = time.perf_counter()
         with blas_threads(params.blas_threads):
-            result = IpoptSolver().Solve(prog, x0, options)
+            x, status, count = (_mumps_ipopt if mumps else _drake_ipopt)(program, x0, options)
         ipopt_time += time.perf_counter() - ipopt_clock
-        x = result.GetSolution(x_vars)
-        status = result.get_solver_details().ConvertStatusToString()
-        iterations += max(counter["jacobians"] - 1, 0)
+        iterations += count
         solution = _verdict(formulation, x, status, iterations, clock, ipopt_time)
         solution.refinements = refinement
         # Check and refine: a plan that meets every sampled constraint but fails the dense
