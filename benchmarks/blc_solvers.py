@@ -1,15 +1,17 @@
-"""The BLC's program solved by Ipopt (the default) and by SNOPT, both in Drake's wheel, side by
-side on the bench cases (issue 11, "speed"): one program, the same straight-line guess, the
-same verdict (``solver._verdict``: constraints, dense check). Run:
+"""The BLC's program solved by Ipopt with MUMPS (the default, ipopt_mumps.py), by Drake's
+IpoptSolver with SPRAL and by SNOPT (both in Drake's wheel), side by side on the bench cases
+(issue 11, "speed"): one program, the same straight-line guess, the same verdict
+(``solver._verdict``: constraints, dense check). Run:
 
     python benchmarks/blc_solvers.py [CASE_SUBSTRING ...]
 
-Prints a JSON line per case: success, wall time of the whole call, solver time and the ratio
-SNOPT / Ipopt.
+Prints a JSON line per case: success, wall time of the whole call, solver time and the ratios
+of SPRAL's and SNOPT's times to MUMPS's.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 import time
@@ -34,7 +36,8 @@ def snopt_solve(robot, terrain, task, params) -> dict:
     f = BlcFormulation(robot, terrain, params, schedule, start_position=start, start_rpy=rpy,
                        start_feet=feet, target=target, start_velocity=task.start_velocity)
     x0 = straight_line_guess(f)
-    prog, x_vars, counter = f.build_program()
+    program = f.build_program()
+    prog, x_vars, counter = program.prog, program.x_vars, program.counter
     options = SolverOptions()
     sid = SnoptSolver.id()
     # Ipopt's tolerances in SNOPT's terms (the verdict checks the result the same way).
@@ -64,14 +67,17 @@ def main(only: list[str]) -> None:
     for name, (robot, terrain, task) in all_cases().items():
         if not (any(o in name for o in only) if only else name in DEFAULT_CASES):
             continue
-        ipopt = solve_blc(task, robot, terrain, params)
-        snopt = snopt_solve(robot, terrain, task, params)
-        print(json.dumps({
-            "case": name,
-            "ipopt": {"success": bool(ipopt.success), "time_s": round(ipopt.solve_time, 3),
-                      "solver_s": round(ipopt.ipopt_time, 3), "iterations": ipopt.iterations},
-            "snopt": snopt, "ratio_snopt_over_ipopt": round(snopt["time_s"] / ipopt.solve_time, 2),
-        }), flush=True)
+        row = {"case": name}
+        for label, linear_solver in (("ipopt_mumps", "mumps"), ("ipopt_spral", "spral")):
+            s = solve_blc(task, robot, terrain, dataclasses.replace(params,
+                                                                     linear_solver=linear_solver))
+            row[label] = {"success": bool(s.success), "time_s": round(s.solve_time, 3),
+                          "solver_s": round(s.ipopt_time, 3), "iterations": s.iterations}
+        row["snopt"] = snopt_solve(robot, terrain, task, params)
+        base = row["ipopt_mumps"]["time_s"]
+        row["ratio_spral_over_mumps"] = round(row["ipopt_spral"]["time_s"] / base, 2)
+        row["ratio_snopt_over_mumps"] = round(row["snopt"]["time_s"] / base, 2)
+        print(json.dumps(row), flush=True)
 
 
 if __name__ == "__main__":
