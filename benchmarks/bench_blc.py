@@ -23,6 +23,7 @@ from qz_drake.config import TerrainConfig
 from qz_drake.station import make_heightmap
 from qz_drake.trajopt import terrain as closed_form
 from qz_drake.trajopt.formulation import clear_schedule_parts
+from qz_drake.trajopt.parameters import BlcParameters
 from qz_drake.trajopt.robot_model import hyq, qingzhui
 from qz_drake.trajopt.solver import BlcTask, solve_blc
 
@@ -124,6 +125,8 @@ def run(repeats: int = 5, quick: bool = False, params=None) -> dict:
         repeats = 1
     results = {name: solve_case(*case, repeats, params) for name, case in all_cases(quick).items()}
     results["stairs_success_map"] = stairs_success_map(results)
+    # Which Ipopt solved them: MUMPS through the cyipopt wheel (the default) or Drake's SPRAL.
+    results["linear_solver"] = (params or BlcParameters()).linear_solver
     return results
 
 
