@@ -32,6 +32,12 @@ VARIANTS = {
     "stance_refine": {"foothold_guess": "stance", "max_refinements": 2},
     # The BLC before the stance-support constraint (the default since session 25).
     "no_support": {"constraints": tuple(c for c in DEFAULT_CONSTRAINTS if c != "support")},
+    # TOWR's constraint sampling (dynamics every 0.1 s, boxes every 0.08 s, the force cone at
+    # force nodes only, swing clearance at 25 % and 75 % of a swing): the program's size TOWR
+    # solves, against the density the dense verdict needs (issue 11 "speed", session 27).
+    "towr_sampling": {"dynamics_dt": 0.1, "linear_dynamics_dt": 0.1, "kinematics_dt": 0.08,
+                      "force_points": "samples", "force_samples_per_polynomial": 1,
+                      "swing_clearance_dt": 0.0},
     # Drake's IpoptSolver with SPRAL (the default before session 27's Ipopt with MUMPS).
     "spral": {"linear_solver": "spral"},
 }
