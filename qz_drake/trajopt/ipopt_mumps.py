@@ -131,11 +131,18 @@ class ProgramNlp:
             blocks.append(self._linear_block(b))
         # pybind11 hands back the same Python object for an evaluator while one is alive, so
         # the covered evaluators are kept referenced while the generic bindings are matched.
+        generic = prog.generic_constraints()
+        in_program = {id(e): e for e in (b.evaluator() for b in generic)}
         covered = {}
         for v in vectorised:
             blocks.append(self._vectorised_block(v))
-            covered.update((id(e), e) for e in (b.evaluator() for b in v.bindings))
-        for b in prog.generic_constraints():
+            for b in v.bindings:
+                e = b.evaluator()
+                if id(e) not in in_program:
+                    raise ValueError(f"ipopt_mumps: VectorisedRows binding "
+                                     f"'{e.get_description()}' is not a constraint of the program")
+                covered[id(e)] = e
+        for b in generic:
             if id(b.evaluator()) not in covered:
                 blocks.append(self._generic_block(b))
         self.blocks = blocks
@@ -167,6 +174,10 @@ class ProgramNlp:
     def _vectorised_block(self, v: VectorisedRows) -> _Block:
         lower = np.concatenate([b.evaluator().lower_bound() for b in v.bindings])
         upper = np.concatenate([b.evaluator().upper_bound() for b in v.bindings])
+        if len(v.rows) != len(v.cols) or (len(v.rows) and not 0 <= v.rows.min() <= v.rows.max()
+                                          < len(lower)):
+            raise ValueError(f"ipopt_mumps: VectorisedRows Jacobian positions do not fit its "
+                             f"bindings' {len(lower)} rows")
         return _Block(lower, upper, v.rows, v.cols, v.evaluate,
                       lambda x: v.evaluate_with_jacobian(x)[1])
 

@@ -152,3 +152,14 @@ def test_the_blc_solves_the_same_task_with_both_linear_solvers():
 def test_an_unknown_linear_solver_is_refused_by_name():
     with pytest.raises(QzError, match="blc.linear_solver.*ma57"):
         BlcParameters(linear_solver="ma57")
+
+
+def test_vectorised_rows_must_be_constraints_of_the_program():
+    prog, x, _, groups = _hs071(True)
+    other, _, _, other_groups = _hs071(True)
+    with pytest.raises(ValueError, match="not a constraint of the program"):
+        ProgramNlp(prog, other_groups)
+    bad = VectorisedRows(groups[0].bindings, groups[0].rows + 5, groups[0].cols,
+                         groups[0].evaluate, groups[0].evaluate_with_jacobian)
+    with pytest.raises(ValueError, match="do not fit"):
+        ProgramNlp(prog, [bad])
