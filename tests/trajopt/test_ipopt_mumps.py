@@ -163,3 +163,31 @@ def test_vectorised_rows_must_be_constraints_of_the_program():
                          groups[0].evaluate, groups[0].evaluate_with_jacobian)
     with pytest.raises(ValueError, match="do not fit"):
         ProgramNlp(prog, [bad])
+
+
+def test_the_blc_program_for_mumps_is_a_whole_drake_program_its_rows_agree_with():
+    """Built without Drake's IpoptSolver helpers, the BLC's program still evaluates on its own
+    (each binding through Drake), and its bindings' rows are the vectorised rows ipopt_mumps
+    evaluates in their place."""
+    from qz_drake.trajopt.formulation import BlcFormulation
+    from qz_drake.trajopt.gait import make_gait
+    from qz_drake.trajopt.initial_guess import straight_line_guess
+    from qz_drake.trajopt.solver import standing_start
+
+    from qz_drake.trajopt.terrain import as_terrain
+
+    robot, terrain = qingzhui(), as_terrain(None)
+    params = BlcParameters()
+    schedule = make_gait(robot.gaits[0], robot.num_legs, 2.0, stand_duration=params.stand_duration)
+    start, rpy, feet = standing_start(robot, terrain)
+    f = BlcFormulation(robot, terrain, params, schedule, start_position=start, start_rpy=rpy,
+                       start_feet=feet, target=(1.0, 0.0, 0.0))
+    x = straight_line_guess(f) + 1e-3 * np.random.default_rng(0).standard_normal(
+        f.variables.num_vars)
+    program = f.build_program(drake_ipopt=False)
+    assert len(program.vectorised) == len(f.nonlinear)
+    for rows in program.vectorised:
+        through_drake = np.concatenate([program.prog.EvalBinding(b, x) for b in rows.bindings])
+        np.testing.assert_allclose(through_drake, rows.evaluate(x), rtol=0, atol=1e-12)
+    nlp = ProgramNlp(program.prog, program.vectorised)
+    assert nlp.num_constraints == f.num_constraints
