@@ -49,6 +49,9 @@ def terrain_fitted_pose(robot, terrain, xy: np.ndarray, yaw: np.ndarray):
 
 # A foot more than this above or below the fitted plane is over a hole or a block. [m]
 OUTLIER = 0.08
+# Score per metre outside the box at the target, of a final stance foothold's candidates (the
+# other terms: about 0.1-0.3 for ground off the body's plane, 0.3 per metre outside a box). [1/m]
+FINAL_BOX_WEIGHT = 10.0
 
 
 def choose_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_yaw: float,
@@ -74,7 +77,8 @@ def choose_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_yaw: flo
 
 
 def choose_stance_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_yaw: np.ndarray,
-                           plane_z: float, previous_z: float = -np.inf) -> np.ndarray:
+                           plane_z: float, previous_z: float = -np.inf,
+                           final: bool = False) -> np.ndarray:
     """A foothold for the guess that the foot can keep through its whole stance: body poses
     at the stance's start and end (``body_xy`` (2, 2), ``body_yaw`` (2,)); candidates over the
     union of the two kinematic boxes' footprints, scored by how far the ground around them
@@ -82,7 +86,13 @@ def choose_stance_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_y
     how far they leave either box, then by their distance from the nominal foothold at
     mid-stance. Unlike ``choose_foothold`` (the box around mid-stance only) it looks past a
     gap or an edge that fills that box, which the optimiser cannot cross (the foothold's
-    height constraint pulls it into the gap)."""
+    height constraint pulls it into the gap).
+
+    ``final``: the stance ends the task, with the body at its target; a candidate outside the
+    box there (the second pose) is then scored FINAL_BOX_WEIGHT per metre outside, which keeps
+    it inside wherever the box holds ground to stand on (issue 11: on the 0.20 m Fig. 5 stairs
+    the level first stair 13 mm outside the front foot's final box outscored the second
+    stair inside it, and Ipopt ran out of time)."""
     box = robot.box_half_sizes[leg]
     nominal = robot.nominal_footholds[leg, :2]
     c, s = np.cos(body_yaw), np.sin(body_yaw)
@@ -112,12 +122,16 @@ def choose_stance_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_y
         dx, dy = x - body_xy[k, 0], y - body_xy[k, 1]
         u = c[k] * dx + s[k] * dy - nominal[0]
         w = -s[k] * dx + c[k] * dy - nominal[1]
-        excess = np.maximum(excess, np.hypot(np.maximum(np.abs(u) - box[0], 0),
-                                             np.maximum(np.abs(w) - box[1], 0)))
+        outside = np.hypot(np.maximum(np.abs(u) - box[0], 0), np.maximum(np.abs(w) - box[1], 0))
+        excess = np.maximum(excess, outside)
     mid = body_xy.mean(axis=0)
     cm, sm = np.cos(body_yaw.mean()), np.sin(body_yaw.mean())
     target = mid + np.array([cm * nominal[0] - sm * nominal[1], sm * nominal[0] + cm * nominal[1]])
     score = rough + 0.3 * excess + 0.05 * np.hypot(x - target[0], y - target[1])
+    if final:
+        # The body's final x, y and yaw are the target's: outside the box there, a foothold
+        # cannot be repaired by moving the body.
+        score = score + FINAL_BOX_WEIGHT * outside
     k = int(np.argmin(score))
     return np.array([x[k], y[k], terrain.height(x[k], y[k]) + robot.foot_radius])
 
@@ -193,7 +207,8 @@ def straight_line_guess(formulation) -> np.ndarray:
             for k in range(1, len(mids)):
                 footholds.append(choose_stance_foothold(
                     robot, terrain, leg, ends[2 * k:2 * k + 2, :2], end_yaw[2 * k:2 * k + 2],
-                    body[k, 2] + feet_z[leg], footholds[-1][2] - robot.foot_radius))
+                    body[k, 2] + feet_z[leg], footholds[-1][2] - robot.foot_radius,
+                    final=stances[k][1] >= T - 1e-9))
             footholds = np.array(footholds)
         else:
             footholds = np.array([
