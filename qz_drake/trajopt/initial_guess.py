@@ -49,9 +49,10 @@ def terrain_fitted_pose(robot, terrain, xy: np.ndarray, yaw: np.ndarray):
 
 # A foot more than this above or below the fitted plane is over a hole or a block. [m]
 OUTLIER = 0.08
-# Score per metre outside the box at the target, of a final stance foothold's candidates (the
-# other terms: about 0.1-0.3 for ground off the body's plane, 0.3 per metre outside a box). [1/m]
-FINAL_BOX_WEIGHT = 10.0
+# Added to the score of a final stance foothold's candidate that lies outside the box at the
+# target and whose nearest point inside that box is unsupported ground (the other terms: about
+# 0.1-0.3 for ground off the body's plane, 0.3 per metre outside a box).
+UNREPAIRABLE_PENALTY = 1.0
 
 
 def choose_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_yaw: float,
@@ -78,7 +79,7 @@ def choose_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_yaw: flo
 
 def choose_stance_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_yaw: np.ndarray,
                            plane_z: float, previous_z: float = -np.inf,
-                           final: bool = False) -> np.ndarray:
+                           final: bool = False, support=None) -> np.ndarray:
     """A foothold for the guess that the foot can keep through its whole stance: body poses
     at the stance's start and end (``body_xy`` (2, 2), ``body_yaw`` (2,)); candidates over the
     union of the two kinematic boxes' footprints, scored by how far the ground around them
@@ -88,11 +89,15 @@ def choose_stance_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_y
     gap or an edge that fills that box, which the optimiser cannot cross (the foothold's
     height constraint pulls it into the gap).
 
-    ``final``: the stance ends the task, with the body at its target; a candidate outside the
-    box there (the second pose) is then scored FINAL_BOX_WEIGHT per metre outside, which keeps
-    it inside wherever the box holds ground to stand on (issue 11: on the 0.20 m Fig. 5 stairs
-    the level first stair 13 mm outside the front foot's final box outscored the second
-    stair inside it, and Ipopt ran out of time)."""
+    ``final``: the stance ends the task, with the body's x, y and yaw at the target (the second
+    pose), so a foothold outside the box there must move into it, which the body cannot do for
+    it. With ``support`` (a SupportField), a candidate outside that box whose nearest point in
+    it is unsupported gets UNREPAIRABLE_PENALTY (issue 11: on the 0.20 m Fig. 5 stairs the
+    level first stair 13 mm outside the front foot's final box outscored the second stair
+    inside it; the box's edge there is the riser's unsupported strip, and Ipopt ran out of
+    time). A candidate a move away from supported ground in the box keeps its score: the body
+    tilts and the foot moves a little (making the box a hard limit lost three of 189
+    capability trials that the guess had solved)."""
     box = robot.box_half_sizes[leg]
     nominal = robot.nominal_footholds[leg, :2]
     c, s = np.cos(body_yaw), np.sin(body_yaw)
@@ -128,10 +133,13 @@ def choose_stance_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_y
     cm, sm = np.cos(body_yaw.mean()), np.sin(body_yaw.mean())
     target = mid + np.array([cm * nominal[0] - sm * nominal[1], sm * nominal[0] + cm * nominal[1]])
     score = rough + 0.3 * excess + 0.05 * np.hypot(x - target[0], y - target[1])
-    if final:
-        # The body's final x, y and yaw are the target's: outside the box there, a foothold
-        # cannot be repaired by moving the body.
-        score = score + FINAL_BOX_WEIGHT * outside
+    if final and support is not None and np.any(outside > 0):
+        # The nearest point of the final box (``u``, ``w`` are still the second pose's).
+        du = np.clip(u, -box[0], box[0]) - u
+        dw = np.clip(w, -box[1], box[1]) - w
+        near_x = x + c[1] * du - s[1] * dw
+        near_y = y + s[1] * du + c[1] * dw
+        score = score + UNREPAIRABLE_PENALTY * ((outside > 0) & (support.margin(near_x, near_y) < 0))
     k = int(np.argmin(score))
     return np.array([x[k], y[k], terrain.height(x[k], y[k]) + robot.foot_radius])
 
@@ -208,7 +216,7 @@ def straight_line_guess(formulation) -> np.ndarray:
                 footholds.append(choose_stance_foothold(
                     robot, terrain, leg, ends[2 * k:2 * k + 2, :2], end_yaw[2 * k:2 * k + 2],
                     body[k, 2] + feet_z[leg], footholds[-1][2] - robot.foot_radius,
-                    final=stances[k][1] >= T - 1e-9))
+                    final=stances[k][1] >= T - 1e-9, support=f.support))
             footholds = np.array(footholds)
         else:
             footholds = np.array([

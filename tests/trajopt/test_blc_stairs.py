@@ -38,24 +38,31 @@ def test_fig5_stairs_are_solved_within_the_time_limit(stairs_maps, rise, distanc
     assert_plan_holds(data, f"stairs {rise} m / {distance} m")
 
 
-def test_a_final_foothold_stays_in_the_box_the_target_fixes(stairs_maps):
+def test_a_final_foothold_is_not_left_where_the_final_box_meets_unsupported_ground(stairs_maps):
     """0.20 m stairs, a 1.0 m task: the body ends with its CoM at x = 1.0 m, so the front foot's
     last box spans x = 1.60-1.90 m, the nose of the second stair (0.4 m up) at 1.65 m. The
     stance window (body at 0.987 m when that stance begins, 1.0 m at the end) once chose the
-    first stair's level ground at 1.587 m, outside the final box by 13 mm: the body cannot move
-    to repair that, and Ipopt ran out of the 5 s on the task. The final box is now nearly hard."""
+    first stair's level ground at 1.587 m, 13 mm outside the final box, where the box's edge is
+    the riser's unsupported strip: the foot cannot move in, and Ipopt ran out of the 5 s on the
+    task. Given the support field, the final stance's choice is on the second stair, in the box."""
     from qz_drake.trajopt.initial_guess import choose_stance_foothold
     from qz_drake.trajopt.robot_model import qingzhui
+    from qz_drake.trajopt.support import support_field
     from qz_drake.trajopt.terrain import as_terrain
 
     robot, terrain = qingzhui("nominal"), as_terrain(stairs_maps[0.20])
+    params = BlcParameters()
+    support = support_field(terrain, robot.foot_radius + params.support_margin, params.support_drop)
     front = 0
     assert robot.nominal_footholds[front, 0] == pytest.approx(0.75)
     ends, yaw = np.array([[0.987, 0.0], [1.0, 0.0]]), np.zeros(2)
     box_min = 1.0 + 0.75 - robot.box_half_sizes[front, 0]
-    # The first stair's sole height as the foot's previous foothold, the body's plane 0.13 m.
-    mid = choose_stance_foothold(robot, terrain, front, ends, yaw, 0.133, 0.2)
-    final = choose_stance_foothold(robot, terrain, front, ends, yaw, 0.133, 0.2, final=True)
-    assert mid[0] < box_min  # the window alone prefers the level first stair
+    # The first stair's sole height is the foot's previous foothold; the body's plane 0.133 m.
+    args = (robot, terrain, front, ends, yaw, 0.133, 0.2)
+    for chosen in (choose_stance_foothold(*args), choose_stance_foothold(*args, final=True),
+                   choose_stance_foothold(*args, support=support)):
+        assert chosen[0] < box_min  # the window alone prefers the level first stair
+    assert support.margin(box_min, 0.0) < 0  # the box's edge: the riser's strip
+    final = choose_stance_foothold(*args, final=True, support=support)
     assert final[0] >= box_min - 1e-9
     assert final[2] == pytest.approx(0.4 + robot.foot_radius, abs=1e-3)  # on the second stair
