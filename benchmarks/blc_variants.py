@@ -4,11 +4,14 @@ capability trials re-run in Drake, with BlcParameters variants against the defau
     python benchmarks/blc_variants.py cases [--variants default,stance] [CASE_SUBSTRING ...]
     python benchmarks/blc_variants.py trials --dataset data/capability --per-kind 30 \
         --variant stance --out out/variants/stance.jsonl
+    python benchmarks/blc_variants.py gaps --widths 0.3,0.35,0.4,0.45 --time-limit 5
 
 ``cases`` solves every bench case once per variant, interleaved, and prints a JSON line per
 case. ``trials`` re-runs ``--per-kind`` executed trials of each kind (drawn with a fixed seed
 from the dataset's records) with one variant and appends a JSON line per trial (resumable):
-the stored label (the dataset's BLC) beside the new outcome.
+the stored label (the dataset's BLC) beside the new outcome. ``gaps`` solves Qingzhui's gap
+task at several widths (0.5 m deep from x = 0.9 m, the target 0.95 m past the far edge, T = 1 +
+target / 0.5 s) with the default parameters and a time limit, a JSON line per width.
 """
 
 from __future__ import annotations
@@ -104,6 +107,23 @@ def run_trials(dataset: str, per_kind: int, variant: str, out: Path, seed: int =
             f.flush()
 
 
+def run_gaps(widths: list[float], time_limit: float) -> None:
+    from bench_blc import _grid
+
+    from qz_drake.trajopt.parameters import BlcParameters
+    from qz_drake.trajopt.robot_model import qingzhui
+    from qz_drake.trajopt.solver import BlcTask, solve_blc
+
+    robot = qingzhui("nominal")
+    for width in widths:
+        terrain = _grid("gap", width=width, depth=0.5, start_x=0.9)
+        x = 0.9 + width + 0.95
+        task = BlcTask(target=(x, 0.0, 0.0), duration=round(1.0 + x / 0.5, 1))
+        s = solve_blc(task, robot, terrain, BlcParameters(time_limit=time_limit))
+        print(json.dumps({"width": width, "success": bool(s.success), "solve_time": round(s.solve_time, 2),
+                          "iterations": s.iterations, "reason": s.reason[:160]}), flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="mode", required=True)
@@ -118,8 +138,19 @@ def main() -> None:
     tr.add_argument("--out", type=Path, required=True)
     tr.add_argument("--kinds", default="orthogonal,diagonal,turn",
                     help="comma-separated: which kinds of the sample to run (to split it over processes)")
+    gaps = sub.add_parser("gaps")
+    gaps.add_argument("--widths", default="0.3,0.35,0.4,0.45,0.5", help="comma-separated, metres")
+    gaps.add_argument("--time-limit", type=float, default=5.0)
     args = parser.parse_args()
-    if args.mode == "cases":
+    if args.mode == "gaps":
+        try:
+            widths = [float(w) for w in args.widths.split(",") if w]
+        except ValueError:
+            parser.error(f"--widths: expected comma-separated metres, got {args.widths!r}")
+        if not widths or min(widths) <= 0 or not args.time_limit > 0:
+            parser.error(f"--widths {args.widths!r} and --time-limit {args.time_limit}: must be positive")
+        run_gaps(widths, args.time_limit)
+    elif args.mode == "cases":
         variants = [v for v in args.variants.split(",") if v]
         unknown = sorted(set(variants) - set(VARIANTS))
         if unknown:
