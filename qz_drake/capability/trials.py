@@ -61,8 +61,8 @@ class TrialConfig:
     # two workers and other processes, 79 of 97 probe trials hit it), so trials count Ipopt
     # iterations instead: 30 was 5 s at the 0.17-0.24 s per iteration that 1-1.5 m missions
     # over the Fig. 5 stairs took with SPRAL (benchmarks/BENCHMARKS.md, "blc"). With MUMPS a
-    # trial's mission takes 0.04 (turn), 0.09 (orthogonal) and 0.13 s (diagonal) per
-    # iteration, so 5 s is 40-120 iterations; but given the real 5 s limit instead (one
+    # trial's mission takes 0.035 (turn), 0.096 (orthogonal) and 0.135 s (diagonal) per
+    # iteration, so 5 s is 40-140 iterations; but given the real 5 s limit instead (one
     # process beside one other), none of 42 trials that had failed at 30 iterations (14 per
     # kind) walked: 29 ran out of the 5 s, 13 stopped at local infeasibility (BENCHMARKS
     # "capability", session 28). 30 stays: the labels are those of the 5 s limit, at less

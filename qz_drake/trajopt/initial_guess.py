@@ -96,8 +96,8 @@ def choose_stance_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_y
     level first stair 13 mm outside the front foot's final box outscored the second stair
     inside it; the box's edge there is the riser's unsupported strip, and Ipopt ran out of
     time). A candidate a move away from supported ground in the box keeps its score: the body
-    tilts and the foot moves a little (making the box a hard limit lost three of 189
-    capability trials that the guess had solved)."""
+    tilts and the foot moves a little (scoring every metre outside that box, 10 a metre, lost
+    three of 189 capability trials that the guess had solved)."""
     box = robot.box_half_sizes[leg]
     nominal = robot.nominal_footholds[leg, :2]
     c, s = np.cos(body_yaw), np.sin(body_yaw)
