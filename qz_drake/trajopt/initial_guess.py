@@ -122,24 +122,28 @@ def choose_stance_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_y
     rough = np.zeros_like(x)
     for dx, dy in ((0, 0), (r, 0), (-r, 0), (0, r), (0, -r)):
         rough = np.maximum(rough, np.abs(terrain.height(x + dx, y + dy) - plane_z))
-    excess = np.zeros_like(x)
-    for k in range(2):  # distance outside each box, in its body frame
+    # Per pose: the candidates in its body frame, from the nominal foothold, and their distance
+    # outside its box.
+    frames, outside = [], []
+    for k in range(2):
         dx, dy = x - body_xy[k, 0], y - body_xy[k, 1]
         u = c[k] * dx + s[k] * dy - nominal[0]
         w = -s[k] * dx + c[k] * dy - nominal[1]
-        outside = np.hypot(np.maximum(np.abs(u) - box[0], 0), np.maximum(np.abs(w) - box[1], 0))
-        excess = np.maximum(excess, outside)
+        frames.append((u, w))
+        outside.append(np.hypot(np.maximum(np.abs(u) - box[0], 0), np.maximum(np.abs(w) - box[1], 0)))
+    excess = np.maximum(outside[0], outside[1])
     mid = body_xy.mean(axis=0)
     cm, sm = np.cos(body_yaw.mean()), np.sin(body_yaw.mean())
     target = mid + np.array([cm * nominal[0] - sm * nominal[1], sm * nominal[0] + cm * nominal[1]])
     score = rough + 0.3 * excess + 0.05 * np.hypot(x - target[0], y - target[1])
-    if final and support is not None and np.any(outside > 0):
-        # The nearest point of the final box (``u``, ``w`` are still the second pose's).
+    if final and support is not None and np.any(outside[1] > 0):
+        # The nearest point of the box at the target (the second pose).
+        u, w = frames[1]
         du = np.clip(u, -box[0], box[0]) - u
         dw = np.clip(w, -box[1], box[1]) - w
         near_x = x + c[1] * du - s[1] * dw
         near_y = y + s[1] * du + c[1] * dw
-        score = score + UNREPAIRABLE_PENALTY * ((outside > 0) & (support.margin(near_x, near_y) < 0))
+        score = score + UNREPAIRABLE_PENALTY * ((outside[1] > 0) & (support.margin(near_x, near_y) < 0))
     k = int(np.argmin(score))
     return np.array([x[k], y[k], terrain.height(x[k], y[k]) + robot.foot_radius])
 

@@ -173,7 +173,6 @@ def test_the_blc_program_for_mumps_is_a_whole_drake_program_its_rows_agree_with(
     from qz_drake.trajopt.gait import make_gait
     from qz_drake.trajopt.initial_guess import straight_line_guess
     from qz_drake.trajopt.solver import standing_start
-
     from qz_drake.trajopt.terrain import as_terrain
 
     robot, terrain = qingzhui(), as_terrain(None)
