@@ -49,7 +49,7 @@ class BlcPlan:
         return np.array([pp.value(tl).ravel() for pp in self.solution.foot_forces])
 
     def contact(self, t: float) -> np.ndarray:
-        return np.asarray(self.solution.contact(np.array([self._local(t)]))[0], dtype=bool)
+        return self.solution.contact_schedule.contact_at(self._local(t))
 
     def stance_start(self, leg: int, t: float) -> float | None:
         tl = self._local(t)

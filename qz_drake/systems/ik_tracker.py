@@ -82,26 +82,29 @@ def joint_reference(trajectory: BodyFeetTrajectory, t: float, topology: Topology
     t = _clamp(t, trajectory.start_time, trajectory.end_time)
     q, ok, R_WB, p_BF = _leg_ik(trajectory, t, topology, params)
     if roll_compensation and hasattr(trajectory, "stance_start"):
-        legs, q_td, R_WB_td = [], [], []
+        legs, R_BS_td, R_WB_td = [], [], []
         for i in range(NUM_LEGS):
             td = trajectory.stance_start(i, t)
             if td is None or td >= t or not ok[i]:
                 continue
             key = (id(trajectory), td)
             if cache is not None and key in cache:
-                q_at, ok_at, R_at = cache[key]
+                q_at, ok_at, R_at, shanks_at = cache[key]
             else:
                 q_at, ok_at, R_at, _ = _leg_ik(trajectory, td, topology, params)
+                shanks_at = {}  # leg -> its shank's orientation at touchdown, filled as asked
                 if cache is not None:
-                    cache[key] = (q_at, ok_at, R_at)
+                    cache[key] = (q_at, ok_at, R_at, shanks_at)
             if ok_at[i]:
                 legs.append(i)
-                q_td.append(q_at[i])
+                if i not in shanks_at:
+                    shanks_at[i] = kinematics.shank_rotation(i, q_at[i], params)
+                R_BS_td.append(shanks_at[i])
                 R_WB_td.append(R_at)
         if legs:
             legs = np.array(legs)
             R_BS_now = kinematics.all_shank_rotations(q.reshape(-1), params)[legs]
-            R_BS_td = np.stack([kinematics.shank_rotation(i, qi, params) for i, qi in zip(legs, q_td)])
+            R_BS_td = np.stack(R_BS_td)
             R_rel = (R_WB @ R_BS_now) @ np.swapaxes(np.stack(R_WB_td) @ R_BS_td, -1, -2)
             dphi = _rotation_vectors(R_rel)
             shift_W = np.cross(dphi, [0.0, 0.0, params.foot_radius])

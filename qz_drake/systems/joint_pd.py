@@ -33,9 +33,11 @@ class RobotControlModel:
         self.order = JointOrder(self.plant, self.instance)
         self._feet = [self.plant.GetFrameByName(f"{leg}_foot", self.instance) for leg in LEG_NAMES]
         self._world = self.plant.world_frame()
+        self._origin = np.zeros(3)
         if not (np.array_equal(self.order.q_index, np.arange(7, 25))
                 and np.array_equal(self.order.v_index, np.arange(6, 24))):
             raise RuntimeError("unexpected joint ordering in the control plant")
+        self._leg_columns = [self.order.v_index[3 * i:3 * i + 3] for i in range(len(LEG_NAMES))]
 
     def set_state(self, x: np.ndarray) -> None:
         self.plant.SetPositionsAndVelocities(self.context, x)
@@ -50,13 +52,11 @@ class RobotControlModel:
         """Joint torques (18) that make the feet push with -f_W, i.e. that balance ground
         reaction forces f_W (6, 3) acting on the feet: tau = -J^T f."""
         tau = np.zeros(NUM_JOINTS)
-        for i, frame in enumerate(self._feet):
-            if not np.any(f_W[i]):
-                continue
+        for i in np.flatnonzero(f_W.any(axis=1)):  # runs at every plant step: no per-leg numpy
             J = self.plant.CalcJacobianTranslationalVelocity(
-                self.context, JacobianWrtVariable.kV, frame, np.zeros(3), self._world, self._world)
-            cols = self.order.v_index[3 * i:3 * i + 3]
-            tau[3 * i:3 * i + 3] = -J[:, cols].T @ f_W[i]
+                self.context, JacobianWrtVariable.kV, self._feet[i], self._origin, self._world,
+                self._world)
+            tau[3 * i:3 * i + 3] = -J[:, self._leg_columns[i]].T @ f_W[i]
         return tau
 
     def foot_positions_W(self) -> np.ndarray:

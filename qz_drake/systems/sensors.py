@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 from pydrake.multibody.plant import ContactResults, MultibodyPlant
-from pydrake.systems.framework import BasicVector, LeafSystem
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
 
 from qz_drake.robot.params import LEG_NAMES
 from qz_drake.systems.state_layout import IMU_SIZE
@@ -58,6 +59,12 @@ class FootContactSensor(LeafSystem):
                 self._body_of_geometry[g] = int(b)
         self._contact_port = self.DeclareAbstractInputPort("contact_results",
                                                            plant.get_contact_results_output_port().Allocate())
+        # The five outputs share one pass over the contact results, cached per context until
+        # the results change (a walk evaluates two or more outputs at every step).
+        self._forces_cache = self.DeclareCacheEntry(
+            "contact forces by part", ValueProducer(allocate=lambda: AbstractValue.Make(object()),
+                                                    calc=self._calc_forces),
+            {self._contact_port.ticket()})
         self.DeclareVectorOutputPort("foot_contact", 6, self._calc_contact)
         self.DeclareVectorOutputPort("foot_normal_force", 6, self._calc_force)
         self.DeclareVectorOutputPort("trunk_contact", 1, self._calc_trunk)
@@ -79,6 +86,9 @@ class FootContactSensor(LeafSystem):
 
     def _forces(self, context):
         """(foot (6), trunk (1), leg links (6), self (1)) contact forces. [N]"""
+        return self._forces_cache.Eval(context)
+
+    def _calc_forces(self, context, value) -> None:
         results: ContactResults = self._contact_port.Eval(context)
         forces = (np.zeros(6), np.zeros(1), np.zeros(6), np.zeros(1))
         for k in range(results.num_point_pair_contacts()):
@@ -90,7 +100,7 @@ class FootContactSensor(LeafSystem):
             surface = info.contact_surface()
             bodies = tuple(self._body_of_geometry.get(g, -1) for g in (surface.id_M(), surface.id_N()))
             self._add(bodies, float(np.linalg.norm(info.F_Ac_W().translational())), forces)
-        return forces
+        value.set_value(forces)
 
     def _calc_contact(self, context, output: BasicVector):
         output.SetFromVector((self._forces(context)[0] > self._threshold).astype(float))

@@ -18,6 +18,7 @@ Gaits:
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 
 import numpy as np
@@ -83,13 +84,21 @@ class ContactSchedule:
             object.__setattr__(self, "_cached_boundaries", cached)
         return cached
 
+    def _boundary_lists(self) -> list[list[float]]:
+        # The boundaries as Python floats, for the scalar queries below (once per schedule).
+        cached = self.__dict__.get("_cached_boundary_lists")
+        if cached is None:
+            cached = [b.tolist() for b in self._boundaries()]
+            object.__setattr__(self, "_cached_boundary_lists", cached)
+        return cached
+
     def stance_intervals(self, leg: int) -> list[tuple[float, float]]:
-        b = self._boundaries()[leg]
-        return [(float(b[i]), float(b[i + 1])) for i in range(0, len(b) - 1, 2)]
+        b = self._boundary_lists()[leg]
+        return [(b[i], b[i + 1]) for i in range(0, len(b) - 1, 2)]
 
     def swing_intervals(self, leg: int) -> list[tuple[float, float]]:
-        b = self._boundaries()[leg]
-        return [(float(b[i]), float(b[i + 1])) for i in range(1, len(b) - 1, 2)]
+        b = self._boundary_lists()[leg]
+        return [(b[i], b[i + 1]) for i in range(1, len(b) - 1, 2)]
 
     def in_contact(self, t) -> np.ndarray:
         """(n, L) contact flags at times t; a foot is in stance on [touchdown, liftoff)."""
@@ -98,6 +107,15 @@ class ContactSchedule:
         for leg, b in enumerate(self._boundaries()):
             phase = np.clip(np.searchsorted(b, t, side="right") - 1, 0, len(b) - 2)
             out[:, leg] = phase % 2 == 0
+        return out
+
+    def contact_at(self, t: float) -> np.ndarray:
+        """(L,) contact flags at one time t: in_contact(t)[0] without numpy's array machinery
+        (a tracker asks at every update)."""
+        t = float(t)
+        out = np.empty(self.num_legs, dtype=bool)
+        for leg, b in enumerate(self._boundary_lists()):
+            out[leg] = min(max(bisect.bisect_right(b, t) - 1, 0), len(b) - 2) % 2 == 0
         return out
 
 

@@ -27,6 +27,21 @@ def test_every_foot_swings_and_groups_follow_the_gait(gait):
         assert not np.any(contact[:, [0, 2, 4]].any(axis=1) & ~contact[:, [0, 2, 4]].all(axis=1))
 
 
+def test_scalar_contact_queries_agree_with_the_vectorised_ones():
+    # Trackers ask contact_at and stance_intervals at every update; they must give what
+    # in_contact does, at the phase boundaries themselves too (stance on [touchdown, liftoff)).
+    schedule = make_gait("tripod", 6, 3.0)
+    bounds = np.concatenate([schedule.phase_boundaries(leg) for leg in range(6)])
+    t = np.concatenate([np.linspace(-0.5, 3.5, 801), bounds, np.nextafter(bounds, -np.inf)])
+    expected = schedule.in_contact(t)
+    assert np.array_equal(np.array([schedule.contact_at(ti) for ti in t]), expected)
+    assert not expected.all() and expected.any()
+    for leg in range(6):
+        b = schedule.phase_boundaries(leg)
+        assert schedule.stance_intervals(leg) == [(b[i], b[i + 1]) for i in range(0, len(b) - 1, 2)]
+        assert all(type(x) is float for pair in schedule.swing_intervals(leg) for x in pair)
+
+
 # The wave gait (one foot at a time, 0.2 s swings) no longer converges within the limit since
 # forces are held in their cone along every polynomial and Eq. 2 is sampled every 0.05 s
 # (issue 11; BENCHMARKS.md, blc).
