@@ -115,6 +115,51 @@ def test_the_claim_is_checked_on_paired_tasks_and_reported_as_tables(tmp_path, c
     assert "results" in capsys.readouterr().err
 
 
+def test_a_run_is_compared_task_by_task_with_an_earlier_run_of_the_same_worlds(tmp_path, capsys):
+    """`qz experiment report NEW --against OLD` (a retrained model, another BLC): each planner
+    paired with its own walks of the same tasks there, McNemar's exact test, and the settings
+    that differ; worlds of another scale are refused, naming --against."""
+    import json
+
+    from scipy.stats import binomtest
+
+    from qz_drake.cli import main
+    from qz_drake.experiments.fig9 import RESULTS, report
+
+    def record(seed, planner, success):
+        return {"key": f"both-medium-{seed}-{planner}", "terrain": "both", "difficulty": "medium", "seed": seed,
+                "planner": planner, "success": success, "reason": "" if success else "fell",
+                "displacement_ratio": 1.3 if success else None, "wall_time_s": 5.0}
+
+    new, old = tmp_path / "new", tmp_path / "old"
+    # CapPlanner: the new run walks seeds 0-8, the old one seeds 7-9; A* walks seeds 0-4 in both.
+    for folder, walks, model in ((new, range(9), "aaaa"), (old, range(7, 10), "bbbb")):
+        folder.mkdir()
+        records = [record(s, "capplanner", s in walks) for s in range(10)]
+        records += [record(s, "astar", s < 5) for s in range(10)]
+        (folder / RESULTS).write_text("".join(json.dumps(r) + "\n" for r in records))
+        (folder / "settings.json").write_text(json.dumps({"scale": 1.0, "capability_model_identity": model}))
+    summary = report(new, against=old)
+    rows = {(r["planner"], r["terrain"]): r for r in summary["against"]["comparisons"] if r["difficulty"] == "medium"}
+    cap = rows[("capplanner", "both")]
+    assert (cap["tasks"], cap["this_successes"], cap["other_successes"]) == (10, 9, 3)
+    assert (cap["both"], cap["only_this"], cap["only_other"], cap["neither"]) == (2, 7, 1, 0)
+    assert cap["p_value"] == pytest.approx(binomtest(7, 8, 0.5).pvalue)
+    astar = rows[("astar", "both")]
+    assert (astar["both"], astar["only_this"], astar["only_other"], astar["p_value"]) == (5, 0, 0, 1.0)
+    assert summary["against"]["changed_settings"] == {"capability_model_identity": ["aaaa", "bbbb"]}
+
+    assert main(["experiment", "report", str(new), "--against", str(old)]) == 0
+    text = capsys.readouterr().out
+    assert "capability_model_identity aaaa (there bbbb)" in text
+    assert "| capplanner | both | medium | 10 | 9 | 3 | 2 | 7 | 1 | 0 |" in text
+    (old / "settings.json").write_text(json.dumps({"scale": 0.5}))
+    assert main(["experiment", "report", str(new), "--against", str(old)]) == 2
+    assert "against" in capsys.readouterr().err
+    assert main(["experiment", "report", str(new), "--against", str(tmp_path / "nothing")]) == 2
+    assert "against" in capsys.readouterr().err
+
+
 def test_route_calibration_sets_predicted_against_walked_and_counts_declined_tasks(tmp_path, capsys):
     """CapPlanner's first plan per task against the walk: the mean predicted chance of no fall
     of the tasks it set out on beside the share it walked; a task with no path is declined,

@@ -42,7 +42,7 @@ def run_report(args) -> int:
         from qz_drake.experiments.fig9 import predict_routes
 
         predict_routes(args.out, progress=not args.json and sys.stderr.isatty())
-    summary = report(args.out)
+    summary = report(args.out, against=args.against)
     print(json.dumps(summary) if args.json else report_markdown(summary))
     return 0
 
@@ -150,6 +150,9 @@ def register(subparsers) -> None:
     p = sub.add_parser("report", help="the tables of a capplanner-vs-astar results folder (a run in progress too)")
     p.add_argument("out", help="results folder of qz experiment capplanner-vs-astar")
     p.add_argument("--json", action="store_true", help="print one JSON line instead of Markdown tables")
+    p.add_argument("--against", default=None,
+                   help="another results folder of the same worlds (an earlier model, BLC or tuning): "
+                        "each planner paired with its own walks there")
     p.add_argument("--predict", action="store_true",
                    help="first replan every CapPlanner task from its start with the run's model and settings "
                         "(predictions.jsonl, resumable; minutes) to add the route calibration table")

@@ -236,6 +236,41 @@ def compare_planners(records: list[dict], planner: str = "capplanner", baseline:
     return rows
 
 
+def compare_runs(records: list[dict], other: list[dict], planners=None) -> list[dict]:
+    """Each planner against itself in another run of the same tasks (another capability model,
+    BLC or tuning): paired by task as :func:`compare_planners`, with McNemar's exact test of
+    "the two runs succeed equally often". Rows carry ``planner``; ``this_successes`` /
+    ``other_successes``, ``only_this`` / ``only_other`` count the run given first / second."""
+    if planners is None:
+        planners = sorted({r["planner"] for r in records} & {r["planner"] for r in other})
+    rows = []
+    for planner in planners:
+        pooled = [dict(r, planner="this") for r in records if r["planner"] == planner]
+        pooled += [dict(r, planner="other") for r in other if r["planner"] == planner]
+        rows += [{"planner": planner, **row} for row in compare_planners(pooled, planner="this", baseline="other")]
+    return rows
+
+
+def _settings(out: Path) -> dict:
+    path = out / "settings.json"
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def _against(out: Path, records: list[dict], against) -> dict:
+    """The comparison of a results folder with another one (``report(..., against=)``)."""
+    against = Path(against)
+    if not (against / RESULTS).is_file():
+        raise bad_value("against", str(against), f"no {RESULTS} there (run qz experiment capplanner-vs-astar)")
+    mine, theirs = _settings(out), _settings(against)
+    scales = (float(mine.get("scale", 1.0)), float(theirs.get("scale", 1.0)))
+    if scales[0] != scales[1]:
+        raise bad_value("against", str(against), f"its worlds are at scale {scales[1]:g} and this run's at "
+                        f"{scales[0]:g}: not the same tasks")
+    changed = {k: [mine.get(k), theirs.get(k)] for k in sorted(set(mine) | set(theirs)) if mine.get(k) != theirs.get(k)}
+    return {"folder": str(against), "changed_settings": changed,
+            "comparisons": compare_runs(records, read_results(against))}
+
+
 PREDICTIONS = "predictions.jsonl"
 
 
@@ -329,9 +364,11 @@ def route_calibration(records: list[dict], predictions: list[dict]) -> list[dict
     return [r for r in rows if r["tasks"]]
 
 
-def report(out) -> dict:
+def report(out, against=None) -> dict:
     """The summary of a results folder as it stands (a run in progress included): rows,
-    comparisons, failure reasons per planner, and how many tasks are done."""
+    comparisons, failure reasons per planner, and how many tasks are done; with ``against``
+    (another results folder of the same worlds) also each planner paired with its own walks
+    there, and the settings that differ."""
     out = Path(out)
     if not (out / RESULTS).is_file():
         raise bad_value("results", str(out), f"no {RESULTS} there (run qz experiment capplanner-vs-astar)")
@@ -350,6 +387,8 @@ def report(out) -> dict:
     if (out / PREDICTIONS).is_file():  # written by qz experiment report --predict
         predictions = [json.loads(line) for line in (out / PREDICTIONS).read_text().splitlines() if line.strip()]
         summary["route_calibration"] = route_calibration(records, predictions)
+    if against is not None:
+        summary["against"] = _against(out, records, against)
     return summary
 
 
@@ -389,6 +428,17 @@ def report_markdown(summary: dict) -> str:
             lines.append(f"| {c['terrain']} | {c['difficulty']} | {c['started']}/{c['tasks']} "
                          f"| {num(c['predicted_fall_free'])} | {num(c.get('predicted_success'))} "
                          f"| {num(c['walked_rate'])} | {c['declined']} | {c['declined_walked_by_astar']} |")
+    if summary.get("against"):
+        other = summary["against"]
+        changed = ", ".join(f"{k} {v[0]} (there {v[1]})" for k, v in other["changed_settings"].items())
+        lines += ["", f"Against {other['folder']} (settings that differ: {changed or 'none'}):", "",
+                  "| planner | terrain | difficulty | paired tasks | this run | that run | both | only this "
+                  "| only that | neither | McNemar exact p |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for c in other["comparisons"]:
+            lines.append(f"| {c['planner']} | {c['terrain']} | {c['difficulty']} | {c['tasks']} "
+                         f"| {c['this_successes']} | {c['other_successes']} | {c['both']} | {c['only_this']} "
+                         f"| {c['only_other']} | {c['neither']} | {c['p_value']:.2g} |")
     if summary["failure_reasons"]:
         lines += ["", "| planner | failures by reason |", "| --- | --- |"]
         for planner, reasons in sorted(summary["failure_reasons"].items()):
