@@ -162,10 +162,13 @@ class InverseKinematicsTracker(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(self._dt, 0.0, self._update)
         self.DeclareInitializationDiscreteUpdateEvent(self._update)
         n = NUM_JOINTS
-        self.DeclareVectorOutputPort("desired_state", 2 * n, self._output(0, 2 * n))
-        self.DeclareVectorOutputPort("foot_force_feedforward", 3 * NUM_LEGS, self._output(2 * n, 3 * n))
-        self.DeclareVectorOutputPort("position_command", n, self._output(0, n))
-        self.DeclareVectorOutputPort("contact_plan", NUM_LEGS, self._output(3 * n, 3 * n + NUM_LEGS))
+        # The outputs read the held references only: recomputed when they change, not at every
+        # plant step.
+        held = {self.discrete_state_ticket(self._held)}
+        self.DeclareVectorOutputPort("desired_state", 2 * n, self._output(0, 2 * n), held)
+        self.DeclareVectorOutputPort("foot_force_feedforward", 3 * NUM_LEGS, self._output(2 * n, 3 * n), held)
+        self.DeclareVectorOutputPort("position_command", n, self._output(0, n), held)
+        self.DeclareVectorOutputPort("contact_plan", NUM_LEGS, self._output(3 * n, 3 * n + NUM_LEGS), held)
 
     def _output(self, start: int, stop: int):
         def calc(context, output: BasicVector):

@@ -37,7 +37,8 @@ class RobotControlModel:
         if not (np.array_equal(self.order.q_index, np.arange(7, 25))
                 and np.array_equal(self.order.v_index, np.arange(6, 24))):
             raise RuntimeError("unexpected joint ordering in the control plant")
-        self._leg_columns = [self.order.v_index[3 * i:3 * i + 3] for i in range(len(LEG_NAMES))]
+        # Each leg's three velocity columns (contiguous, checked above): a slice, not a copy.
+        self._leg_columns = [slice(6 + 3 * i, 9 + 3 * i) for i in range(len(LEG_NAMES))]
 
     def set_state(self, x: np.ndarray) -> None:
         self.plant.SetPositionsAndVelocities(self.context, x)
@@ -114,5 +115,6 @@ class JointPdController(LeafSystem):
         if self._feedforward.HasValue(context):
             f = self._feedforward.Eval(context).reshape(6, 3)
             tau += self._model.foot_force_torques(f)
-        output.SetFromVector(np.clip(tau, -self._limit, self._limit))
+        # np.clip's values, without its Python wrapper (this runs at every plant step).
+        output.SetFromVector(np.minimum(np.maximum(tau, -self._limit), self._limit))
 

@@ -253,7 +253,10 @@ class GridTerrain(TerrainModel):
         self._hx = _limited_slopes(heights, 1, res) * res
         self._hy = _limited_slopes(heights, 0, res) * res
 
-    def height_derivatives(self, x, y):
+    def _patches(self, x, y):
+        """Per point: its coordinates in its cell (s, t in [0, 1]), whether it lies inside the
+        grid along x and along y, and the cell's corner data {(a, b): (value, x-slope, y-slope)}
+        at (i + a, j + b)."""
         x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
         H, W = self.heights.shape
         res = self.resolution
@@ -266,45 +269,62 @@ class GridTerrain(TerrainModel):
         v = np.clip(v, 0.0, H - 1.0)
         i = np.minimum(np.floor(u).astype(np.int64), W - 2)
         j = np.minimum(np.floor(v).astype(np.int64), H - 2)
-        s, t = u - i, v - j
-
-        def basis(a):
-            a2, a3 = a * a, a * a * a
-            val = (2 * a3 - 3 * a2 + 1, a3 - 2 * a2 + a, -2 * a3 + 3 * a2, a3 - a2)
-            d1 = (6 * a2 - 6 * a, 3 * a2 - 4 * a + 1, -6 * a2 + 6 * a, 3 * a2 - 2 * a)
-            d2 = (12 * a - 6, 6 * a - 4, -12 * a + 6, 6 * a - 2)
-            return val, d1, d2
-
-        bu, bu1, bu2 = basis(s)
-        bv, bv1, bv2 = basis(t)
         f, fx, fy = self.heights, self._hx, self._hy
-        # Corner data: (value, x-slope, y-slope) at (i + a, j + b).
         corners = {}
         for a in (0, 1):
             for b in (0, 1):
                 corners[a, b] = (f[j + b, i + a], fx[j + b, i + a], fy[j + b, i + a])
+        return u - i, v - j, inside_u, inside_v, corners
 
-        def combine(pu, pv):
-            # sum over corners of phi_a(u) phi_b(v) f + psi_a(u) phi_b(v) fx + phi_a(u) psi_b(v) fy
-            out = 0.0
-            for a in (0, 1):
-                for b in (0, 1):
-                    val, sx, sy = corners[a, b]
-                    out = out + (pu[2 * a] * pv[2 * b] * val + pu[2 * a + 1] * pv[2 * b] * sx
-                                 + pu[2 * a] * pv[2 * b + 1] * sy)
-            return out
+    def height(self, x, y) -> np.ndarray:
+        # The value alone (the guess and the dense verdict ask for heights only): the same
+        # arithmetic as height_derivatives' first output.
+        s, t, _, _, corners = self._patches(x, y)
+        return _hermite_combine(corners, _hermite_values(s), _hermite_values(t))
 
-        h = combine(bu, bv)
-        hx = np.where(inside_u, combine(bu1, bv), 0.0) / res
-        hy = np.where(inside_v, combine(bu, bv1), 0.0) / res
-        hxx = np.where(inside_u, combine(bu2, bv), 0.0) / res ** 2
-        hxy = np.where(inside_u & inside_v, combine(bu1, bv1), 0.0) / res ** 2
-        hyy = np.where(inside_v, combine(bu, bv2), 0.0) / res ** 2
+    def height_derivatives(self, x, y):
+        s, t, inside_u, inside_v, corners = self._patches(x, y)
+        res = self.resolution
+        bu, bu1, bu2 = _hermite_values(s), _hermite_slopes(s), _hermite_curvatures(s)
+        bv, bv1, bv2 = _hermite_values(t), _hermite_slopes(t), _hermite_curvatures(t)
+        h = _hermite_combine(corners, bu, bv)
+        hx = np.where(inside_u, _hermite_combine(corners, bu1, bv), 0.0) / res
+        hy = np.where(inside_v, _hermite_combine(corners, bu, bv1), 0.0) / res
+        hxx = np.where(inside_u, _hermite_combine(corners, bu2, bv), 0.0) / res ** 2
+        hxy = np.where(inside_u & inside_v, _hermite_combine(corners, bu1, bv1), 0.0) / res ** 2
+        hyy = np.where(inside_v, _hermite_combine(corners, bu, bv2), 0.0) / res ** 2
         return h, hx, hy, hxx, hxy, hyy
 
     def grid(self, xmin=None, xmax=None, ymin=None, ymax=None, resolution=None):
         """The wrapped map itself (the BLC saves the map it was given)."""
         return self.heights, self.origin, self.resolution
+
+
+def _hermite_values(a):
+    """The cubic Hermite basis (phi_0, psi_0, phi_1, psi_1) on the unit cell at a."""
+    a2, a3 = a * a, a * a * a
+    return 2 * a3 - 3 * a2 + 1, a3 - 2 * a2 + a, -2 * a3 + 3 * a2, a3 - a2
+
+
+def _hermite_slopes(a):
+    a2 = a * a
+    return 6 * a2 - 6 * a, 3 * a2 - 4 * a + 1, -6 * a2 + 6 * a, 3 * a2 - 2 * a
+
+
+def _hermite_curvatures(a):
+    return 12 * a - 6, 6 * a - 4, -12 * a + 6, 6 * a - 2
+
+
+def _hermite_combine(corners, pu, pv):
+    """Sum over a cell's corners of phi_a(u) phi_b(v) f + psi_a(u) phi_b(v) fx + phi_a(u) psi_b(v) fy
+    for basis tuples pu (along x) and pv (along y)."""
+    out = 0.0
+    for a in (0, 1):
+        for b in (0, 1):
+            val, sx, sy = corners[a, b]
+            out = out + (pu[2 * a] * pv[2 * b] * val + pu[2 * a + 1] * pv[2 * b] * sx
+                         + pu[2 * a] * pv[2 * b + 1] * sy)
+    return out
 
 
 def as_terrain(terrain) -> TerrainModel:
