@@ -309,7 +309,7 @@ def predict_routes(out, config: ExperimentConfig | None = None, model=None, prog
         raise bad_value("results", str(out), f"no {RESULTS} there (run qz experiment capplanner-vs-astar)")
     records = [r for r in read_results(out) if r["planner"] == "capplanner" and r["reason"] != "error"]
     if config is None:
-        settings = json.loads((out / "settings.json").read_text()) if (out / "settings.json").is_file() else {}
+        settings = _settings(out)
         names = {f.name for f in dataclasses.fields(ExperimentConfig)}
         config = ExperimentConfig(**{k: v for k, v in settings.items() if k in names})
         identity = settings.get(MODEL_IDENTITY)
