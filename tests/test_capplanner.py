@@ -195,18 +195,58 @@ def test_route_calibration_sets_predicted_against_walked_and_counts_declined_tas
     assert "results" in capsys.readouterr().err
 
 
+def test_an_astar_walk_is_known_by_its_world_and_waypoints_before_it_is_walked():
+    """The tuning walks each distinct A* walk once: two settings share a walk exactly when their
+    routes (and every setting but A*'s) are the same."""
+    from qz_drake.experiments.fig9 import ExperimentConfig, TaskSpec, _astar_walk
+
+    def walk(terrain, **settings):
+        return _astar_walk(TaskSpec(terrain, "simple", 1000, "astar"), ExperimentConfig(scale=0.3, **settings))[0]
+
+    boxes = walk("obstacles", astar_max_step_height=0.24, astar_max_slope_deg=30.0)
+    assert boxes is not None
+    # No slope of the box field lies between 30 and 40 deg: the same route, the same walk.
+    assert walk("obstacles", astar_max_step_height=0.24, astar_max_slope_deg=40.0) == boxes
+    # A 5 cm step threshold blocks some boxes the 24 cm one crosses: another route.
+    assert walk("obstacles", astar_max_step_height=0.05, astar_max_slope_deg=30.0) not in (None, boxes)
+    # Another world, or the same route walked at another speed, is another walk.
+    assert walk("stairs", astar_max_step_height=0.24) not in (None, boxes)
+    assert walk("obstacles", astar_max_step_height=0.24, astar_max_slope_deg=30.0, speed=0.2) != boxes
+    # No route, nothing walked.
+    assert walk("stairs", astar_max_step_height=0.05) is None
+
+
 @pytest.mark.slow
 def test_astar_is_tuned_on_worlds_that_are_not_the_experiments(tmp_path):
     from qz_drake.experiments.fig9 import ExperimentConfig, read_results, tune_astar
 
-    report = tune_astar(tmp_path, step_heights=(0.05, 0.24), slopes_deg=(30.0,), body_radii=(0.7,),
-                        terrains=("obstacles",),
-                        difficulties=("simple",), tasks=1, config=ExperimentConfig(scale=0.3), progress=False)
+    def tune():
+        return tune_astar(tmp_path, step_heights=(0.05, 0.24), slopes_deg=(30.0, 40.0), body_radii=(0.7,),
+                          terrains=("obstacles",), difficulties=("simple",), tasks=1,
+                          config=ExperimentConfig(scale=0.3), progress=False)
+
+    report = tune()
+    # Resumed, it walks nothing and reports the same.
+    assert tune() == report
     grid = report["grid"]
-    assert [g["max_step_height"] for g in grid] == [0.05, 0.24] and all(g["tasks"] == 1 for g in grid)
+    assert [(g["max_step_height"], g["max_slope_deg"]) for g in grid] == [(0.05, 30.0), (0.05, 40.0),
+                                                                          (0.24, 30.0), (0.24, 40.0)]
+    assert all(g["tasks"] == 1 for g in grid)
+    records = {}
     for g in grid:
         [record] = read_results(g["folder"])
         assert record["seed"] >= 1000 and record["planner"] == "astar" and record["reason"] != "error"
+        records[g["max_step_height"], g["max_slope_deg"]] = record
+    # The box field has no slope between 30 and 40 deg: the steeper threshold plans the same
+    # route, and that walk is not walked twice but handed over, outcome and all.
+    for step in (0.05, 0.24):
+        walked, same = records[step, 30.0], records[step, 40.0]
+        assert "walk_of" not in walked
+        if walked["reason"] != "planner":
+            assert same["walk_of"] == Path(grid[0 if step == 0.05 else 2]["folder"]).name
+            assert (same["success"], same["reason"], same["walked_m"]) == \
+                (walked["success"], walked["reason"], walked["walked_m"])
+    assert [g["walked"] for g in grid][1::2] == [0, 0] and grid[2]["walked"] == 1
     best = max(g["successes"] for g in grid)
     chosen = report["chosen"]
     assert chosen["max_slope_deg"] == 30.0

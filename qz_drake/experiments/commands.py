@@ -64,7 +64,8 @@ def _print_tuning(report, args) -> None:
         return
     for row in report["grid"]:
         setting = ", ".join(f"{k} {row[k]:g}" for k in report["chosen"])
-        print(f"{setting}: {row['successes']}/{row['tasks']} walked")
+        walked = f", {row['walked']} walked here" if "walked" in row else ""
+        print(f"{setting}: {row['successes']}/{row['tasks']} succeeded{walked}")
     print(f"chosen: {report['chosen']}")
 
 

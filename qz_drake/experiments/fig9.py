@@ -450,11 +450,13 @@ def report_markdown(summary: dict) -> str:
 def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficulties=DIFFICULTIES,
                    tasks: int = TASKS_PER_CELL, workers: int = 1, ray_address: str | None = None,
                    config: ExperimentConfig = ExperimentConfig(), progress: bool = True,
-                   first_seed: int = 0, recordings: int = 1) -> dict:
+                   first_seed: int = 0, recordings: int = 1, reuse=None) -> dict:
     """Runs (or resumes) the comparison into ``out``; returns the summary. Task seeds are
     ``first_seed`` to ``first_seed + tasks - 1`` (0-19: the experiment's; tuning uses
     worlds.TUNING_SEED_START on). The first ``recordings`` tasks of every terrain, difficulty
-    and planner are recorded under ``out/recordings/<task>/``."""
+    and planner are recorded under ``out/recordings/<task>/``. ``reuse`` (a TaskSpec -> record
+    or None) may hand over the record of a task instead of walking it: the record of a walk
+    that this task's walk would repeat exactly (see ``_tune``)."""
     from qz_drake.capability.collect import LocalPool, RayPool, check_ray_address
 
     for p in planners:
@@ -514,6 +516,7 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
     specs = [TaskSpec(t, d, s, p, record_dir(t, d, s, p))
              for t in terrains for d in difficulties for s in seeds for p in planners]
     todo = [s for s in specs if s.key not in done]
+    reused = 0
     clock = time.perf_counter()
     from rich.progress import Progress
 
@@ -525,6 +528,16 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
             sink.flush()
             bar.advance(job)
 
+        if reuse is not None:
+            walk = []
+            for spec in todo:
+                record = reuse(spec)
+                if record is None:
+                    walk.append(spec)
+                else:
+                    on_record(record)
+                    reused += 1
+            todo = walk
         if todo:
             pool = RayPool(ray_address, config, 1, function=run_task, crashed=_crashed) if ray_address else \
                 LocalPool(min(workers, len(todo)), config, 1, function=run_task, crashed=_crashed)
@@ -538,7 +551,8 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
     (out / "results.json").write_text(json.dumps({"rows": rows, "comparisons": comparisons, "records": records},
                                                  indent=1))
     _write_csv(out / "results.csv", records)
-    return {"rows": rows, "comparisons": comparisons, "ran": len(todo), "already_done": len(specs) - len(todo),
+    return {"rows": rows, "comparisons": comparisons, "ran": len(todo), "reused": reused,
+            "already_done": len(specs) - len(todo) - reused,
             "wall_time_s": time.perf_counter() - clock, "out": str(out)}
 
 
@@ -599,23 +613,75 @@ def capplanner_settings(path) -> dict:
     return _tuned_settings(path, CAPPLANNER_TUNED, "--capplanner-tuning", "tune-capplanner")
 
 
+def _astar_walk(spec: TaskSpec, config: ExperimentConfig) -> tuple[str | None, float]:
+    """What A*'s walk of a task depends on, hashed, and the route's planning time: the world
+    and the waypoints (the walk follows them and nothing else of the A* settings), and every
+    setting of the run but A*'s. None when A* finds no route (nothing is walked then)."""
+    import hashlib
+
+    task = make_task(spec.terrain, spec.difficulty, spec.seed, scale=config.scale)
+    route, _, waypoints = _astar(task, config)
+    if not route.found:
+        return None, route.planning_time_s
+    others = {k: v for k, v in dataclasses.asdict(config).items() if not k.startswith("astar_")}
+    payload = json.dumps([spec.terrain, spec.difficulty, spec.seed, spec.planner, others, waypoints])
+    return hashlib.sha256(payload.encode()).hexdigest(), route.planning_time_s
+
+
+# Planners whose walk is fixed before it starts (name -> TaskSpec, config -> (walk hash or None,
+# planning time)): a tuning walks each distinct walk once. CapPlanner plans as it walks (its MDP
+# settings act on every replan), so each of its settings walks its tasks.
+FIXED_WALKS = {"astar": _astar_walk}
+
+
 def _tune(out, planner: str, grid: list[dict], names: dict, folder_of, *, terrains, difficulties, tasks: int,
           workers: int, ray_address, config: ExperimentConfig, progress: bool) -> dict:
     """Walks ``tasks`` tuning tasks per terrain and difficulty (seeds from
     worlds.TUNING_SEED_START, never the experiment's 0-19) with each setting of ``grid`` (report
     keys, see ``names``), each in its own resumable folder under ``out``; keeps the setting with
     the most successes (ties: the smaller mean displacement ratio, then the first in the grid).
-    Writes ``tuning.json``."""
+    Writes ``tuning.json``.
+
+    Where a planner's walk is fixed by its route (``FIXED_WALKS``), a task whose route under
+    this setting is one an earlier setting already walked is not walked again (the simulation
+    is deterministic): its record is that walk's, with ``walk_of`` naming the folder that walked
+    it and this setting's own planning time."""
     from qz_drake.experiments.worlds import TUNING_SEED_START
 
     out = Path(out)
     results = []
+    fixed = FIXED_WALKS.get(planner)
+    walks: dict[str, dict] = {}  # walk hash -> the record of that walk
+
     for setting in grid:
         trial = dataclasses.replace(config, **{names[k]: float(v) for k, v in setting.items()})
         folder = out / folder_of(setting)
+        hashes: dict[str, str | None] = {}
+
+        def reuse(spec, trial=trial, hashes=hashes):
+            hashes[spec.key], planning_time = fixed(spec, trial)
+            walked = walks.get(hashes[spec.key]) if hashes[spec.key] else None
+            if walked is None:
+                return None
+            record = {k: v for k, v in walked.items() if k != "_folder"}
+            # Its time is this setting's route; the walk's is in the folder that walked it.
+            return {**record, "planning_time_s": planning_time, "wall_time_s": planning_time,
+                    "walk_of": walked.get("walk_of", walked["_folder"])}
+
         summary = run_experiment(folder, planners=(planner,), terrains=terrains, difficulties=difficulties,
                                  tasks=tasks, workers=workers, ray_address=ray_address, config=trial,
-                                 progress=progress, first_seed=TUNING_SEED_START, recordings=0)
+                                 progress=progress, first_seed=TUNING_SEED_START, recordings=0,
+                                 reuse=reuse if fixed else None)
+        keys = {TaskSpec(t, d, TUNING_SEED_START + i, planner).key
+                for t in terrains for d in difficulties for i in range(tasks)}
+        records = [r for r in read_results(folder) if r["key"] in keys and r.get("reason") != "error"]
+        if fixed:
+            for r in records:
+                if r["key"] not in hashes:  # walked before this call (a resumed tuning)
+                    spec = TaskSpec(r["terrain"], r["difficulty"], r["seed"], r["planner"])
+                    hashes[r["key"]] = fixed(spec, trial)[0]
+                if hashes[r["key"]] and hashes[r["key"]] not in walks:
+                    walks[hashes[r["key"]]] = {**r, "_folder": folder.name}
         rows = summary["rows"]
         done = sum(r["tasks"] for r in rows)
         ok = sum(r["successes"] for r in rows)
@@ -623,6 +689,7 @@ def _tune(out, planner: str, grid: list[dict], names: dict, folder_of, *, terrai
         results.append({**{k: float(v) for k, v in setting.items()}, "tasks": done, "successes": ok,
                         "success_rate": ok / done if done else None,
                         "displacement_ratio": float(np.mean(ratios)) if ratios else None,
+                        "walked": sum(1 for r in records if "walk_of" not in r and r["reason"] != "planner"),
                         "rows": rows, "folder": str(folder)})
     best = max(enumerate(results), key=lambda item: (item[1]["successes"],
                                                      -(item[1]["displacement_ratio"] or np.inf),
