@@ -9,7 +9,7 @@ OUT ?= out/demo
 PYTEST_MARK ?= not slow
 PYTEST_ARGS ?=
 
-.PHONY: setup demo test test-all test-fast bench urdf clean collect
+.PHONY: setup demo test test-all test-fast bench urdf clean collect fig9
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -45,6 +45,23 @@ collect: $(STAMP)
 	$(VENV)/bin/qz capability recertify data/capability --workers 2
 	nice -n 19 $(VENV)/bin/qz capability collect --out data/capability --scenes 1200 --workers 2 \
 		--shard-size 50 --json --log-every 300
+
+# Paper 000 Fig. 9 from a trial dataset (hours; every step resumes where it stopped): the 18
+# networks trained on DATASET, A* and CapPlanner tuned on the tuning worlds (seeds 1000+), the
+# 360 walks of the experiment (seeds 0-19), then its tables. Everything goes under FIG9.
+DATASET ?= data/capability
+FIG9 ?= out/paper_fig9
+WORKERS ?= 2
+fig9: $(STAMP)
+	test -f $(FIG9)/model/report.json || \
+		$(VENV)/bin/qz capability train --dataset $(DATASET) --out $(FIG9)/model
+	nice -n 19 $(VENV)/bin/qz experiment tune-astar --out $(FIG9)/astar_tuning --tasks 2 --workers $(WORKERS)
+	nice -n 19 $(VENV)/bin/qz experiment tune-capplanner --model $(FIG9)/model --out $(FIG9)/capplanner_tuning \
+		--tasks 2 --workers $(WORKERS) --plan-failure-risks 0,1
+	nice -n 19 $(VENV)/bin/qz experiment capplanner-vs-astar --model $(FIG9)/model \
+		--astar-tuning $(FIG9)/astar_tuning --capplanner-tuning $(FIG9)/capplanner_tuning \
+		--out $(FIG9)/experiment --workers $(WORKERS)
+	$(VENV)/bin/qz experiment report $(FIG9)/experiment --predict
 
 urdf: $(STAMP)
 	$(PY) scripts/make_urdf.py
