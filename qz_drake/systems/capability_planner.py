@@ -230,8 +230,10 @@ class CapabilityVIPlanner(LeafSystem):
             self.log.topologies.pop()
             self.log.start_times.pop()
         if failed is None or len(self.log.recoveries) >= self._max_recoveries:
+            last = target if target is not None else None if failed is None else failed.target
             self.log.unreachable = (f"the BLC could not plan {len(self.log.recoveries) + 1} missions, the last "
-                                    f"to {None if target is None else [round(v, 2) for v in target[:3]]}")
+                                    + ("unknown" if last is None else
+                                       f"to (x, y, yaw) {[round(float(v), 2) for v in last[:3]]}"))
             state.get_mutable_abstract_state(self._missions).set_value(([], 0))
             return
         x = self._state.Eval(context)

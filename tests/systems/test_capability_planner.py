@@ -2,6 +2,8 @@
 impossible, hands out missions one by one, replans at each mission start, says when the goal
 is unreachable; and (slow) the whole CapPlanner walks a world in Drake."""
 
+import re
+
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import DiagramBuilder
@@ -141,6 +143,8 @@ def test_after_max_recoveries_the_goal_is_unreachable_with_the_reason():
     assert not planner.done
     assert _blc_fails(planner, simulator, context, 2) == []
     assert planner.done and planner.log.unreachable.startswith("the BLC could not plan 2 missions")
+    # ... and says which: the mission it was last given.
+    assert re.search(r"the last to \(x, y, yaw\) \[-?\d", planner.log.unreachable), planner.log.unreachable
 
 
 def test_forbid_action_sends_the_action_to_failure_with_a_failures_reward():
