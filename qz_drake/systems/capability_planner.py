@@ -132,6 +132,10 @@ class CapabilityVIPlanner(LeafSystem):
         first = self._replan(0.0, float(start[0]), float(start[1]), float(start[2]), initial_topology)
         self._record(first, 0, 0.0)
         self._missions = self.DeclareAbstractState(AbstractValue.Make((first, 0)))
+        # The mission the BLC could not plan when no route was left after it, as (target,
+        # topology): the outputs hold it, so that the BLC (which does not solve a mission twice)
+        # leaves the robot standing instead of being sent somewhere new. None: none yet.
+        self._held = self.DeclareAbstractState(AbstractValue.Make(None))
         state_only = {self.all_state_ticket()}
         self.DeclareVectorOutputPort("target", 3, self._calc_target, prerequisites_of_calc=state_only)
         self.DeclareAbstractOutputPort("topology", lambda: AbstractValue.Make("nominal"), self._calc_topology,
@@ -229,6 +233,8 @@ class CapabilityVIPlanner(LeafSystem):
             target = self.log.targets.pop()
             self.log.topologies.pop()
             self.log.start_times.pop()
+        if failed is not None:
+            state.get_mutable_abstract_state(self._held).set_value((tuple(failed.target), failed.topology))
         if failed is None or len(self.log.recoveries) >= self._max_recoveries:
             last = target if target is not None else None if failed is None else failed.target
             self.log.unreachable = (f"the BLC could not plan {len(self.log.recoveries) + 1} missions, the last "
@@ -276,15 +282,23 @@ class CapabilityVIPlanner(LeafSystem):
 
     def _calc_target(self, context, output):
         m = self._current(context)
-        if m is None:  # unreachable: hold the start
-            x = self._state.Eval(context)
+        if m is None:
+            held = context.get_abstract_state(self._held).get_value()
+            if held is not None:  # no route left after a mission the BLC could not plan: stand
+                output.SetFromVector(np.asarray(held[0], dtype=float))
+                return
+            x = self._state.Eval(context)  # unreachable from the start: hold the start
             output.SetFromVector([x[4], x[5], base_rpy(x)[2]])
             return
         output.SetFromVector(np.asarray(m.target, dtype=float))
 
     def _calc_topology(self, context, output):
         m = self._current(context)
-        output.set_value(self._topology0 if m is None else m.topology)
+        if m is None:
+            held = context.get_abstract_state(self._held).get_value()
+            output.set_value(self._topology0 if held is None else held[1])
+            return
+        output.set_value(m.topology)
 
     def _calc_guidance(self, context, output):
         output.set_value(list(context.get_abstract_state(self._missions).get_value()[0]))

@@ -139,9 +139,15 @@ def test_after_max_recoveries_the_goal_is_unreachable_with_the_reason():
     planner = CapabilityVIPlanner(model=WallModel(), heightmap=_world(), goal=GOAL, start=(*START, 0.0),
                                   mdp_config=CapabilityMdpConfig(topologies=["nominal"]), max_recoveries=1)
     simulator, context = _standing(planner)
-    _blc_fails(planner, simulator, context, 1)
+    split = _blc_fails(planner, simulator, context, 1)
     assert not planner.done
     assert _blc_fails(planner, simulator, context, 2) == []
+    # The robot stands: the outputs hold the mission the BLC could not plan (which the BLC does
+    # not solve again), not a new target at the robot's pose or in another topology.
+    simulator.AdvanceTo(context.get_time() + 0.5)
+    np.testing.assert_array_equal(planner.GetOutputPort("target").Eval(context), split[0].target)
+    assert not np.allclose(split[0].target, [*START, 0.0])  # the robot stands at (START, yaw 0)
+    assert planner.GetOutputPort("topology").Eval(context) == split[0].topology
     assert planner.done and planner.log.unreachable.startswith("the BLC could not plan 2 missions")
     # ... and says which: the mission it was last given.
     assert re.search(r"the last to \(x, y, yaw\) \[-?\d", planner.log.unreachable), planner.log.unreachable
