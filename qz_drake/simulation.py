@@ -341,6 +341,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     metrics.update(sim_time_s=sim_time, wall_time_s=wall, realtime_factor=sim_time / wall if wall > 0 else 0.0,
                    realtime_factor_excluding_planning=sim_time / max(wall - counts["blc_solve_time_s"], 1e-9),
                    terrain_contact=info.contact_representation, planner=control.planner, **counts)
+    if counts.get("unreachable"):
+        _gave_up(metrics, counts["unreachable"], counts.get("tlc_recoveries", 0))
     metrics.update(_station_metrics(station_diagram, context))
     files = {}
     if out is not None:
@@ -465,6 +467,23 @@ class _BlcMissions:
                 "blc_solve_time_s": log.solve_time_s,
                 "blc_iterations": int(sum(s[6] for s in log.solves)),
                 "topology_changes": len(log.switches)}
+
+
+def _gave_up(metrics: dict, why: str, recoveries: int = 0) -> None:
+    """A failed walk whose route source gave up on the way (CapPlanner: no route left round
+    ``recoveries`` missions the BLC could not plan) says so: ``unreachable`` first when the
+    walk otherwise only missed its target (that is why it did), after the other reasons when
+    something worse happened first; the message gains ``why``."""
+    if metrics["success"]:
+        return
+    reasons = list(metrics["reasons"])
+    if set(reasons) <= {"missed_target"}:
+        reasons.insert(0, "unreachable")
+    elif "unreachable" not in reasons:
+        reasons.append("unreachable")
+    metrics["reasons"] = reasons
+    after = f" after going round {recoveries} missions the BLC could not plan" if recoveries else ""
+    metrics["reason"] = f"{metrics['reason']}; CapPlanner gave up{after}: {why}"
 
 
 def _unplanned(scenario, out, missions, *, reason: str | None = None, code: str | None = None,

@@ -48,6 +48,25 @@ def test_an_unreachable_goal_in_too_little_time_is_a_reported_failure(tmp_path, 
     assert json.loads((tmp_path / "o" / "metrics.json").read_text())["success"] is False
 
 
+def test_a_walk_capplanner_gave_up_on_says_so_first_unless_something_worse_happened():
+    from qz_drake.simulation import _gave_up
+
+    why = "no path reaches the goal [5.0, 1.0]"
+    missed = {"success": False, "reasons": ["missed_target"], "reason": "final base 4.7 m from the target"}
+    _gave_up(missed, why, 3)
+    assert missed["reasons"] == ["unreachable", "missed_target"]
+    assert missed["reason"] == ("final base 4.7 m from the target; CapPlanner gave up after going round 3 "
+                                f"missions the BLC could not plan: {why}")
+    # A leg on a box explains the walk's end better than the planner's giving up after it.
+    hit = {"success": False, "reasons": ["leg_contact", "missed_target"], "reason": "LF leg link on the terrain"}
+    _gave_up(hit, why)
+    assert hit["reasons"] == ["leg_contact", "missed_target", "unreachable"]
+    # A walk that reached its goal is untouched.
+    done = {"success": True, "reasons": [], "reason": ""}
+    _gave_up(done, why)
+    assert done == {"success": True, "reasons": [], "reason": ""}
+
+
 @pytest.mark.parametrize("text, field", [
     ("controller: {kind: walk}", "scenario.controller.route"),
     ("controller: {kind: walk, route: [{x: 1.0, topolgy: nominal}]}", r"scenario.controller.route\[0\].topolgy"),
