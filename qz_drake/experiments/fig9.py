@@ -651,7 +651,7 @@ def _tune(out, planner: str, grid: list[dict], names: dict, folder_of, *, terrai
     out = Path(out)
     results = []
     fixed = FIXED_WALKS.get(planner)
-    walks: dict[str, dict] = {}  # walk hash -> the record of that walk
+    walks: dict[str, tuple[dict, str]] = {}  # walk hash -> (the record of that walk, its folder)
 
     for setting in grid:
         trial = dataclasses.replace(config, **{names[k]: float(v) for k, v in setting.items()})
@@ -660,13 +660,12 @@ def _tune(out, planner: str, grid: list[dict], names: dict, folder_of, *, terrai
 
         def reuse(spec, trial=trial, hashes=hashes):
             hashes[spec.key], planning_time = fixed(spec, trial)
-            walked = walks.get(hashes[spec.key]) if hashes[spec.key] else None
-            if walked is None:
+            if hashes[spec.key] not in walks:
                 return None
-            record = {k: v for k, v in walked.items() if k != "_folder"}
+            walked, walker = walks[hashes[spec.key]]
             # Its time is this setting's route; the walk's is in the folder that walked it.
-            return {**record, "planning_time_s": planning_time, "wall_time_s": planning_time,
-                    "walk_of": walked.get("walk_of", walked["_folder"])}
+            return {**walked, "planning_time_s": planning_time, "wall_time_s": planning_time,
+                    "walk_of": walked.get("walk_of", walker)}
 
         summary = run_experiment(folder, planners=(planner,), terrains=terrains, difficulties=difficulties,
                                  tasks=tasks, workers=workers, ray_address=ray_address, config=trial,
@@ -681,7 +680,7 @@ def _tune(out, planner: str, grid: list[dict], names: dict, folder_of, *, terrai
                     spec = TaskSpec(r["terrain"], r["difficulty"], r["seed"], r["planner"])
                     hashes[r["key"]] = fixed(spec, trial)[0]
                 if hashes[r["key"]] and hashes[r["key"]] not in walks:
-                    walks[hashes[r["key"]]] = {**r, "_folder": folder.name}
+                    walks[hashes[r["key"]]] = (r, folder.name)
         rows = summary["rows"]
         done = sum(r["tasks"] for r in rows)
         ok = sum(r["successes"] for r in rows)

@@ -236,7 +236,7 @@ class CapabilityVIPlanner(LeafSystem):
         if failed is not None:
             state.get_mutable_abstract_state(self._held).set_value((tuple(failed.target), failed.topology))
         if failed is None or len(self.log.recoveries) >= self._max_recoveries:
-            last = target if target is not None else None if failed is None else failed.target
+            last = target if target is not None else (failed.target if failed is not None else None)
             self.log.unreachable = (f"the BLC could not plan {len(self.log.recoveries) + 1} missions, the last "
                                     + ("unknown" if last is None else
                                        f"to (x, y, yaw) {[round(float(v), 2) for v in last[:3]]}"))
