@@ -288,7 +288,7 @@ def test_capplanner_results_are_not_resumed_with_another_model(synthetic_model_d
     walk, naming --model; the same model resumes."""
     from qz_drake.capability.model import CapabilityModel
     from qz_drake.errors import QzError
-    from qz_drake.experiments.fig9 import MODEL_IDENTITY, ExperimentConfig, run_experiment
+    from qz_drake.experiments.fig9 import MODEL_IDENTITY, ExperimentConfig, TaskSpec, run_experiment
 
     synthetic, shipped = CapabilityModel.load(synthetic_model_dir), CapabilityModel.load()
     assert synthetic.identity != shipped.identity and len(shipped.identity) == 16
@@ -296,11 +296,15 @@ def test_capplanner_results_are_not_resumed_with_another_model(synthetic_model_d
     config = ExperimentConfig(capability_model=str(synthetic_model_dir), scale=0.3)
     settings = {**dataclasses.asdict(config), MODEL_IDENTITY: shipped.identity}
     (tmp_path / "settings.json").write_text(json.dumps(settings))
+    walked = json.dumps({"key": TaskSpec("obstacles", "simple", 0, "capplanner").key, "terrain": "obstacles",
+                         "difficulty": "simple", "seed": 0, "planner": "capplanner", "success": True,
+                         "reason": "", "displacement_ratio": 1.2}) + "\n"
+    (tmp_path / "results.jsonl").write_text(walked)
     with pytest.raises(QzError, match="--model"):
         run_experiment(tmp_path, planners=("capplanner",), terrains=("obstacles",), difficulties=("simple",),
-                       tasks=1, config=config, progress=False)
+                       tasks=2, config=config, progress=False)
     # The folder is left as it was: nothing walked, its record unchanged.
-    assert not (tmp_path / "results.jsonl").exists()
+    assert (tmp_path / "results.jsonl").read_text() == walked
     assert json.loads((tmp_path / "settings.json").read_text())[MODEL_IDENTITY] == shipped.identity
 
 
@@ -321,9 +325,43 @@ def test_results_written_before_a_setting_existed_still_resume(tmp_path):
     summary = run_experiment(tmp_path, planners=("astar",), terrains=("obstacles",), difficulties=("simple",),
                              tasks=1, config=config, progress=False)
     assert summary["ran"] == 0 and summary["rows"][0]["successes"] == 1
-    with pytest.raises(QzError, match="--out"):
+    with pytest.raises(QzError, match="--out.*astar_max_step_height 0.2, this run's 0.24"):
         run_experiment(tmp_path, planners=("astar",), terrains=("obstacles",), difficulties=("simple",), tasks=1,
-                       config=dataclasses.replace(config, capplanner_failure_reward=-200.0), progress=False)
+                       config=dataclasses.replace(config, astar_max_step_height=0.24), progress=False)
+    with pytest.raises(QzError, match="--out.*mission_length 1.0, this run's 1.5"):
+        run_experiment(tmp_path, planners=("astar",), terrains=("obstacles",), difficulties=("simple",), tasks=1,
+                       config=dataclasses.replace(config, mission_length=1.5), progress=False)
+
+
+def test_one_planners_half_is_walked_before_the_other_is_tuned(synthetic_model_dir, tmp_path):
+    """A* walks depend on none of CapPlanner's settings and CapPlanner's on none of A*'s: a
+    folder holding A*'s half takes CapPlanner's tuned settings when CapPlanner first walks there,
+    then holds them; an A*-only resume keeps them whatever its own CapPlanner settings are."""
+    from qz_drake.capability.model import CapabilityModel
+    from qz_drake.errors import QzError
+    from qz_drake.experiments.fig9 import MODEL_IDENTITY, ExperimentConfig, TaskSpec, run_experiment
+
+    def record(spec):
+        return {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,
+                "planner": spec.planner, "success": spec.planner == "astar", "reason": "", "displacement_ratio": 1.1}
+
+    cell = dict(terrains=("obstacles",), difficulties=("simple",), tasks=1, progress=False)
+    astar_half = ExperimentConfig(scale=0.3, astar_max_step_height=0.24)
+    run_experiment(tmp_path, planners=("astar",), config=astar_half, reuse=record, **cell)
+    tuned = dataclasses.replace(astar_half, capability_model=str(synthetic_model_dir),
+                                capplanner_failure_reward=-200.0, capplanner_plan_failure_risk=1.0)
+    summary = run_experiment(tmp_path, planners=("capplanner",), config=tuned, reuse=record, **cell)
+    assert summary["reused"] == 1 and {r["planner"] for r in summary["rows"]} == {"astar", "capplanner"}
+    settings = json.loads((tmp_path / "settings.json").read_text())
+    assert settings == {**dataclasses.asdict(tuned), MODEL_IDENTITY: CapabilityModel.load(synthetic_model_dir).identity}
+    # CapPlanner has results now: other CapPlanner settings are refused, naming the setting.
+    with pytest.raises(QzError, match="capplanner_failure_reward -200.0, this run's -100.0"):
+        run_experiment(tmp_path, planners=("capplanner",), config=dataclasses.replace(tuned, capplanner_failure_reward=-100.0),
+                       reuse=record, **cell)
+    # An A*-only resume with its own (default) CapPlanner settings leaves CapPlanner's record alone.
+    summary = run_experiment(tmp_path, planners=("astar",), config=astar_half, **dict(cell, tasks=2), reuse=record)
+    assert summary["reused"] == 1 and summary["already_done"] == 1
+    assert json.loads((tmp_path / "settings.json").read_text()) == settings
 
 
 def test_a_walking_scenario_sets_capplanners_mdp_by_name():

@@ -447,6 +447,15 @@ def report_markdown(summary: dict) -> str:
     return "\n".join(lines)
 
 
+def _setting_owner(field: str) -> str | None:
+    """The planner whose walks alone a setting changes (None: every planner's)."""
+    if field.startswith("astar_"):
+        return "astar"
+    if field.startswith("capplanner_") or field in ("capability_model", MODEL_IDENTITY):
+        return "capplanner"
+    return None
+
+
 def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficulties=DIFFICULTIES,
                    tasks: int = TASKS_PER_CELL, workers: int = 1, ray_address: str | None = None,
                    config: ExperimentConfig = ExperimentConfig(), progress: bool = True,
@@ -456,7 +465,13 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
     worlds.TUNING_SEED_START on). The first ``recordings`` tasks of every terrain, difficulty
     and planner are recorded under ``out/recordings/<task>/``. ``reuse`` (a TaskSpec -> record
     or None) may hand over the record of a task instead of walking it: the record of a walk
-    that this task's walk would repeat exactly (see ``_tune``)."""
+    that this task's walk would repeat exactly (see ``_tune``).
+
+    ``out/settings.json`` holds the settings the results were walked with. A resumed run must
+    match it in every setting of the planners it walks that already have results there (and in
+    those of every planner, such as the BLC's budget); a planner's own settings (``astar_*``;
+    ``capplanner_*`` and the model) may differ while it has no results yet, so one planner's
+    half can be walked before the other's is tuned."""
     from qz_drake.capability.collect import LocalPool, RayPool, check_ray_address
 
     for p in planners:
@@ -483,25 +498,32 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
     out.mkdir(parents=True, exist_ok=True)
     settings = out / "settings.json"
     mine = dataclasses.asdict(config)
+    if model is not None:
+        mine[MODEL_IDENTITY] = model.identity
     stored = json.loads(settings.read_text()) if settings.is_file() else None
     if stored is not None:
         # A setting added since those results were written reads as its default there.
         theirs = {**dataclasses.asdict(ExperimentConfig()), **stored}
-        theirs.pop(MODEL_IDENTITY, None)
-        if theirs != mine:
-            raise bad_value("--out", str(out), "holds results of other experiment settings")
-    if model is not None:
-        # CapPlanner's results belong to the weights that walked them: "the shipped model"
-        # changes when it is retrained. (Results written before this was recorded carry none.)
-        if stored is not None and stored.get(MODEL_IDENTITY, model.identity) != model.identity:
-            raise bad_value("--model", config.capability_model or "the shipped model",
-                            f"{out} holds CapPlanner results of another model ({stored[MODEL_IDENTITY]}, "
-                            f"this one is {model.identity}): use another --out")
-        walked = any(r.get("planner") == "capplanner" for r in read_results(out))
-        if stored is None or MODEL_IDENTITY in stored or not walked:
-            mine[MODEL_IDENTITY] = model.identity
-    elif stored is not None and MODEL_IDENTITY in stored:
-        mine[MODEL_IDENTITY] = stored[MODEL_IDENTITY]  # an A*-only run keeps CapPlanner's record
+        walked = {r.get("planner") for r in read_results(out) if r.get("reason") != "error"}
+        for field in sorted(set(mine) | set(theirs)):
+            owner = _setting_owner(field)
+            if owner is not None and owner not in planners:
+                # Not this run's planner: its settings stay those its walks (if any) had.
+                if field in theirs:
+                    mine[field] = theirs[field]
+                else:
+                    mine.pop(field, None)
+            elif owner is not None and owner not in walked:
+                continue  # this run's planner walks here first: its settings are this run's
+            elif field == MODEL_IDENTITY and field not in stored:
+                mine.pop(field, None)  # results written before the model was recorded carry none
+            elif mine.get(field) != theirs.get(field):
+                if field == MODEL_IDENTITY:
+                    raise bad_value("--model", config.capability_model or "the shipped model",
+                                    f"{out} holds CapPlanner results of another model ({theirs[field]}, "
+                                    f"this one is {mine[field]}): use another --out")
+                raise bad_value("--out", str(out), f"holds results of other experiment settings ({field} "
+                                f"{theirs.get(field)}, this run's {mine.get(field)})")
     settings.write_text(json.dumps(mine, indent=1))
     done = {r["key"] for r in read_results(out) if r.get("reason") != "error"}
     if isinstance(recordings, bool) or recordings < 0:
@@ -545,7 +567,9 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
                 pool.run(todo, on_record)
             finally:
                 pool.close()
-    records = [r for r in read_results(out) if r["key"] in {s.key for s in specs}]
+    # The summary holds every planner's results on this run's tasks (the other half too).
+    keys = {TaskSpec(s.terrain, s.difficulty, s.seed, p).key for s in specs for p in PLANNERS}
+    records = [r for r in read_results(out) if r["key"] in keys]
     rows = summarise(records)
     comparisons = compare_planners(records)
     (out / "results.json").write_text(json.dumps({"rows": rows, "comparisons": comparisons, "records": records},
