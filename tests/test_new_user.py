@@ -2,8 +2,8 @@
 
 The CLI is run as a user runs it, ``qz`` in a subprocess: bad input is one line naming the
 field and its value, with exit status 2. Real data no one here made, grid_map's
-``heightmap_generated.png``, is looked for where the project keeps it (``<repo>/../shared/data``
-or ``<repo>/shared/data``); the tests that need it skip with the reason when it is absent.
+``heightmap_generated.png``, is in the repository (``data/external/grid_map/``), as the
+scenarios that read it expect.
 """
 
 from __future__ import annotations
@@ -22,12 +22,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SCENARIOS = REPO / "scenarios"
-_DATA_CANDIDATES = [REPO.parent / "shared" / "data" / "grid_map", REPO / "shared" / "data" / "grid_map"]
-GENERATED_PNG = next((d / "heightmap_generated.png" for d in _DATA_CANDIDATES
-                      if (d / "heightmap_generated.png").is_file()), None)
-needs_generated_png = pytest.mark.skipif(
-    GENERATED_PNG is None, reason="grid_map's heightmap_generated.png is not in <repo>/../shared/data/grid_map "
-                                  "or <repo>/shared/data/grid_map")
+GENERATED_PNG = REPO / "data" / "external" / "grid_map" / "heightmap_generated.png"
 
 
 def qz(*argv, cwd=REPO, timeout=600):
@@ -45,17 +40,6 @@ def assert_one_line_error(code, out, err, *named):
     for text in named:
         assert text in lines[0], lines[0]
     assert "Traceback" not in err
-
-
-def own_terrain_scenario(name: str, tmp_path: Path) -> Path:
-    """scenarios/<name>.yaml, or a copy pointing at <repo>/shared/data when the data is there."""
-    path = SCENARIOS / f"{name}.yaml"
-    if GENERATED_PNG is not None and GENERATED_PNG.parent.parent.parent == REPO.parent / "shared":
-        return path
-    copy = tmp_path / path.name
-    copy.write_text(path.read_text().replace("../../shared/data/grid_map/heightmap_generated.png",
-                                             str(GENERATED_PNG)))
-    return copy
 
 
 # -- 1. the README's A* example and the walker agree -------------------------------------------------
@@ -77,12 +61,12 @@ def test_astar_says_why_a_goal_is_blocked(tmp_path):
 
 
 # -- 2. own heightmaps: a PNG with its scale, paths relative to the scenario ------------------------
-@needs_generated_png
-def test_png_heightmap_with_scale_in_the_scenario(tmp_path):
+def test_png_heightmap_with_scale_in_the_scenario():
     from qz_drake.config import load_scenario
     from qz_drake.station import make_heightmap
 
-    scenario = load_scenario(own_terrain_scenario("walk_own_terrain", tmp_path))
+    scenario = load_scenario(SCENARIOS / "walk_own_terrain.yaml")
+    assert Path(scenario.terrain.file).resolve() == GENERATED_PNG
     heightmap = make_heightmap(scenario.terrain)
     assert heightmap.shape == (195, 250) and heightmap.resolution == 0.05
     assert heightmap.heights.min() == pytest.approx(0.0) and heightmap.heights.max() == pytest.approx(0.4)
@@ -109,7 +93,6 @@ def test_relative_terrain_file_is_relative_to_the_scenario(tmp_path):
         os.chdir(cwd)
 
 
-@needs_generated_png
 def test_png_without_its_scale_names_the_param(tmp_path):
     path = tmp_path / "s.yaml"
     path.write_text(f"terrain: {{kind: file, file: {GENERATED_PNG}}}\n")
@@ -295,15 +278,12 @@ def test_readme_own_terrain_section_has_the_four_commands():
 _COMMANDS = _own_terrain_commands()
 
 
-@needs_generated_png
 @pytest.mark.parametrize("command", [
     pytest.param(c, marks=[pytest.mark.slow] if "walk_own_terrain" in c and "simulate" in c else [])
     for c in _COMMANDS], ids=["stand", "costmap", "astar", "walk"][:len(_COMMANDS)])
 def test_readme_own_terrain_command(command, tmp_path):
     argv = shlex.split(command)[1:]
     for k, word in enumerate(argv):
-        if word.startswith("scenarios/"):
-            argv[k] = str(own_terrain_scenario(Path(word).stem, tmp_path))
         if k and argv[k - 1] == "--out":
             argv[k] = str(tmp_path / "out")
     code, out, err = qz(*argv)

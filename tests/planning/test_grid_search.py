@@ -7,10 +7,8 @@ import pytest
 from qz_drake.errors import ConfigError
 from qz_drake.planning import GridPath, grid_search, search_directional
 
-# The shared data sit beside the checkout (../shared) or inside it (shared/).
-_REPO = Path(__file__).resolve().parents[2]
-MOVINGAI = next((p for p in (_REPO / "shared" / "data" / "movingai", _REPO.parent / "shared" / "data" / "movingai")
-                 if p.is_dir()), _REPO.parent / "shared" / "data" / "movingai")
+# The Moving AI Lab's arena benchmark, copied into the repository (data/external/movingai/SOURCE.md).
+MOVINGAI = Path(__file__).resolve().parents[2] / "data" / "external" / "movingai"
 
 
 def _arena_costs() -> np.ndarray:

@@ -10,10 +10,13 @@ from PIL import Image
 from qz_drake.errors import TerrainError
 from qz_drake.terrain import HeightMap, grid_map_terrain
 
-SHARED_DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "grid_map"
-TERRAIN_PNG = SHARED_DATA / "terrain.png"
-GENERATED_PNG = SHARED_DATA / "heightmap_generated.png"
-PACKAGED = Path(__file__).resolve().parents[2] / "qz_drake" / "data"
+REPO = Path(__file__).resolve().parents[2]
+# grid_map's demo pictures: terrain.png ships with the package, heightmap_generated.png serves
+# the scenarios (data/external/grid_map/SOURCE.md).
+PACKAGED = REPO / "qz_drake" / "data"
+EXTERNAL = REPO / "data" / "external" / "grid_map"
+TERRAIN_PNG = PACKAGED / "grid_map_terrain.png"
+GENERATED_PNG = EXTERNAL / "heightmap_generated.png"
 
 
 def _small():
@@ -204,8 +207,8 @@ def test_real_16_bit_rgb_png():
 
 
 def test_packaged_grid_map_copy():
-    assert (PACKAGED / "grid_map_terrain.png").read_bytes() == TERRAIN_PNG.read_bytes()
-    assert (PACKAGED / "GRID_MAP_LICENSE").read_bytes() == (SHARED_DATA / "LICENSE").read_bytes()
+    # Its bytes are checked against grid_map's in tests/test_self_contained.py.
+    assert (PACKAGED / "GRID_MAP_LICENSE").read_bytes() == (EXTERNAL / "LICENSE").read_bytes()
     packaged = grid_map_terrain()
     np.testing.assert_array_equal(packaged.heights, HeightMap.from_image(TERRAIN_PNG, 0.05, 0.0, 0.4).heights)
     assert packaged.bounds == pytest.approx((-12.475, 12.475, -12.475, 12.475))
