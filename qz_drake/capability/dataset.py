@@ -2,7 +2,8 @@
 
 A dataset folder holds ``manifest.json`` and ``shard-NNNNN.npz`` files (compressed, no
 pickle). Each shard is a batch of finished trial records, written by the collection's driver
-only, atomically (a temporary file renamed), and the manifest is rewritten after each shard.
+only, atomically (a temporary file renamed), and the manifest is rewritten after each shard
+(and only then: resuming a complete dataset changes no file).
 A trial's index is derived from (seed, index), so a resumed collection skips exactly the
 trials some shard holds: a trial is never run twice into the dataset, and an interrupted one
 is simply run again.
@@ -208,19 +209,25 @@ class TrialStore:
 
     def _open(self, seed: int, settings: dict, parts: dict[str, str], command: str) -> None:
         manifest_path = self.path / MANIFEST
+        # The command is recorded with the first shard it adds: a resumed collection with nothing
+        # left to run leaves an existing (perhaps tracked) manifest untouched.
+        self._command = command
         if manifest_path.exists():
-            manifest = read_manifest(self.path)
-            check_same(manifest, seed=seed, settings=settings, parts=parts, where=str(self.path))
-        else:
-            if any(self.path.glob("shard-*.npz")):
-                raise bad_value("--out", str(self.path), "holds shards but no manifest.json")
-            manifest = {"format": FORMAT, "seed": int(seed), "settings": settings,
-                        "fingerprints": parts, "fingerprint": combined_fingerprint(parts),
-                        "commands": [], "shards": []}
-        if command:
-            manifest.setdefault("commands", []).append(command)
-        self.manifest = manifest
+            self.manifest = read_manifest(self.path)
+            check_same(self.manifest, seed=seed, settings=settings, parts=parts, where=str(self.path))
+            return
+        if any(self.path.glob("shard-*.npz")):
+            raise bad_value("--out", str(self.path), "holds shards but no manifest.json")
+        self.manifest = {"format": FORMAT, "seed": int(seed), "settings": settings,
+                         "fingerprints": parts, "fingerprint": combined_fingerprint(parts),
+                         "commands": [], "shards": []}
+        self._record_command()
         self._write_manifest()
+
+    def _record_command(self) -> None:
+        if self._command:
+            self.manifest.setdefault("commands", []).append(self._command)
+            self._command = ""
 
     def done_indices(self) -> set[int]:
         done = set()
@@ -237,6 +244,7 @@ class TrialStore:
         name = f"shard-{number:05d}.npz"
         arrays = records_to_arrays(records)
         _atomic_write(self.path / name, lambda tmp: np.savez_compressed(open(tmp, "wb"), **arrays))
+        self._record_command()
         self.manifest["shards"].append({
             "file": name, "count": len(records),
             "executed": int(np.count_nonzero(arrays["status"] == "executed")),

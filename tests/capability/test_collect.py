@@ -53,10 +53,11 @@ def test_a_collection_records_labels_and_network_inputs(reference):
 def test_two_workers_resume_and_a_killed_worker_give_the_same_dataset(reference, tmp_path):
     collect(tmp_path / "two", workers=2, **SMALL)
     _same(reference, tmp_path / "two")
-    first = collect(tmp_path / "resumed", workers=1, limit=1, **SMALL)
-    second = collect(tmp_path / "resumed", workers=1, **SMALL)
+    first = collect(tmp_path / "resumed", workers=1, limit=1, command="qz first", **SMALL)
+    second = collect(tmp_path / "resumed", workers=1, command="qz second", **SMALL)
     assert (first.ran, second.already_done, second.ran) == (1, 1, 1)
     _same(reference, tmp_path / "resumed")
+    assert json.loads((tmp_path / "resumed" / "manifest.json").read_text())["commands"] == ["qz first", "qz second"]
     victim = trial_index(0, 0, "front_bend", "turn", 1)
     os.environ[CRASH_ENV] = f"{victim}:{tmp_path / 'crashed_once'}"
     try:
@@ -104,6 +105,22 @@ def test_recertify_moves_a_dataset_to_code_that_reproduces_it_and_refuses_one_th
     assert run.returncode == 1, run.stderr
     assert "final_yaw_error_deg" in run.stdout and "2 of 2" in run.stdout
     assert json.loads((changed / "manifest.json").read_text()) == manifest
+
+
+def test_collecting_into_a_complete_dataset_changes_no_file(reference, tmp_path):
+    # data/capability is tracked: `qz capability collect` with nothing left to run must leave
+    # its manifest (and every shard) as they are, not append its command line to the manifest.
+    complete = tmp_path / "complete"
+    shutil.copytree(reference, complete)
+    before = {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in complete.iterdir() if p.name != "collect.lock"}
+    run = subprocess.run(QZ + ["capability", "collect", "--out", str(complete), "--seed", "27", "--scenes", "1",
+                               "--topologies", "nominal,front_bend", "--kinds", "turn", "--json"],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    summary = json.loads(run.stdout)
+    assert (summary["already_done"], summary["ran"]) == (2, 0)
+    after = {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in complete.iterdir() if p.name != "collect.lock"}
+    assert after == before
 
 
 @pytest.mark.parametrize("args, field", [
