@@ -134,8 +134,12 @@ def _cmd_simulate(args) -> int:
             # A driver in another process (qz robot-sim, the robot): both sides in real time.
             station_factory = partial(make_remote_lcm_station, lcm_url=args.lcm_url, config=config)
             realtime_rate = args.realtime_rate
-    result = simulate(scenario, duration=args.duration, out_dir=args.out, station_factory=station_factory,
-                      realtime_rate=realtime_rate)
+    from qz_drake.progress import ProgressReport, simulation_progress
+
+    with ProgressReport(f"simulate {scenario.name}: building", unit="s simulated", digits=1) as report:
+        result = simulate(scenario, duration=args.duration, out_dir=args.out, station_factory=station_factory,
+                          realtime_rate=realtime_rate,
+                          progress=simulation_progress(report, f"simulate {scenario.name}"))
     print(json.dumps(result.metrics))
     return 0 if result.metrics["success"] else 1
 
@@ -174,7 +178,7 @@ def _cmd_demo(args) -> int:
 
     positive_seconds(args.duration, "--duration")
     output_folder(args.out)
-    metrics = run_demo(args.out, duration=args.duration)
+    metrics = run_demo(args.out, duration=args.duration, progress=True)
     print(json.dumps(metrics))
     return 0 if metrics["success"] else 1
 

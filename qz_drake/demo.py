@@ -69,9 +69,13 @@ def demo_scenario(goal=DEMO_GOAL, seed: int = DEMO_SEED) -> Scenario:
                                     route=[Waypoint(x=float(goal[0]), y=float(goal[1]))]))
 
 
-def run_demo(out_dir: str | Path, duration: float | None = None, goal=DEMO_GOAL) -> dict:
+def run_demo(out_dir: str | Path, duration: float | None = None, goal=DEMO_GOAL, *, progress: bool = False) -> dict:
     """Runs the demo walk into ``out_dir``; returns the summary (also written to summary.json;
-    metrics.json holds every metric of the walk)."""
+    metrics.json holds every metric of the walk). ``progress``: on stderr, the planning, then
+    the simulated time against the walk's expected end and the missions planned
+    (qz_drake.progress)."""
+    from qz_drake.progress import ProgressReport, simulation_progress
+
     if duration is not None and not (math.isfinite(duration) and duration > 0):
         raise bad_value("duration", duration, "must be a finite positive number of seconds")
     out = Path(out_dir)
@@ -79,7 +83,9 @@ def run_demo(out_dir: str | Path, duration: float | None = None, goal=DEMO_GOAL)
     scenario = demo_scenario(goal)
     if duration is not None:
         scenario.simulation.duration = duration
-    result = simulate(scenario, out_dir=out)
+    with ProgressReport("demo: building the world and planning the route", unit="s simulated", digits=1,
+                        enabled=progress) as report:
+        result = simulate(scenario, out_dir=out, progress=simulation_progress(report, "demo: walking"))
     keys = ("success", "reason", "reasons", "final_xy_error_m", "missions", "topology_changes", "replans",
             "tlc_recoveries", "planning_time_s", "value_iterations", "blc_solves", "blc_failures",
             "blc_retries", "blc_solve_time_s",

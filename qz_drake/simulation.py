@@ -93,15 +93,18 @@ def add_tracking_controller(builder, station, info, plan=None, *, kp: float, kd:
 
 def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Meshcat | None = None,
              out_dir: str | Path | None = None, station_factory=make_station,
-             realtime_rate: float = 0.0) -> SimulationResult:
+             realtime_rate: float = 0.0, progress=None) -> SimulationResult:
     """Simulates a scenario; writes recording.html, metrics.json and plots to out_dir if given.
 
     ``station_factory(scenario, meshcat, mesh_dir=...) -> (diagram, info)`` builds the station
     (make_station; qz_drake.hardware.loopback: over LCM). ``realtime_rate`` paces the simulator
-    (0: as fast as possible; 1 against a robot driver in another process)."""
+    (0: as fast as possible; 1 against a robot driver in another process). ``progress(sim_time,
+    end_time, missions)`` hears how far the run is while it runs (a walk: every half second
+    simulated; a standing run: at most every PROGRESS_PERIOD of wall time) and once when the
+    simulation has ended (end_time then its final time; missions None for a standing run)."""
     if scenario.controller.kind == "walk":
         return walk(scenario, meshcat=meshcat, out_dir=out_dir, max_duration=duration,
-                    station_factory=station_factory, realtime_rate=realtime_rate)
+                    station_factory=station_factory, realtime_rate=realtime_rate, progress=progress)
     builder = DiagramBuilder()
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
@@ -121,9 +124,13 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
     duration = scenario.simulation.duration if duration is None else duration
     if meshcat is not None:
         meshcat.StartRecording(frames_per_second=RECORDING_FPS)
+    if progress is not None:
+        _monitor_progress(simulator, duration, progress)
     wall_start = time.perf_counter()
     simulator.AdvanceTo(duration)
     wall = time.perf_counter() - wall_start
+    if progress is not None:
+        progress(duration, duration, None)
     context = simulator.get_context()
     files = {}
     if meshcat is not None:
@@ -134,7 +141,7 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
     trunk = trunk_log.FindLog(context).data()[0]
     metrics = standing_metrics(scenario, info, times, states, trunk,
                                leg_link_force=None if leg_log is None else leg_log.FindLog(context).data().T)
-    metrics.update(_station_metrics(station_diagram, context))
+    _add_station_metrics(metrics, station_diagram, context)
     metrics.update(sim_time_s=float(duration), wall_time_s=wall,
                    realtime_factor=float(duration / wall) if wall > 0 else float("inf"),
                    terrain_contact=info.contact_representation)
@@ -150,10 +157,37 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
                             trunk_contact=trunk, files=files)
 
 
-def _station_metrics(station, root_context) -> dict:
-    """A station's own counters (the LCM station's watchdogs), if it reports any."""
+# Wall time between two progress reports of a running simulation. [s]
+PROGRESS_PERIOD = 0.25
+
+
+def _monitor_progress(simulator, end_time: float, progress) -> None:
+    """Reports the simulated time from a Simulator monitor: it runs after each step and only
+    reads the time, so the run advances in the same steps as without it (one AdvanceTo)."""
+    from pydrake.systems.framework import EventStatus
+
+    last = [-PROGRESS_PERIOD]
+
+    def monitor(context):
+        now = time.perf_counter()
+        if now - last[0] >= PROGRESS_PERIOD:
+            last[0] = now
+            progress(context.get_time(), end_time, None)
+        return EventStatus.DidNothing()
+
+    simulator.set_monitor(monitor)
+
+
+def _add_station_metrics(metrics: dict, station, root_context) -> None:
+    """Adds a station's own counters (the LCM station's watchdogs), if it reports any. A failed
+    run during which the station latched a safe stop says so first: the robot stopped there,
+    and the rest of the reason (a missed target) is only what followed."""
     report = getattr(station, "station_metrics", None)
-    return report(root_context) if report is not None else {}
+    metrics.update(report(root_context) if report is not None else {})
+    if metrics.get("safe_stop") and not metrics["success"]:
+        metrics["reason"] = f"safe stop {metrics['safe_stop']}; {metrics['reason']}"
+        if "reasons" in metrics:
+            metrics["reasons"] = ["safe_stop", *metrics["reasons"]]
 
 
 def _optional_log(builder, station, name: str):
@@ -230,7 +264,7 @@ def _tripod_planner(heightmap, params, control):
 def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | Path | None = None,
          max_duration: float | None = None, heightmap=None, stop_on_failure: bool = False,
          blc_params=None, station_factory=make_station, realtime_rate: float = 0.0,
-         mission_retries: int | None = None) -> SimulationResult:
+         mission_retries: int | None = None, progress=None) -> SimulationResult:
     """Walks a scenario's route: missions planned from the measured state, IK + joint PD.
 
     ``heightmap`` replaces the map of the scenario's terrain section (see make_station). With
@@ -239,7 +273,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     are the BLC's BlcParameters (None: the defaults; for CapPlanner, the capability trials'
     iteration budget). ``mission_retries``: how often the BLC system solves a mission that
     failed to plan again, one tripod cycle longer each time (None: CAPPLANNER_MISSION_RETRIES
-    for CapPlanner, 0 otherwise). ``station_factory`` and ``realtime_rate`` as in simulate()."""
+    for CapPlanner, 0 otherwise). ``station_factory``, ``realtime_rate`` and ``progress`` as in
+    simulate(); ``progress`` hears the missions planned so far."""
     from qz_drake.systems.mission_sequencer import split_route
 
     out = Path(out_dir) if out_dir is not None else None
@@ -321,7 +356,11 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
         if missions.done and missions.log.plans and \
                 context.get_time() >= missions.log.plans[-1].end_time + 0.5:
             break
+        if progress is not None:
+            progress(context.get_time(), _expected_end(missions, targets, limit), len(missions.log.plans))
     wall = time.perf_counter() - wall_start
+    if progress is not None:
+        progress(context.get_time(), context.get_time(), len(missions.log.plans))
     if meshcat is not None:
         meshcat.StopRecording()
     times = state_log.FindLog(context).sample_times()
@@ -343,7 +382,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
                    terrain_contact=info.contact_representation, planner=control.planner, **counts)
     if counts.get("unreachable"):
         _gave_up(metrics, counts["unreachable"], counts.get("tlc_recoveries", 0))
-    metrics.update(_station_metrics(station_diagram, context))
+    _add_station_metrics(metrics, station_diagram, context)
     files = {}
     if out is not None:
         from qz_drake.viz.plots import plot_walk
@@ -361,6 +400,25 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
         files["metrics"] = str(out / "metrics.json")
     return SimulationResult(metrics=metrics, times=times, states=states, foot_contact=contacts,
                             trunk_contact=trunk, files=files)
+
+
+def _expected_end(missions, targets, limit: float) -> float:
+    """When the walk should end, for the progress display only: after the last planned
+    mission, the missions still ahead (CapPlanner: the rest of its latest replan; a fixed
+    route: the rest of the route), each as long as the mean so far; at most the limit."""
+    log = missions.log
+    if not log.plans:
+        return limit
+    replans = getattr(log, "replans", None)
+    if missions.done:
+        ahead = 0
+    elif replans:  # (time, start, missions planned, predicted success): the first is under way
+        ahead = replans[-1][2] - 1 + len(log.targets) - len(log.plans)
+    else:
+        ahead = len(targets) - len(log.plans)
+    mean = (log.plans[-1].end_time - log.plans[0].start_time) / len(log.plans)
+    # The walk stops half a second after its last plan has ended (the loop above).
+    return min(limit, log.plans[-1].end_time + max(ahead, 0) * mean + 0.5)
 
 
 class _PlannerMissions:

@@ -338,13 +338,16 @@ class _Progress:
         from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
                                    TimeElapsedColumn, TimeRemainingColumn)
 
+        from qz_drake.progress import SPEED_PERIOD, stderr_console
+
         self._progress = Progress(TextColumn("trials"), BarColumn(), MofNCompleteColumn(),
                                   TextColumn("{task.fields[rate]:.2f}/s"), TimeElapsedColumn(),
-                                  TextColumn("ETA"), TimeRemainingColumn())
+                                  TextColumn("ETA"), TimeRemainingColumn(), speed_estimate_period=SPEED_PERIOD)
         self._task = self._progress.add_task("trials", total=total, rate=0.0)
         self._start = time.perf_counter()
         self._group = Group
-        self._live = Live(self._render(), refresh_per_second=2, transient=False)
+        # On stderr, as every progress display (qz_drake.progress): the summary on stdout stays JSON.
+        self._live = Live(self._render(), refresh_per_second=2, transient=False, console=stderr_console())
         self._live.start()
 
     def _render(self):

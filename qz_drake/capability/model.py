@@ -62,36 +62,112 @@ def _jsonable(value):
     raise TypeError(type(value).__name__)
 
 
-def save_model(result, out_dir) -> Path:
-    """Writes a TrainingResult (qz_drake.capability.training) as a model directory; returns it."""
+# What save_network writes around a network's own card (NetworkResult.card).
+_CARD_WRAPPER = ("format", "version", "name", "fingerprint", "fingerprints", "weights", "weights_sha256",
+                 "network_config", "training_config", "training_identity")
+# The folder inside a model folder where a training keeps each network as it finishes; it
+# becomes the model (model.json, the networks beside it) only when every network is done, so
+# an interrupted retraining leaves the earlier model whole.
+UNFINISHED_DIR = "unfinished_training"
+
+
+def _replace(path: Path, write) -> None:
+    """Writes a file aside and renames it into place: a file on disk is always whole."""
+    import os
+
+    tmp = path.with_name(path.name + ".tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def save_network(out_dir, network, *, fingerprint: str, fingerprints: dict, config: dict,
+                 identity: dict | None = None) -> dict:
+    """Writes one NetworkResult (qz_drake.capability.training) into ``out_dir``: its weights,
+    then its card (so a card always describes weights that are complete); ``identity``
+    (training.training_identity) goes into the card of an unfinished training. Returns the
+    network's entry of model.json."""
     from safetensors.torch import save_file
 
     from qz_drake.capability.training import network_name
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    stem = file_stem(network.topology, network.kind)
+    weights = out / f"{stem}.safetensors"
+    state = {k: v.detach().contiguous() for k, v in network.net.state_dict().items()}
+    _replace(weights, lambda tmp: save_file(state, str(tmp), metadata={
+        "format": NETWORK_FORMAT, "version": str(FORMAT_VERSION), "topology": network.topology, "kind": network.kind,
+        "network_config": json.dumps(dataclasses.asdict(network.net.config)), "fingerprint": fingerprint}))
+    card = {"format": NETWORK_FORMAT, "version": FORMAT_VERSION, "name": network_name(network.topology, network.kind),
+            "fingerprint": fingerprint, "fingerprints": fingerprints,
+            "weights": weights.name, "weights_sha256": _sha256(weights),
+            "network_config": dataclasses.asdict(network.net.config), "training_config": config,
+            **({"training_identity": identity} if identity is not None else {}), **network.card}
+    _replace(out / f"{stem}.json", lambda tmp: tmp.write_text(json.dumps(card, indent=2, default=_jsonable)))
+    return {"weights": weights.name, "card": f"{stem}.json"}
+
+
+def save_model(result, out_dir) -> Path:
+    """Writes a TrainingResult (qz_drake.capability.training) as a model directory; returns it."""
+    from qz_drake.capability.training import network_name
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
     config = dataclasses.asdict(result.config)
-    entries = {}
-    for (topology, kind), network in sorted(result.networks.items()):
-        stem = file_stem(topology, kind)
-        weights = out / f"{stem}.safetensors"
-        state = {k: v.detach().contiguous() for k, v in network.net.state_dict().items()}
-        save_file(state, str(weights), metadata={
-            "format": NETWORK_FORMAT, "version": str(FORMAT_VERSION), "topology": topology, "kind": kind,
-            "network_config": json.dumps(dataclasses.asdict(network.net.config)),
-            "fingerprint": result.fingerprint})
-        card = {"format": NETWORK_FORMAT, "version": FORMAT_VERSION, "name": network_name(topology, kind),
-                "fingerprint": result.fingerprint, "fingerprints": result.fingerprints,
-                "weights": weights.name, "weights_sha256": _sha256(weights),
-                "network_config": dataclasses.asdict(network.net.config), "training_config": config,
-                **network.card}
-        (out / f"{stem}.json").write_text(json.dumps(card, indent=2, default=_jsonable))
-        entries[network_name(topology, kind)] = {"weights": weights.name, "card": f"{stem}.json"}
+    entries = {network_name(topology, kind): save_network(out, network, fingerprint=result.fingerprint,
+                                                          fingerprints=result.fingerprints, config=config)
+               for (topology, kind), network in sorted(result.networks.items())}
     top = {"format": MODEL_FORMAT, "version": FORMAT_VERSION, "fingerprint": result.fingerprint,
            "fingerprints": result.fingerprints, "networks": entries, "missing": result.missing,
            "split": result.split, "training_config": config}
     (out / MODEL_CARD).write_text(json.dumps(top, indent=2, default=_jsonable))
     return out
+
+
+def _first_difference(theirs, mine, path: str = ""):
+    """(dotted key, theirs, mine) of the first entry where two JSON values differ, or None."""
+    if isinstance(theirs, dict) and isinstance(mine, dict):
+        for key in sorted(set(theirs) | set(mine)):
+            found = _first_difference(theirs.get(key), mine.get(key), f"{path}.{key}" if path else key)
+            if found:
+                return found
+        return None
+    return None if theirs == mine else (path, theirs, mine)
+
+
+def unfinished_networks(folder, identity: dict) -> dict:
+    """(topology, kind) -> NetworkResult of the networks an interrupted training saved in
+    ``folder`` (save_network with its ``identity``), for the same training to go on from.
+
+    A card that records another training (another dataset, setting or training code; or none)
+    is refused with a CapabilityModelError naming the first thing that differs: a resumed
+    training never mixes two trainings. A network whose weights file is missing or does not
+    match its card is left out (trained again).
+    """
+    from qz_drake.capability.training import ALL_NETWORKS, NetworkResult, network_name
+
+    folder = Path(folder)
+    mine = json.loads(json.dumps(identity, default=_jsonable))
+    found = {}
+    for topology, kind in ALL_NETWORKS:
+        path = folder / f"{file_stem(topology, kind)}.json"
+        if not path.is_file():
+            continue
+        name = network_name(topology, kind)
+        card = _read_json(path, f"{UNFINISHED_DIR}.{name}")
+        difference = _first_difference(card.get("training_identity"), mine)
+        if difference is not None:
+            field, theirs, ours = difference
+            raise _error(f"{path}: training_identity.{field}" if field else f"{path}: training_identity", theirs,
+                         f"the interrupted training there differs from this one ({ours!r}): rerun it with its own "
+                         "arguments to finish it, use another --out, or pass --restart to discard it")
+        try:
+            net = load_network(folder / str(card.get("weights")), card, name)
+        except CapabilityModelError:
+            continue
+        found[(topology, kind)] = NetworkResult(topology, kind, net,
+                                                {k: v for k, v in card.items() if k not in _CARD_WRAPPER})
+    return found
 
 
 def _read_json(path: Path, field: str) -> dict:

@@ -1,9 +1,10 @@
 """``qz capability train``, ``qz capability evaluate`` and ``qz capability map`` (issue #13).
 
-``qz capability train --dataset DIR --out DIR [--json]`` trains the 18 networks on a trial
-dataset (split by scene), writes the model directory (safetensors + JSON cards) with
+``qz capability train --dataset DIR --out DIR [--json] [--restart]`` trains the 18 networks on
+a trial dataset (split by scene), writes the model directory (safetensors + JSON cards) with
 ``reliability.png`` and ``confusion.png`` of the test scenes, and prints the metrics table
-(or one JSON line).
+(or one JSON line). Each network is kept as soon as it is trained: after Ctrl-C the same
+command trains only the missing ones.
 
 ``qz capability evaluate [--model DIR] --dataset DIR [--json] [--out DIR]`` scores a model on
 every trial of a dataset whose fingerprints are the model's; the JSON has one entry per
@@ -68,9 +69,48 @@ def _figures(entries: list[dict], out: Path, what: str) -> list[str]:
             str(plot_confusion(named, out / "confusion.png", title=f"Confusion at 0.5, {what}"))]
 
 
+def train_resumably(arrays: dict, manifest: dict, config, out, *, restart: bool = False, progress: bool = False):
+    """Trains the networks into the model folder ``out`` so that an interruption keeps what
+    finished: each network is saved in ``out/unfinished_training/`` as soon as it is trained,
+    and the same training run again (same dataset, settings and code) trains only the ones
+    missing there; the folder becomes the model (save_model) when all are done. ``restart``
+    discards an unfinished training there first. Returns (TrainingResult, networks resumed)."""
+    import dataclasses
+    import shutil
+
+    from qz_drake.capability.model import UNFINISHED_DIR, save_model, save_network, unfinished_networks
+    from qz_drake.capability.training import train_networks, training_identity
+
+    fingerprint, fingerprints = manifest.get("fingerprint"), manifest.get("fingerprints")
+    config.check()
+    unfinished = Path(out) / UNFINISHED_DIR
+    if restart and unfinished.is_dir():
+        shutil.rmtree(unfinished)
+    identity = training_identity(arrays, fingerprint=fingerprint, fingerprints=fingerprints, config=config)
+    finished = unfinished_networks(unfinished, identity) if unfinished.is_dir() else {}
+    settings = dataclasses.asdict(config)
+
+    def keep(network):
+        save_network(unfinished, network, fingerprint=fingerprint, fingerprints=dict(fingerprints or {}),
+                     config=settings, identity=identity)
+
+    try:
+        result = train_networks(arrays, fingerprint=fingerprint, fingerprints=fingerprints, config=config,
+                                progress=progress, finished=finished, on_network=keep)
+    except KeyboardInterrupt:
+        import sys
+
+        done = len(list(unfinished.glob("*.json"))) if unfinished.is_dir() else 0
+        print(f"qz capability train: {done} trained networks kept in {unfinished}; the same command trains "
+              "the rest", file=sys.stderr)
+        raise
+    save_model(result, out)
+    shutil.rmtree(unfinished, ignore_errors=True)
+    return result, sorted(finished)
+
+
 def run_train(args) -> int:
-    from qz_drake.capability.model import save_model
-    from qz_drake.capability.training import ALL_NETWORKS, TrainingConfig, train_networks
+    from qz_drake.capability.training import ALL_NETWORKS, TrainingConfig, network_name
 
     arrays, manifest = load_dataset(args.dataset)
     config = TrainingConfig(seed=args.seed)
@@ -78,9 +118,9 @@ def run_train(args) -> int:
         config.max_epochs = args.max_epochs
     if args.network:
         config.networks = list(args.network)
-    result = train_networks(arrays, fingerprint=manifest.get("fingerprint"), fingerprints=manifest.get("fingerprints"),
-                            config=config, progress=not args.json)
-    out = save_model(result, args.out)
+    result, resumed = train_resumably(arrays, manifest, config, args.out, restart=args.restart,
+                                      progress=not args.json)
+    out = Path(args.out)
     rows = []
     for (topology, kind), network in sorted(result.networks.items(), key=lambda item: ALL_NETWORKS.index(item[0])):
         card = network.card
@@ -93,7 +133,8 @@ def run_train(args) -> int:
     figures = _figures([dict(r, **result.networks[(r["topology"], r["kind"])].card["test"]) for r in rows],
                        out, "test scenes")
     summary = {"model": str(out), "fingerprint": result.fingerprint, "networks": rows, "missing": result.missing,
-               "split_scenes": {k: len(v) for k, v in result.split.items()}, "figures": figures}
+               "split_scenes": {k: len(v) for k, v in result.split.items()}, "figures": figures,
+               "resumed": [network_name(*key) for key in resumed]}
     (out / "report.json").write_text(json.dumps(summary, indent=2))
     if args.json:
         print(json.dumps(summary))
@@ -113,6 +154,8 @@ def run_train(args) -> int:
                 print(f"no network {name}: {why}")
         if not_requested:
             print(f"not requested: {', '.join(not_requested)}")
+        if resumed:
+            print(f"resumed: {', '.join(summary['resumed'])} came from the interrupted training")
         print("figures: " + ", ".join(figures))
     return 0
 
@@ -186,6 +229,9 @@ def register_model_commands(subparsers) -> None:
     p.add_argument("--max-epochs", type=int, default=None, help="cap on epochs per run")
     p.add_argument("--network", action="append", metavar="TOPOLOGY/KIND",
                    help="train only this network (repeatable); default all with data")
+    p.add_argument("--restart", action="store_true",
+                   help="discard the networks an interrupted training left in --out and train all again "
+                        "(without it, the same command goes on where the training stopped)")
     p.set_defaults(func=run_train)
 
     p = subparsers.add_parser("evaluate", help="score a capability model on a trial dataset")

@@ -20,6 +20,7 @@ is listed in ``TrainingResult.missing`` with the reason, and the model refuses q
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 import time
 
@@ -29,6 +30,7 @@ from qz_drake.capability.evaluation import (EvaluationConfig, baseline_inputs, b
                                             binary_metrics)
 from qz_drake.capability.patches import KINDS, PATCH_SIZE, mirror_inputs
 from qz_drake.errors import ConfigError, bad_value
+from qz_drake.progress import ProgressReport
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 
 # Keys of the dataset contract (qz_drake.capability.dataset.load_training_arrays) used here.
@@ -372,8 +374,41 @@ def _failure_counts(arrays: dict, rows: np.ndarray) -> dict[str, int]:
     return {"planning": int(np.sum(failed & ~planned)), "execution": int(np.sum(failed & planned))}
 
 
+def dataset_digest(arrays: dict) -> str:
+    """SHA-256 of the arrays the networks learn from (REQUIRED_KEYS): two datasets with the
+    same fingerprints but other trials (a collection that went on) differ here."""
+    digest = hashlib.sha256()
+    for key in REQUIRED_KEYS:
+        array = np.ascontiguousarray(arrays[key])
+        digest.update(f"{key}:{array.dtype.str}:{array.shape}".encode())
+        digest.update(array.tobytes())
+    return digest.hexdigest()
+
+
+# The modules whose code decides what a trained network is.
+TRAINING_MODULES = ("qz_drake.capability.training", "qz_drake.capability.networks",
+                    "qz_drake.capability.evaluation", "qz_drake.capability.patches")
+
+
+def training_identity(arrays: dict, *, fingerprint: str, fingerprints: dict | None,
+                      config: TrainingConfig) -> dict:
+    """What makes two trainings the same one, so that a resumed training never mixes in a
+    network of another: the dataset (its digest and fingerprints), every setting but the list
+    of networks (a network is the same whether trained alone or with the rest: it is seeded by
+    its place among the 18) and the training code (syntax trees, comments and docstrings
+    aside). JSON-ready."""
+    from qz_drake.capability.dataset import _code_hash
+
+    settings = dataclasses.asdict(config)
+    settings.pop("networks")
+    code = hashlib.sha256("\n".join(f"{m}:{_code_hash(m)}" for m in TRAINING_MODULES).encode()).hexdigest()[:16]
+    return {"dataset_digest": dataset_digest(arrays), "fingerprint": fingerprint,
+            "fingerprints": dict(fingerprints or {}), "training_config": settings, "training_code": code}
+
+
 def train_networks(arrays: dict, *, fingerprint: str, fingerprints: dict | None = None,
-                   config: TrainingConfig | None = None, progress: bool = False) -> TrainingResult:
+                   config: TrainingConfig | None = None, progress: bool = False, finished: dict | None = None,
+                   on_network=None) -> TrainingResult:
     """Trains every (topology, kind) network the arrays have data for.
 
     Args:
@@ -383,7 +418,12 @@ def train_networks(arrays: dict, *, fingerprint: str, fingerprints: dict | None 
         fingerprints: the manifest's per-component fingerprints (robot, blc, controller,
             verdict), kept so that ``evaluate`` can name the component that differs.
         config: training protocol; defaults in :class:`TrainingConfig`.
-        progress: a rich progress bar per network.
+        progress: networks done of the total, with an ETA, on stderr (qz_drake.progress).
+        finished: (topology, kind) -> NetworkResult of this same training, done before it was
+            interrupted (qz_drake.capability.model.unfinished_networks): taken as they are,
+            not trained again.
+        on_network: called with each NetworkResult as soon as it is trained (to save it, so
+            that an interrupted training keeps what it finished).
     """
     config = (config or TrainingConfig()).check()
     if not isinstance(fingerprint, str) or not fingerprint:
@@ -397,7 +437,7 @@ def train_networks(arrays: dict, *, fingerprint: str, fingerprints: dict | None 
     unknown = sorted(set(np.unique(topology)) - set(TOPOLOGY_NAMES)) + sorted(set(np.unique(kind)) - set(KINDS))
     if unknown:
         raise bad_value("dataset.topology/kind", unknown, "not a topology or network kind of qz_drake")
-    networks, missing, plan = {}, {}, []
+    missing, plan = {}, []
     for t, k in wanted:
         # Seeded by its place among all 18, so a network trained alone is the one of a full run.
         index = ALL_NETWORKS.index((t, k))
@@ -415,29 +455,31 @@ def train_networks(arrays: dict, *, fingerprint: str, fingerprints: dict | None 
         reasons = "; ".join(f"{network_name(t, k)}: {missing[network_name(t, k)]}" for t, k in wanted)
         raise ConfigError(f"dataset: no network has enough data to train ({reasons})")
 
+    finished = {key: finished[key] for key in (finished or {}) if key in {(t, k) for _, t, k, _ in plan}}
+    todo = [p for p in plan if (p[1], p[2]) not in finished]
     pooled: dict[str, dict] = {}
     if "pooled" in config.initialisations:
-        for k in dict.fromkeys(k for _, _, k, _ in plan):
+        for k in dict.fromkeys(k for _, _, k, _ in todo):
             mask = kind == k
             rows = {name: np.nonzero(mask & m)[0] for name, m in in_split.items()}
             pooled[k] = pooled_states(arrays, rows, k, config, config.seed + 1000 + KINDS.index(k))
-    epochs = config.max_epochs * len(config.losses) * len(config.initialisations)
-    if progress:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    runs = len(config.losses) * len(config.initialisations)
+    with ProgressReport("training networks", len(plan), unit="networks", completed=len(finished),
+                        enabled=progress) as report:
+        for index, t, k, rows in todo:
+            epochs = [0]
 
-        with Progress(TextColumn("{task.description:<24}"), BarColumn(), MofNCompleteColumn(),
-                      TextColumn("epochs (max)"), TimeElapsedColumn()) as bar:
-            tasks = {(t, k): bar.add_task(network_name(t, k), total=epochs) for _, t, k, _ in plan}
-            for index, t, k, rows in plan:
-                networks[(t, k)] = train_one(arrays, rows, t, k, config, config.seed + index,
-                                             lambda step, task=tasks[(t, k)]: bar.advance(task, step),
-                                             pooled=pooled.get(k))
-                # Early stopping ends a run before max_epochs: the bar says the network is done.
-                bar.update(tasks[(t, k)], completed=epochs)
-    else:
-        for index, t, k, rows in plan:
-            networks[(t, k)] = train_one(arrays, rows, t, k, config, config.seed + index,
-                                         pooled=pooled.get(k))
+            def advance(step, name=network_name(t, k), epochs=epochs):
+                epochs[0] += step
+                report.update(status=f"{name}: epoch {epochs[0]} (at most {config.max_epochs} x {runs} runs)")
+
+            network = train_one(arrays, rows, t, k, config, config.seed + index, advance, pooled=pooled.get(k))
+            if on_network is not None:
+                on_network(network)
+            finished[(t, k)] = network
+            report.update(advance=1, status=f"{network_name(t, k)} done")
+    # In the order of the plan, whichever of them came from an interrupted run.
+    networks = {(t, k): finished[(t, k)] for _, t, k, _ in plan}
     return TrainingResult(networks=networks, missing=missing,
                           split={name: ids.tolist() for name, ids in split.items()},
                           fingerprint=fingerprint, fingerprints=dict(fingerprints or {}), config=config)

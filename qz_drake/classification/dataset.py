@@ -14,12 +14,15 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from qz_drake.classification import features as feat
 from qz_drake.errors import ConfigError, bad_value
+from qz_drake.progress import ProgressReport
 from qz_drake.robot.params import LEG_NAMES, NUM_LEGS
 
 
@@ -150,11 +153,15 @@ def _run_file(out: Path, material: str, k: int) -> Path:
 
 
 def _cached_run(path: Path, fingerprint: str) -> dict | None:
-    """The saved run at ``path`` when its fingerprint matches, else None."""
+    """The saved run at ``path`` when its fingerprint matches, else None (also for a file
+    that is not a whole run: one written before the run files were replaced atomically)."""
     if path.is_file():
-        with np.load(path, allow_pickle=False) as d:
-            if "fingerprint" in d.files and str(d["fingerprint"]) == fingerprint:
-                return {key: d[key] for key in d.files}
+        try:
+            with np.load(path, allow_pickle=False) as d:
+                if "fingerprint" in d.files and str(d["fingerprint"]) == fingerprint:
+                    return {key: d[key] for key in d.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile):
+            return None
     return None
 
 
@@ -194,7 +201,10 @@ def _simulate_run(spec: _RunSpec, config: "CollectConfig") -> dict:
                                dtype=np.str_).reshape(-1),
            "fell": np.asarray(result.fell),
            "fingerprint": np.asarray(spec.fingerprint(config), dtype=np.str_)}
-    np.savez(spec.path, **run)
+    # Written aside and renamed: an interrupted collection leaves whole runs only.
+    partial = spec.path.with_name(spec.path.stem + ".partial.npz")
+    np.savez(partial, **run)
+    os.replace(partial, spec.path)
     return run
 
 
@@ -271,9 +281,10 @@ def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True, wo
         rows["labels"].append(np.asarray(labels, dtype=int))
         rows["runs"].append(np.full(len(run["legs"]), run_id))
 
-    bar = _progress(progress)
-    with bar, _Runner(config, workers) as runner:
-        task = bar.add_task("collecting stances", total=len(classes) * config.stances_per_class + config.mixed_runs)
+    # One step per stance of the class's leg with the fewest, then one per mixed-floor run.
+    report = ProgressReport("classify collect", len(classes) * config.stances_per_class + config.mixed_runs,
+                            unit="steps", enabled=progress)
+    with report, _Runner(config, workers) as runner:
         for m, material in enumerate(classes):
             have = np.zeros(NUM_LEGS, dtype=int)
             k = 0
@@ -289,7 +300,9 @@ def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True, wo
                     add(run, np.full(len(run["legs"]), m), 1000 * m + j)
                     skipped[m] += run["skipped"]
                     have += np.bincount(np.asarray(run["legs"], dtype=int), minlength=NUM_LEGS)
-                    bar.update(task, completed=m * config.stances_per_class + min(have.min(), config.stances_per_class))
+                    report.update(m * config.stances_per_class + min(have.min(), config.stances_per_class),
+                                  status=f"{material}: run {j + 1}, {have.min()}/{config.stances_per_class} "
+                                         "stances on every leg")
                 k = batch.stop
         rng = np.random.default_rng(config.seed)
         # Stripes along x cut into patches along y: every material borders every other.
@@ -305,7 +318,8 @@ def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True, wo
                  "speeds": np.asarray(run["speeds"])[known], "fell": run.get("fell", False)},
                 labels[known], MIXED_RUN_ID + k)
             skipped_mixed += run["skipped"]
-            bar.update(task, advance=1)
+            report.update(len(classes) * config.stances_per_class + k + 1,
+                          status=f"mixed floor: run {k + 1}/{config.mixed_runs}")
     pool = StanceDataset(classes=classes, features=np.vstack(rows["features"]),
                          labels=np.concatenate(rows["labels"]).astype(int),
                          legs=np.concatenate(rows["legs"]).astype(int),
@@ -323,13 +337,6 @@ def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True, wo
                                   legs=pool.legs[keep], speeds=pool.speeds[keep], runs=pool.runs[keep])
     dataset.save(out / "dataset.npz")
     return dataset
-
-
-def _progress(enabled: bool):
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    disable=not enabled, transient=True)
 
 
 def summary(dataset: StanceDataset) -> dict:

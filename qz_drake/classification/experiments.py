@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from qz_drake.progress import ProgressReport
 from qz_drake.robot.params import LEG_NAMES, NUM_LEGS
 from qz_drake.systems.terrain_classifier import CONFIRMATIONS
 
@@ -205,26 +206,29 @@ def run_experiments(models_path, out_dir, config: ExperimentConfig | None = None
     out.mkdir(parents=True, exist_ok=True)
     result = {"config": dataclasses.asdict(config), "vibration": [], "files": {}}
     presets = None
-    if config.preset_candidates:
-        if progress:
-            print("preset sweep", flush=True)
-        sweep = preset_sweep(sorted({m for m, _ in config.vibration_cases}), config)
-        result["preset_sweep"] = sweep
-        presets = sweep["presets"]
+    # Steps: the preset sweep (if any), each vibration case, the mixed floor.
+    steps = bool(config.preset_candidates) + len(config.vibration_cases) + 1
     traces = {}
-    for material, speed in config.vibration_cases:
-        if progress:
-            print(f"vibration: {material} at {speed} m/s, fixed and adaptive", flush=True)
-        case = vibration_case(models, material, speed, config, presets)
-        result["vibration"].append(case["summary"])
-        traces[f"{material}, {speed} m/s"] = case["runs"]
+    with ProgressReport("classify experiment", steps, unit="steps", enabled=progress) as report:
+        if config.preset_candidates:
+            report.update(status="preset sweep")
+            sweep = preset_sweep(sorted({m for m, _ in config.vibration_cases}), config)
+            result["preset_sweep"] = sweep
+            presets = sweep["presets"]
+            report.update(advance=1)
+        for material, speed in config.vibration_cases:
+            report.update(status=f"vibration: {material} at {speed} m/s, fixed and adaptive")
+            case = vibration_case(models, material, speed, config, presets)
+            result["vibration"].append(case["summary"])
+            traces[f"{material}, {speed} m/s"] = case["runs"]
+            report.update(advance=1)
+        report.update(status="mixed floor")
+        mixed = mixed_floor(models, config)
+        report.update(advance=1, status="done")
     result["files"]["acceleration_boxplot"] = str(plot_vibration_boxes(
         traces, out / "vibration_acceleration.png"))
     result["files"]["height_boxplot"] = str(plot_vibration_boxes(
         traces, out / "vibration_height.png", quantity="height", unit="m"))
-    if progress:
-        print("mixed floor", flush=True)
-    mixed = mixed_floor(models, config)
     result["mixed_floor"] = mixed["summary"]
     run = mixed["run"]
     result["files"]["label_timeline"] = str(plot_label_timeline(run.times, run.terrain_label, run.ground_truth,

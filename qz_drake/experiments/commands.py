@@ -5,7 +5,7 @@ qz_drake.experiments.fig9)."""
 from __future__ import annotations
 
 import json
-import sys
+
 
 def _names(text, field, valid) -> tuple[str, ...]:
     from qz_drake.cli import parse_names
@@ -28,7 +28,7 @@ def run_fig9(args) -> int:
                              terrains=_names(args.terrains, "--terrains", TERRAINS),
                              difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
                              tasks=args.tasks, workers=args.workers, ray_address=args.ray_address, config=config,
-                             progress=not args.json and sys.stderr.isatty(), recordings=args.recordings)
+                             progress=not args.json, recordings=args.recordings)
     png = plot_fig9(summary["rows"], f"{args.out}/fig9.png", title="CapPlanner's TLC against A* (same BLC)")
     summary["figure"] = str(png)
     print(json.dumps(summary, indent=None if args.json else 2))
@@ -41,7 +41,7 @@ def run_report(args) -> int:
     if args.predict:
         from qz_drake.experiments.fig9 import predict_routes
 
-        predict_routes(args.out, progress=not args.json and sys.stderr.isatty())
+        predict_routes(args.out, progress=not args.json)
     summary = report(args.out, against=args.against)
     print(json.dumps(summary) if args.json else report_markdown(summary))
     return 0
@@ -88,7 +88,7 @@ def run_tune_astar(args) -> int:
                         terrains=_names(args.terrains, "--terrains", TERRAINS),
                         difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
                         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
-                        config=ExperimentConfig(scale=args.scale), progress=not args.json and sys.stderr.isatty())
+                        config=ExperimentConfig(scale=args.scale), progress=not args.json)
     _print_tuning(report, args)
     return 0
 
@@ -107,7 +107,7 @@ def run_tune_capplanner(args) -> int:
         difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
         config=ExperimentConfig(capability_model=args.model or "", scale=args.scale),
-        progress=not args.json and sys.stderr.isatty())
+        progress=not args.json)
     _print_tuning(report, args)
     return 0
 

@@ -10,15 +10,16 @@ writer: the driver), so a run resumes where it stopped and never runs a task twi
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 from qz_drake.errors import bad_value
+from qz_drake.progress import ProgressReport
 from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS, TASKS_PER_CELL, make_task
 
 RESULTS = "results.jsonl"
@@ -322,16 +323,15 @@ def predict_routes(out, config: ExperimentConfig | None = None, model=None, prog
     path = out / PREDICTIONS
     done = {p["key"]: p for p in (json.loads(line) for line in path.read_text().splitlines() if line.strip())} \
         if path.is_file() else {}
-    with path.open("a") as f:
-        for i, r in enumerate(records):
-            if r["key"] in done:
-                continue
+    todo = [r for r in records if r["key"] not in done]
+    with path.open("a") as f, ProgressReport("predicting routes", len(records), unit="routes",
+                                             completed=len(records) - len(todo), enabled=progress) as report:
+        for r in todo:
             p = predict_route(TaskSpec(r["terrain"], r["difficulty"], r["seed"], "capplanner"), config, model)
             done[p["key"]] = p
             f.write(json.dumps(p) + "\n")
             f.flush()
-            if progress:
-                print(f"\r{i + 1}/{len(records)} routes predicted", end="", file=sys.stderr)
+            report.update(advance=1)
     return [done[r["key"]] for r in records if r["key"] in done]
 
 
@@ -460,7 +460,9 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
                    tasks: int = TASKS_PER_CELL, workers: int = 1, ray_address: str | None = None,
                    config: ExperimentConfig = ExperimentConfig(), progress: bool = True,
                    first_seed: int = 0, recordings: int = 1, reuse=None) -> dict:
-    """Runs (or resumes) the comparison into ``out``; returns the summary. Task seeds are
+    """Runs (or resumes) the comparison into ``out``; returns the summary. ``progress``: walks
+    done of the total on stderr (qz_drake.progress), or a ProgressReport to advance (a
+    tuning's, over all its settings). Task seeds are
     ``first_seed`` to ``first_seed + tasks - 1`` (0-19: the experiment's; tuning uses
     worlds.TUNING_SEED_START on). The first ``recordings`` tasks of every terrain, difficulty
     and planner are recorded under ``out/recordings/<task>/``. ``reuse`` (a TaskSpec -> record
@@ -540,15 +542,19 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
     todo = [s for s in specs if s.key not in done]
     reused = 0
     clock = time.perf_counter()
-    from rich.progress import Progress
+    if isinstance(progress, ProgressReport):  # a tuning's, over all its settings
+        report, owned = progress, contextlib.nullcontext(progress)
+        report.update(advance=len(specs) - len(todo))
+    else:
+        report = owned = ProgressReport("capplanner-vs-astar", len(specs), unit="walks",
+                                        completed=len(specs) - len(todo), enabled=progress)
 
-    with Progress(disable=not progress) as bar, (out / RESULTS).open("a") as sink:
-        job = bar.add_task("tasks", total=len(todo))
-
+    with owned, (out / RESULTS).open("a") as sink:
         def on_record(record):
             sink.write(json.dumps(record) + "\n")
             sink.flush()
-            bar.advance(job)
+            outcome = "succeeded" if record.get("success") else record.get("reason") or "failed"
+            report.update(advance=1, status=f"last: {record['key']} {outcome}")
 
         if reuse is not None:
             walk = []
@@ -676,44 +682,13 @@ def _tune(out, planner: str, grid: list[dict], names: dict, folder_of, *, terrai
     results = []
     fixed = FIXED_WALKS.get(planner)
     walks: dict[str, tuple[dict, str]] = {}  # walk hash -> (the record of that walk, its folder)
-
-    for setting in grid:
-        trial = dataclasses.replace(config, **{names[k]: float(v) for k, v in setting.items()})
-        folder = out / folder_of(setting)
-        hashes: dict[str, str | None] = {}
-
-        def reuse(spec, trial=trial, hashes=hashes):
-            hashes[spec.key], planning_time = fixed(spec, trial)
-            if hashes[spec.key] not in walks:
-                return None
-            walked, walker = walks[hashes[spec.key]]
-            # Its time is this setting's route; the walk's is in the folder that walked it.
-            return {**walked, "planning_time_s": planning_time, "wall_time_s": planning_time,
-                    "walk_of": walked.get("walk_of", walker)}
-
-        summary = run_experiment(folder, planners=(planner,), terrains=terrains, difficulties=difficulties,
-                                 tasks=tasks, workers=workers, ray_address=ray_address, config=trial,
-                                 progress=progress, first_seed=TUNING_SEED_START, recordings=0,
-                                 reuse=reuse if fixed else None)
-        keys = {TaskSpec(t, d, TUNING_SEED_START + i, planner).key
-                for t in terrains for d in difficulties for i in range(tasks)}
-        records = [r for r in read_results(folder) if r["key"] in keys and r.get("reason") != "error"]
-        if fixed:
-            for r in records:
-                if r["key"] not in hashes:  # walked before this call (a resumed tuning)
-                    spec = TaskSpec(r["terrain"], r["difficulty"], r["seed"], r["planner"])
-                    hashes[r["key"]] = fixed(spec, trial)[0]
-                if hashes[r["key"]] and hashes[r["key"]] not in walks:
-                    walks[hashes[r["key"]]] = (r, folder.name)
-        rows = summary["rows"]
-        done = sum(r["tasks"] for r in rows)
-        ok = sum(r["successes"] for r in rows)
-        ratios = [r["displacement_ratio"] for r in rows if r["displacement_ratio"] is not None]
-        results.append({**{k: float(v) for k, v in setting.items()}, "tasks": done, "successes": ok,
-                        "success_rate": ok / done if done else None,
-                        "displacement_ratio": float(np.mean(ratios)) if ratios else None,
-                        "walked": sum(1 for r in records if "walk_of" not in r and r["reason"] != "planner"),
-                        "rows": rows, "folder": str(folder)})
+    per_setting = len(terrains) * len(difficulties) * tasks
+    with ProgressReport(f"tune-{planner}", len(grid) * per_setting, unit="walks", enabled=progress) as bar:
+        for number, setting in enumerate(grid, 1):
+            bar.update(description=f"tune-{planner}: setting {number}/{len(grid)}")
+            results.append(_tune_setting(out, planner, setting, names, folder_of, fixed, walks, terrains=terrains,
+                                         difficulties=difficulties, tasks=tasks, workers=workers,
+                                         ray_address=ray_address, config=config, bar=bar))
     best = max(enumerate(results), key=lambda item: (item[1]["successes"],
                                                      -(item[1]["displacement_ratio"] or np.inf),
                                                      -item[0]))[1]
@@ -722,6 +697,51 @@ def _tune(out, planner: str, grid: list[dict], names: dict, folder_of, *, terrai
     out.mkdir(parents=True, exist_ok=True)
     (out / "tuning.json").write_text(json.dumps(report, indent=1))
     return report
+
+
+def _tune_setting(out: Path, planner: str, setting: dict, names: dict, folder_of, fixed, walks: dict, *,
+                  terrains, difficulties, tasks: int, workers: int, ray_address, config: ExperimentConfig,
+                  bar) -> dict:
+    """One setting of ``_tune``'s grid: its walks (those another setting already walked taken
+    from ``walks``, which gains this setting's), and its row of the tuning report."""
+    from qz_drake.experiments.worlds import TUNING_SEED_START
+
+    trial = dataclasses.replace(config, **{names[k]: float(v) for k, v in setting.items()})
+    folder = out / folder_of(setting)
+    hashes: dict[str, str | None] = {}
+
+    def reuse(spec, trial=trial, hashes=hashes):
+        hashes[spec.key], planning_time = fixed(spec, trial)
+        if hashes[spec.key] not in walks:
+            return None
+        walked, walker = walks[hashes[spec.key]]
+        # Its time is this setting's route; the walk's is in the folder that walked it.
+        return {**walked, "planning_time_s": planning_time, "wall_time_s": planning_time,
+                "walk_of": walked.get("walk_of", walker)}
+
+    summary = run_experiment(folder, planners=(planner,), terrains=terrains, difficulties=difficulties,
+                             tasks=tasks, workers=workers, ray_address=ray_address, config=trial,
+                             progress=bar, first_seed=TUNING_SEED_START, recordings=0,
+                             reuse=reuse if fixed else None)
+    keys = {TaskSpec(t, d, TUNING_SEED_START + i, planner).key
+            for t in terrains for d in difficulties for i in range(tasks)}
+    records = [r for r in read_results(folder) if r["key"] in keys and r.get("reason") != "error"]
+    if fixed:
+        for r in records:
+            if r["key"] not in hashes:  # walked before this call (a resumed tuning)
+                spec = TaskSpec(r["terrain"], r["difficulty"], r["seed"], r["planner"])
+                hashes[r["key"]] = fixed(spec, trial)[0]
+            if hashes[r["key"]] and hashes[r["key"]] not in walks:
+                walks[hashes[r["key"]]] = (r, folder.name)
+    rows = summary["rows"]
+    done = sum(r["tasks"] for r in rows)
+    ok = sum(r["successes"] for r in rows)
+    ratios = [r["displacement_ratio"] for r in rows if r["displacement_ratio"] is not None]
+    return {**{k: float(v) for k, v in setting.items()}, "tasks": done, "successes": ok,
+            "success_rate": ok / done if done else None,
+            "displacement_ratio": float(np.mean(ratios)) if ratios else None,
+            "walked": sum(1 for r in records if "walk_of" not in r and r["reason"] != "planner"),
+            "rows": rows, "folder": str(folder)}
 
 
 def _check_numbers(flag: str, numbers, ok, expected: str) -> None:

@@ -34,6 +34,7 @@ def run_robot_sim(args) -> int:
 
     from qz_drake.config import load_scenario
     from qz_drake.hardware.driver import QingzhuiRobotDriver
+    from qz_drake.progress import ProgressReport
 
     scenario = load_scenario(args.scenario)
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
@@ -56,11 +57,15 @@ def run_robot_sim(args) -> int:
     simulator.set_target_realtime_rate(args.realtime_rate)
     simulator.Initialize()
     end = math.inf if args.duration is None else args.duration
-    try:
-        while simulator.get_context().get_time() < end:
-            simulator.AdvanceTo(min(end, simulator.get_context().get_time() + 1.0))
-    except KeyboardInterrupt:
-        pass
+    with ProgressReport("robot-sim", args.duration, unit="s simulated", digits=1) as report:
+        try:
+            while simulator.get_context().get_time() < end:
+                simulator.AdvanceTo(min(end, simulator.get_context().get_time() + 1.0))
+                counters = driver.counters(simulator.get_context())
+                report.update(simulator.get_context().get_time(), status=f"safe stop: {counters['safe_stop_reason']}"
+                              if counters["safe_stop_latched"] else "")
+        except KeyboardInterrupt:
+            pass
     context = simulator.get_context()
     x = driver.GetOutputPort("true_state").Eval(context)
     print(json.dumps({"sim_time_s": float(context.get_time()), "lcm_url": args.lcm_url,
