@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import inspect
 import json
 import math
+import os
 import re
 import sys
 from pathlib import Path
@@ -45,12 +47,30 @@ class _OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
+def _check_can_write_into(path: Path, field: str, value) -> None:
+    """Refuses ``path`` (a folder, existing or to be made) that this process cannot write into:
+    found before the work runs, not when its results are saved."""
+    existing = path.absolute()
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise bad_value(field, str(value), f"cannot create a folder there: {existing} is a file")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        what = "folder is" if existing == path.absolute() else f"folder would be made in {existing}, which is"
+        raise bad_value(field, str(value), f"not writable: the {what} read-only for this user")
+
+
 def output_folder(value, field: str = "--out", *, create: bool = True) -> Path:
-    """The folder ``value`` names, created if needed (``create``); an existing file or a folder
-    that cannot be made is a ConfigError naming ``field``."""
+    """The folder ``value`` names, created if needed (``create``); an empty name, an existing
+    file, or a folder this process cannot write into or make is a ConfigError naming ``field``.
+    With ``create=False`` only the checks run, so that bad input leaves nothing behind."""
+    if value is None or not str(value).strip():
+        raise bad_value(field, "" if value is None else str(value),
+                        "empty; name a folder to write into (an empty name is the current folder)")
     path = Path(value)
     if path.exists() and not path.is_dir():
         raise ConfigError(f"{field} = {str(value)!r}: is a file; expected a folder to write into")
+    _check_can_write_into(path, field, value)
     if not create:
         return path
     try:
@@ -60,13 +80,85 @@ def output_folder(value, field: str = "--out", *, create: bool = True) -> Path:
     return path
 
 
-def positive_seconds(value, field: str) -> float | None:
-    """``value`` as a finite positive duration (None passes through); errors name ``field``."""
+def output_file(value, field: str = "--out") -> Path:
+    """Checks that the file ``value`` names can be written (its folder is made when it is
+    written); errors name ``field``. Nothing is created."""
+    if value is None or not str(value).strip():
+        raise bad_value(field, "" if value is None else str(value), "empty; name a file to write")
+    path = Path(value)
+    if path.is_dir():
+        raise bad_value(field, str(value), "is a folder; expected a file to write")
+    if path.exists() and not os.access(path, os.W_OK):
+        raise bad_value(field, str(value), "not writable: the file is read-only for this user")
+    _check_can_write_into(path.parent, field, value)
+    return path
+
+
+def check_output_argument(args) -> None:
+    """Checks ``args.out`` before a command runs: a folder (the default) or, where the command
+    sets ``out_kind="file"``, a file; ``out_kind=None`` (an input named out) skips it. A
+    read-only --out once failed only after the simulation had run."""
+    value, kind = getattr(args, "out", None), getattr(args, "out_kind", "folder")
+    if value is None or kind is None:
+        return
+    if kind == "file":
+        output_file(value)
+    else:
+        output_folder(value, create=False)
+
+
+def positive_seconds(value, field: str, limit: float | None = None) -> float | None:
+    """``value`` as a finite positive duration of simulated time, at most ``limit`` (default:
+    qz_drake.config.MAX_SIMULATED_TIME); None passes through; errors name ``field``."""
+    from qz_drake.config import MAX_SIMULATED_TIME
+
     if value is None:
         return None
     if not (math.isfinite(value) and value > 0):
         raise ConfigError(f"{field} = {value}: must be a finite positive number of seconds")
+    limit = MAX_SIMULATED_TIME if limit is None else limit
+    if value > limit:
+        raise bad_value(field, value, f"longer than the limit of {limit:g} s of simulated time")
     return float(value)
+
+
+def one_of(names) -> str:
+    """Help text listing the valid ``names`` (the package's own tuples, so it cannot go stale)."""
+    return "one of: " + ", ".join(names)
+
+
+def terrain_kinds_text() -> str:
+    """Each terrain kind with its parameters and their defaults, one line each (from the
+    generators' signatures), for help pages."""
+    from qz_drake.terrain import TERRAIN_KINDS, grid_map_terrain
+
+    def default(value):
+        return ",".join(value) if isinstance(value, tuple) else f"{value:g}" if isinstance(value, float) else value
+
+    lines = ["terrain kinds and their parameters (KEY=default; sizes in m; seed=N seeds the terrain;",
+             "a negative stairs rise, step height or slope angle_deg goes down; |rise| <= run):"]
+    for kind, generator in {**TERRAIN_KINDS, "grid_map": grid_map_terrain}.items():
+        parameters = inspect.signature(generator).parameters.values()
+        lines.append(f"  {kind}: " + " ".join(f"{p.name}={default(p.default)}" for p in parameters
+                                               if p.name != "seed"))
+    return "\n".join(lines)
+
+
+def terrain_names() -> tuple[str, ...]:
+    """The names ``--terrain`` / ``qz terrain`` take: the generators and grid_map."""
+    from qz_drake.terrain import TERRAIN_KINDS
+
+    return (*TERRAIN_KINDS, "grid_map")
+
+
+def package_version() -> str:
+    """The installed qz_drake's version (importlib.metadata)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("qz_drake")
+    except PackageNotFoundError:
+        return "unknown (not installed; run make setup)"
 
 
 def prepare_scenario(scenario):
@@ -119,7 +211,6 @@ def _cmd_simulate(args) -> int:
     positive_seconds(args.duration, "--duration")
     output_folder(args.out, create=False)
     heightmap = prepare_scenario(scenario)
-    output_folder(args.out)
     # The map is built once: the station takes the checked one.
     station_factory, realtime_rate = partial(make_station, heightmap=heightmap), 0.0
     if args.station == "lcm":
@@ -134,6 +225,7 @@ def _cmd_simulate(args) -> int:
             # A driver in another process (qz robot-sim, the robot): both sides in real time.
             station_factory = partial(make_remote_lcm_station, lcm_url=args.lcm_url, config=config)
             realtime_rate = args.realtime_rate
+    output_folder(args.out)  # made once every input is checked, the hardware settings too
     from qz_drake.progress import ProgressReport, simulation_progress
 
     with ProgressReport(f"simulate {scenario.name}: building", unit="s simulated", digits=1) as report:
@@ -158,8 +250,10 @@ def _cmd_terrain(args) -> int:
         raise ConfigError(f"--out = {args.out!r}: expected a picture file ({', '.join(_PICTURE_SUFFIXES)})")
     if out.is_dir():
         raise ConfigError(f"--out = {args.out!r}: is a folder; expected a picture file")
-    if args.save is not None and Path(args.save).is_dir():
-        raise ConfigError(f"--save = {args.save!r}: is a folder; expected a .npz file")
+    if args.save is not None:
+        if Path(args.save).is_dir():
+            raise ConfigError(f"--save = {args.save!r}: is a folder; expected a .npz file")
+        output_file(args.save, "--save")
     config = TerrainConfig(kind=args.name, params=parse_key_values(args.param))
     heightmap = make_heightmap(config, seed=args.seed)
     output_folder(out.parent, "--out")
@@ -193,6 +287,7 @@ def _cmd_bench(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _OneLineParser(prog="qz", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineParser)
 
     p = sub.add_parser("simulate", help="simulate a scenario file")
@@ -210,13 +305,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --station lcm and a network URL: pacing, the same as the driver's")
     p.set_defaults(func=_cmd_simulate)
 
-    p = sub.add_parser("terrain", help="draw a generated terrain as a PNG")
-    p.add_argument("name", help="terrain kind, e.g. stairs, rough, grid_map")
-    p.add_argument("--out", required=True, help="PNG file to write")
-    p.add_argument("--param", action="append", metavar="KEY=VALUE", help="generator parameter")
+    p = sub.add_parser("terrain", help="draw a generated terrain as a PNG", epilog=terrain_kinds_text(),
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("name", metavar="KIND", help=f"terrain kind, {one_of(terrain_names())}")
+    p.add_argument("--out", required=True, help=f"picture file to write ({', '.join(_PICTURE_SUFFIXES)})")
+    p.add_argument("--param", action="append", metavar="KEY=VALUE",
+                   help="generator parameter (see below), seed included")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--save", default=None, help="also save the heightmap as .npz")
-    p.set_defaults(func=_cmd_terrain)
+    p.set_defaults(func=_cmd_terrain, out_kind="file")
 
     p = sub.add_parser("demo", help="the main job on the embedded default world")
     p.add_argument("--out", default="out/demo", help="output folder")
@@ -226,7 +323,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="run a benchmark suite (see benchmarks/)")
     from qz_drake.bench import SUITES
 
-    p.add_argument("suite", help=f"one of {', '.join(SUITES)}, or all")
+    p.add_argument("suite", choices=(*SUITES, "all"), metavar="SUITE", help=f"{one_of(SUITES)}, or all")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.add_argument("--repeats", type=int, default=None, help="runs per case (median reported)")
     p.add_argument("--quick", action="store_true", help="a small subset of the suite")
@@ -247,9 +344,15 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        check_output_argument(args)
         return int(args.func(args))
     except QzError as e:
         print(f"qz {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except UnicodeDecodeError as e:
+        # A binary file where a text file was meant, read by a loader that did not name it.
+        print(f"qz {args.command}: error: a file given is not UTF-8 text (byte 0x{e.object[e.start]:02x} at "
+              f"offset {e.start}); expected a text file", file=sys.stderr)
         return 2
     except BrokenPipeError:
         # The reader went away (`qz ... | head`): stop quietly, as Unix tools do, and keep

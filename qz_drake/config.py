@@ -8,9 +8,11 @@ path (``scenario.terrain.knd: unknown field ...``) before Drake's typed loader r
 
 import dataclasses
 import math
+import re
 import typing
 from pathlib import Path
 
+import numpy as np
 import yaml
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
@@ -22,9 +24,9 @@ class TerrainConfig:
     # A generator of qz_drake.terrain (flat, slope, stairs, step, gap, pits, waves, rough,
     # obstacles, long_range, material_floor), "grid_map" (the packaged grid_map image) or "file".
     kind: str = "flat"
-    # Generator parameters in SI units, e.g. {rise: 0.1, count: 2} for stairs; for grid_map and
-    # for a picture file: resolution [m] (cell size), min_height [m] and max_height [m] (the
-    # heights of pixel values 0 and full scale).
+    # Generator parameters in SI units, e.g. {rise: 0.1, count: 2} for stairs (a seed here seeds
+    # the terrain instead of random_seed); for grid_map and for a picture file: resolution [m]
+    # (cell size), min_height [m] and max_height [m] (the heights of pixel values 0 and full scale).
     params: dict[str, float] = dataclasses.field(default_factory=dict)
     # Heightmap file when kind is "file": a .npz (HeightMap.save_npz), a map-server .yaml with
     # its image, or a picture (.png, ...) with its scale in params; centred on the origin. A
@@ -163,9 +165,58 @@ class Scenario:
 
 
 DISCRETE_APPROXIMATIONS = ("lagged", "similar", "sap", "tamsi")
+# Longest simulated time of one run. Its recording grows by about 100 kB per simulated second
+# (measured: stand_flat, 2.5 MB at 2 s, 3.3 MB at 10 s), so 1200 s is a 120 MB page a browser
+# still opens; the longest shipped scenario (capplanner_long_range) allows 300 s. [s]
+MAX_SIMULATED_TIME = 1200.0
+# Most plant steps of one run: 1200 s at the default 2 ms step.
+MAX_PLANT_STEPS = 600_000
 CONTROLLER_KINDS = ("stand", "walk")
 CONTROL_MODES = ("torque", "position")
 PLANNERS = ("tripod", "blc", "capplanner")
+
+
+class _YamlLoader(yaml.SafeLoader):
+    """PyYAML's safe loader that also reads exponents without a dot or a sign (1e9, 1.0e9) as
+    numbers, as YAML 1.2 and Drake's typed loader do; YAML 1.1 takes them for text, and a
+    scenario's ``duration: 1.0e9`` was refused as "expected a number"."""
+
+
+_YamlLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9][0-9_]*)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."))
+
+
+def yaml_load(text: str):
+    """``yaml.safe_load`` with YAML 1.2's exponent forms read as numbers (see _YamlLoader)."""
+    return yaml.load(text, Loader=_YamlLoader)
+
+
+# The files most often passed where a text file was meant, by their first bytes.
+_BINARY_SIGNATURES = ((b"\x89PNG\r\n\x1a\n", "a PNG picture"), (b"\xff\xd8\xff", "a JPEG picture"),
+                      (b"PK\x03\x04", "a zip archive (a .npz heightmap?)"), (b"\x93NUMPY", "a numpy array"),
+                      (b"%PDF", "a PDF document"), (b"\x7fELF", "a program"))
+
+
+def read_text_file(path, field: str, expected: str) -> str:
+    """The UTF-8 text of the file ``path``; a missing file, a folder or a binary file (a picture,
+    random bytes) is a ConfigError naming ``field`` and the path, ``expected`` saying what was
+    wanted (e.g. "a scenario .yaml file")."""
+    path = Path(path)
+    if path.is_dir():
+        raise bad_value(field, str(path), f"is a folder; expected {expected}")
+    if not path.is_file():
+        raise bad_value(field, str(path), "no such file")
+    data = path.read_bytes()
+    kind = next((name for signature, name in _BINARY_SIGNATURES if data.startswith(signature)), None)
+    if kind is not None:
+        raise bad_value(field, str(path), f"is {kind}, not text; expected {expected}")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise bad_value(field, str(path), f"is not UTF-8 text (byte 0x{data[e.start]:02x} at offset {e.start}); "
+                                          f"expected {expected}") from None
 
 
 def _check_fields(schema, data, path: str) -> None:
@@ -260,7 +311,15 @@ def validate_scenario(scenario: Scenario) -> Scenario:
         raise bad_value("scenario.robot.initial_xy", r.initial_xy, "expected two finite numbers")
     s = scenario.simulation
     _positive("scenario.simulation.duration", s.duration)
+    if s.duration > MAX_SIMULATED_TIME:
+        raise bad_value("scenario.simulation.duration", s.duration,
+                        f"longer than the limit of {MAX_SIMULATED_TIME:g} s of simulated time for one run "
+                        f"(its recording grows by about 100 kB per second)")
     _positive("scenario.simulation.time_step", s.time_step)
+    if s.duration / s.time_step > MAX_PLANT_STEPS:
+        raise bad_value("scenario.simulation.time_step", s.time_step,
+                        f"{s.duration:g} s in steps of {s.time_step:g} s is {s.duration / s.time_step:.3g} plant "
+                        f"steps; at most {MAX_PLANT_STEPS} in one run")
     if s.discrete_contact_approximation not in DISCRETE_APPROXIMATIONS:
         raise bad_value("scenario.simulation.discrete_contact_approximation",
                         s.discrete_contact_approximation,
@@ -305,7 +364,7 @@ def validate_scenario(scenario: Scenario) -> Scenario:
 
 def load_scenario_text(text: str, source: str = "<string>") -> Scenario:
     try:
-        raw = yaml.safe_load(text)
+        raw = yaml_load(text)
     except yaml.YAMLError as e:
         raise ConfigError(f"{source}: not valid YAML ({str(e).splitlines()[0]})") from None
     if raw is None:
@@ -333,11 +392,8 @@ def resolve_paths(scenario: Scenario, folder) -> Scenario:
 def load_scenario(path) -> Scenario:
     """Loads and validates a scenario YAML file; relative paths in it are relative to its folder."""
     path = Path(path)
-    if path.is_dir():
-        raise bad_value("scenario", str(path), "is a folder; expected a scenario .yaml file")
-    if not path.is_file():
-        raise bad_value("scenario", str(path), "no such file")
-    return resolve_paths(load_scenario_text(path.read_text(), str(path)), path.parent)
+    text = read_text_file(path, "scenario", "a scenario .yaml file (see scenarios/)")
+    return resolve_paths(load_scenario_text(text, str(path)), path.parent)
 
 
 def save_scenario(scenario: Scenario, path) -> None:
@@ -350,6 +406,37 @@ def save_scenario(scenario: Scenario, path) -> None:
 _HEIGHT_PARAMS = {"stairs": "rise", "step": "height", "gap": "depth", "pits": "depth", "waves": "amplitude",
                   "rough": "amplitude", "obstacles": "max_height", "slope": "angle_deg",
                   "grid_map": "max_height", "file": "max_height"}
+
+
+def feet_on_ground(p_BF, xy, yaw: float) -> np.ndarray:
+    """(n, 2) world (x, y) of feet at base-frame positions ``p_BF`` (n, >= 2) for a base at
+    ``xy`` turned by ``yaw``. [m]"""
+    c, s = math.cos(yaw), math.sin(yaw)
+    p = np.asarray(p_BF, dtype=float)[:, :2]
+    return np.asarray(xy, dtype=float)[:2] + p @ np.array([[c, s], [-s, c]])
+
+
+def check_feet_on_map(heightmap, feet_xy, *, map_field: str, map_value, position_field: str, position_value,
+                      robot: str = "Qingzhui") -> None:
+    """Refuses a start with a foot off the map, where heights are the border's, clamped: a map
+    narrower than the robot (a 3 x 997 pixel picture) let it "stand" with four feet on nothing.
+
+    A map smaller than the feet's spread is blamed on the map (``map_field``), any other foot off
+    the map on the position (``position_field``)."""
+    feet_xy = np.asarray(feet_xy, dtype=float)
+    inside = np.asarray(heightmap.contains(feet_xy[:, 0], feet_xy[:, 1]))
+    if inside.all():
+        return
+    xmin, xmax, ymin, ymax = heightmap.bounds
+    spread = feet_xy.max(axis=0) - feet_xy.min(axis=0)
+    if xmax - xmin < spread[0] or ymax - ymin < spread[1]:
+        raise bad_value(map_field, map_value,
+                        f"the map is {xmax - xmin:.2f} m x {ymax - ymin:.2f} m, smaller than {robot}'s footprint "
+                        f"({spread[0]:.2f} m x {spread[1]:.2f} m between the feet)")
+    k = int(np.argmin(inside))
+    raise bad_value(position_field, position_value,
+                    f"{robot}'s foot {k} would stand at ({feet_xy[k, 0]:.2f}, {feet_xy[k, 1]:.2f}), off the map "
+                    f"(x in [{xmin:g}, {xmax:g}], y in [{ymin:g}, {ymax:g}] m)")
 
 
 def check_against_map(scenario: Scenario, heightmap) -> None:
@@ -372,6 +459,13 @@ def check_against_map(scenario: Scenario, heightmap) -> None:
     for k, w in enumerate(scenario.controller.route):
         if not bool(heightmap.contains(w.x, w.y)):
             raise bad_value(f"scenario.controller.route[{k}]", {"x": w.x, "y": w.y}, where)
+    # The nominal stance: initial_foot_offsets move the feet by centimetres, and standing_state
+    # checks their shape.
+    t = scenario.terrain
+    check_feet_on_map(heightmap, feet_on_ground(get_topology(r.topology).footholds_B, r.initial_xy, r.initial_yaw),
+                      map_field="scenario.terrain.file" if t.kind == "file" else "scenario.terrain.params",
+                      map_value=t.file if t.kind == "file" else dict(t.params),
+                      position_field="scenario.robot.initial_xy", position_value=list(r.initial_xy))
     params = dataclasses.replace(DEFAULT_PARAMS, payload_mass=r.payload_kg)
     try:
         standing_state(heightmap, get_topology(r.topology, params), r.initial_xy, r.initial_yaw, params,
@@ -379,7 +473,6 @@ def check_against_map(scenario: Scenario, heightmap) -> None:
     except (ConfigError, KinematicsError) as e:
         if "initial_foot_offsets" in str(e):
             raise
-        t = scenario.terrain
         name = _HEIGHT_PARAMS.get(t.kind)
         why = str(e).split(": ", 1)[-1]
         if name in t.params:

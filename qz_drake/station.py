@@ -79,7 +79,9 @@ def make_heightmap(config: TerrainConfig, seed: int = 0):
                 raise bad_value(f"scenario.terrain.params.{key}", config.params[key],
                                 f"unknown grid_map parameter (valid: {', '.join(sorted(allowed))})")
         return grid_map_terrain(**config.params)
-    return make_terrain(config.kind, seed=seed, **config.params)
+    # A seed among the generator's parameters (--terrain-param seed=4711) takes the place of `seed`.
+    params = dict(config.params)
+    return make_terrain(config.kind, seed=params.pop("seed", seed), **params)
 
 
 def standing_state(heightmap, topology: Topology, xy=(0.0, 0.0), yaw: float = 0.0,

@@ -120,8 +120,10 @@ def test_parser_takes_negative_pairs():
     ("robot: {initial_xy: 3.0}\n", ("scenario.robot.initial_xy = 3.0", "list")),
     ("", ("scenario = ", "no fields")),
     ("# only a comment\n", ("scenario = ", "no fields")),
-    ("terrain: {kind: stairs, params: {rise: -0.5}}\n", ("scenario.terrain.params.rise = -0.5", "cannot stand")),
-    ("terrain: {kind: stairs, params: {rise: 5.0}}\n", ("scenario.terrain.params.rise = 5.0", "cannot stand")),
+    # Stairs as steep as allowed (45 degrees), the first step under the front feet.
+    ("terrain: {kind: stairs, params: {rise: -0.4}}\n", ("scenario.terrain.params.rise = -0.4", "cannot stand")),
+    ("terrain: {kind: stairs, params: {rise: 0.4, start_x: 0.0}}\n",
+     ("scenario.terrain.params.rise = 0.4", "cannot stand")),
 ], ids=["waypoint_off_map", "duration_text", "initial_xy_scalar", "empty", "comment_only", "rise_down",
         "rise_up"])
 def test_bad_scenario_is_one_line(tmp_path, text, named):

@@ -339,6 +339,10 @@ def run_recertify(args) -> int:
 
 def register(subparsers) -> None:
     """Adds ``capability`` (collect, stats, and the model commands) to the ``qz`` command."""
+    from qz_drake.capability.patches import KINDS
+    from qz_drake.cli import one_of
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+
     capability = subparsers.add_parser("capability", help="capability trials, dataset and model (paper 000)")
     sub = capability.add_subparsers(dest="capability_command", required=True, parser_class=type(capability))
 
@@ -346,8 +350,9 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="dataset folder (manifest.json + shards)")
     p.add_argument("--scenes", type=int, default=1000, help="number of scenes (paper 000: 1000)")
     p.add_argument("--headings", type=int, default=1, help="heading samples per scene (each in every topology and kind)")
-    p.add_argument("--topologies", default=None, help="comma-separated topologies (default: all six)")
-    p.add_argument("--kinds", default=None, help="comma-separated kinds: orthogonal,diagonal,turn (default: all)")
+    p.add_argument("--topologies", default=None,
+                   help=f"comma-separated topologies, each {one_of(TOPOLOGY_NAMES)} (default: all)")
+    p.add_argument("--kinds", default=None, help=f"comma-separated kinds, each {one_of(KINDS)} (default: all)")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--ray-address", default=None, help="run the trials on this Ray cluster (host:port)")
     p.add_argument("--seed", type=int, default=0)

@@ -241,11 +241,16 @@ def register_model_commands(subparsers) -> None:
     p.add_argument("--out", default=None, help="also write reliability / confusion PNGs here")
     p.set_defaults(func=run_evaluate)
 
+    from qz_drake.cli import one_of, terrain_names
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+
     p = subparsers.add_parser("map", help="draw the predicted success of moving forward over a terrain")
     p.add_argument("--model", default=None, help="model folder (default: the shipped model)")
-    p.add_argument("--terrain", required=True, help="terrain generator name, or a .npz / .yaml heightmap")
-    p.add_argument("--terrain-param", action="append", metavar="KEY=VALUE", help="generator parameter")
+    p.add_argument("--terrain", required=True,
+                   help=f"a .npz / .yaml heightmap, or a terrain generator, {one_of(terrain_names())} "
+                        f"(parameters: qz terrain --help)")
+    p.add_argument("--terrain-param", action="append", metavar="KEY=VALUE", help="generator parameter, seed included")
     p.add_argument("--seed", type=int, default=0, help="terrain generator seed")
-    p.add_argument("--topology", default="nominal", help="body topology")
+    p.add_argument("--topology", default="nominal", help=f"body topology, {one_of(TOPOLOGY_NAMES)}")
     p.add_argument("--out", required=True, help="PNG file to write")
-    p.set_defaults(func=run_map)
+    p.set_defaults(func=run_map, out_kind="file")

@@ -114,7 +114,9 @@ def _collect_config(args):
     if args.stances is not None:
         config.stances_per_class = args.stances
     if args.run_duration is not None:
-        config.run_duration = args.run_duration
+        from qz_drake.cli import positive_seconds
+
+        config.run_duration = positive_seconds(args.run_duration, "--run-duration")
     if args.mixed_runs is not None:
         config.mixed_runs = args.mixed_runs
     return config.check()
@@ -202,6 +204,9 @@ def run_stiffness_sweep(args) -> int:
 
 def register(subparsers) -> None:
     """Adds ``impedance-sweep``, ``trot`` and ``classify`` to the ``qz`` command."""
+    from qz_drake.cli import one_of
+    from qz_drake.terrain import MATERIALS
+
     p = subparsers.add_parser("impedance-sweep", help="leg impedance stiffness sweep (paper 002 Fig. 13)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.add_argument("--out", default=None, help="folder for impedance_sweep.png and .json")
@@ -223,7 +228,8 @@ def register(subparsers) -> None:
     p.add_argument("--out", default="out/classify", help="output folder (dataset.npz, runs/)")
     p.add_argument("--stances", type=int, default=None, help="stances per class and leg (default 200)")
     p.add_argument("--run-duration", type=float, default=None, help="simulated time per run [s] (default 20)")
-    p.add_argument("--materials", default=None, help="comma-separated materials (default concrete,wood,foam)")
+    p.add_argument("--materials", default=None,
+                   help=f"comma-separated materials, each {one_of(MATERIALS)} (default concrete,wood,foam)")
     p.add_argument("--mixed-runs", type=int, default=None,
                    help="extra runs over floors of random material patches (default 6)")
     p.add_argument("--seed", type=int, default=0)
@@ -241,7 +247,8 @@ def register(subparsers) -> None:
     p.set_defaults(func=run_train)
 
     p = sub.add_parser("stiffness-sweep", help="vibration of a trot at fixed stance stiffnesses, per material")
-    p.add_argument("--materials", default="foam,concrete", help="comma-separated materials (default foam,concrete)")
+    p.add_argument("--materials", default="foam,concrete",
+                   help=f"comma-separated materials, each {one_of(MATERIALS)} (default foam,concrete)")
     p.add_argument("--stiffness", default="7000,9000,11000", metavar="K1,K2,...",
                    help="stance stiffnesses [N/m] (default the paper's three)")
     p.add_argument("--speed", type=float, default=0.6, help="forward speed [m/s] (default 0.6)")

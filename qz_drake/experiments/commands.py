@@ -157,7 +157,8 @@ def register(subparsers) -> None:
     p.add_argument("--predict", action="store_true",
                    help="first replan every CapPlanner task from its start with the run's model and settings "
                         "(predictions.jsonl, resumable; minutes) to add the route calibration table")
-    p.set_defaults(func=run_report)
+    # `out` names a folder to read here, not an output for qz's --out checks.
+    p.set_defaults(func=run_report, out_kind=None)
 
     p = sub.add_parser("tune-astar", help="choose the A* baseline's thresholds on tuning worlds "
                                           "(seeds from 1000, never the experiment's)")

@@ -12,20 +12,18 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 from qz_drake.errors import bad_value
 
 
 def load_hardware_file(path: str | None):
     """The HardwareConfig of a YAML file (defaults for None)."""
+    from qz_drake.config import read_text_file
     from qz_drake.hardware.config import HardwareConfig, load_hardware_config
 
     if path is None:
         return HardwareConfig()
-    if not Path(path).is_file():
-        raise bad_value("--hardware", path, "no such file")
-    return load_hardware_config(Path(path).read_text())
+    return load_hardware_config(read_text_file(path, "--hardware", "a protocol settings .yaml file"))
 
 
 def run_robot_sim(args) -> int:

@@ -68,7 +68,8 @@ def run_plan(args) -> int:
     from qz_drake.capability.plots import plot_plan
     from qz_drake.planning.capability_mdp import CapabilityMdpConfig, plan
     from qz_drake.planning.guidance import split_missions
-    from qz_drake.robot.topology import TOPOLOGY_NAMES
+    from qz_drake.config import check_feet_on_map, feet_on_ground
+    from qz_drake.robot.topology import TOPOLOGY_NAMES, get_topology
 
     start, goal = parse_xy(args.start, "--start"), parse_xy(args.goal, "--goal")
     if not 0 <= args.heading < 8:
@@ -79,14 +80,19 @@ def run_plan(args) -> int:
     if out.exists() and not out.is_dir():
         raise bad_value("--out", str(out), "is a file, not a folder")
     heightmap = load_terrain(args.terrain, args.terrain_param, args.seed)
+    # Checked before the model loads (seconds): heights off the map are the border's, so a map
+    # narrower than the robot would let it stand on nothing.
+    check_feet_on_map(heightmap, feet_on_ground(get_topology(args.topology).footholds_B, start, 0.0),
+                      map_field="--terrain", map_value=args.terrain, position_field="--start",
+                      position_value=args.start)
+    check_standable(heightmap, start, args.topology, "--start")
+    check_standable(heightmap, goal, args.topology, "--goal")
     model = CapabilityModel.load(args.model)
     check_model_robot(model)
     topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
     if args.topology not in topologies:
         raise bad_value("--topology", args.topology, f"the model has no networks for it (it has "
                                                      f"{', '.join(topologies) or 'none'})")
-    check_standable(heightmap, start, args.topology, "--start")
-    check_standable(heightmap, goal, args.topology, "--goal")
     clock = time.perf_counter()
     result = plan(model, heightmap, start, args.heading, goal, start_topology=args.topology,
                   config=CapabilityMdpConfig(topologies=topologies))
@@ -132,13 +138,21 @@ def run_plan(args) -> int:
 
 def register(subparsers) -> None:
     """Adds ``plan`` to the ``qz`` command."""
-    p = subparsers.add_parser("plan", help="CapPlanner's TLC alone: utility map, guidance path, missions")
-    p.add_argument("--terrain", required=True, help="terrain generator name, or a .npz / .yaml heightmap")
-    p.add_argument("--terrain-param", action="append", metavar="KEY=VALUE", help="generator parameter")
+    import argparse
+
+    from qz_drake.cli import one_of, terrain_kinds_text, terrain_names
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+    p = subparsers.add_parser("plan", help="CapPlanner's TLC alone: utility map, guidance path, missions",
+                              epilog=terrain_kinds_text(), formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--terrain", required=True,
+                   help=f"a .npz / .yaml heightmap, or a terrain generator, {one_of(terrain_names())}")
+    p.add_argument("--terrain-param", action="append", metavar="KEY=VALUE",
+                   help="generator parameter (see below), seed included")
     p.add_argument("--seed", type=int, default=0, help="terrain seed")
     p.add_argument("--start", required=True, metavar="X,Y", help="start [m]")
     p.add_argument("--heading", type=int, default=0, help="start heading index k (yaw k * 45 deg)")
-    p.add_argument("--topology", default="nominal", help="the robot's topology at the start")
+    p.add_argument("--topology", default="nominal", help=f"the robot's topology at the start, {one_of(TOPOLOGY_NAMES)}")
     p.add_argument("--goal", required=True, metavar="X,Y", help="goal [m]")
     p.add_argument("--model", default=None, help="capability model folder (default: the shipped model)")
     p.add_argument("--min-success", type=float, default=0.05,

@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
-from qz_drake.config import TerrainConfig
+from qz_drake.config import TerrainConfig, read_text_file, yaml_load
 from qz_drake.errors import ConfigError, bad_value
 from qz_drake.planning.static_gait import LEGS, GaitSearchResult, StaticGaitConfig, cuboid_terrain, search_gait
 from qz_drake.planning.static_gait import _check_config as check_gait_config
@@ -105,11 +105,9 @@ def validate_static_gait_scenario(scenario: StaticGaitScenario) -> StaticGaitSce
 def load_static_gait_scenario(path) -> StaticGaitScenario:
     """Loads and validates a static-gait scenario YAML file."""
     path = Path(path)
-    if not path.is_file():
-        raise bad_value("scenario", str(path), "no such file")
-    text = path.read_text()
+    text = read_text_file(path, "scenario", "a static-gait scenario .yaml file (see scenarios/static_gait/)")
     try:
-        raw = yaml.safe_load(text)
+        raw = yaml_load(text)
     except yaml.YAMLError as e:
         raise ConfigError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
     _check_fields(StaticGaitScenario, raw if raw is not None else {}, "scenario")

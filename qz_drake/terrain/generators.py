@@ -28,7 +28,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from qz_drake.errors import TerrainError, bad_value
-from qz_drake.terrain.heightmap import HeightMap
+from qz_drake.terrain.heightmap import MAX_CELLS, HeightMap, check_cell_count
 
 # Default cell size; Qingzhui's foot is a 2.5-3 cm sphere. [m]
 DEFAULT_RESOLUTION = 0.05
@@ -36,6 +36,12 @@ DEFAULT_RESOLUTION = 0.05
 BEHIND_START = 2.0
 # Side of the square tiles of the long-range world. [m]
 LONG_RANGE_TILE = 4.0
+# Work a generator may spend on passes over the map, in cell visits (one pass per box of pits
+# and obstacles; the Gaussian kernel's length per cell and axis for rough): about 5 s, measured
+# at 0.5 s per 1e9 visits for boxes and 0.7 s for the smoothing.
+MAX_CELL_VISITS = 1e10
+# Most boxes pits and obstacles place, each a seeded search in Python (about 50 us: 5 s).
+MAX_BOXES = 100_000
 
 
 # -- validation -------------------------------------------------------------------------------
@@ -66,7 +72,9 @@ def _count(name: str, value) -> int:
 
 
 def _seed(seed) -> np.random.Generator:
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+    # Parameters from the command line and from a scenario's params arrive as floats (4711.0).
+    whole = isinstance(seed, (int, np.integer)) or (isinstance(seed, float) and seed.is_integer())
+    if isinstance(seed, bool) or not whole or seed < 0:
         raise bad_value("terrain.seed", seed, "must be a non-negative integer", TerrainError)
     return np.random.default_rng(int(seed))
 
@@ -89,6 +97,12 @@ class _Lattice:
             raise bad_value("terrain.resolution", resolution,
                             f"leaves fewer than 2 x 2 cells on a {x_range[1] - x_range[0]:g} m x "
                             f"{y_range[1] - y_range[0]:g} m map", TerrainError)
+        # Blame what made the map too large: the cell size if the map would fit at the default
+        # one, else its longer side.
+        fits_at_default = nx * ny * (self.resolution / DEFAULT_RESOLUTION) ** 2 <= MAX_CELLS
+        field, value = (("resolution", resolution) if fits_at_default else
+                        ("size_x", x_range[1] - x_range[0]) if nx >= ny else ("size_y", y_range[1] - y_range[0]))
+        check_cell_count(f"terrain.{field}", value, ny, nx, self.resolution)
         self.gx = (self.gx0 + np.arange(nx))[None, :]
         self.gy = (self.gy0 + np.arange(ny))[:, None]
         self.x = (self.gx + 0.5) * self.resolution
@@ -148,6 +162,19 @@ def _random_boxes(lattice: _Lattice, rng: np.random.Generator, count: int, sizes
     return boxes
 
 
+def _box_count(value, lattice: _Lattice) -> int:
+    """``count`` of pits or obstacles, bounded by MAX_BOXES and by MAX_CELL_VISITS (each box is a
+    pass over the map)."""
+    count = _count("count", value)
+    cells = lattice.shape[0] * lattice.shape[1]
+    limit = min(MAX_BOXES, int(MAX_CELL_VISITS // cells))
+    if count > limit:
+        raise bad_value("terrain.count", value, f"at most {limit} boxes on this map of {cells} cells (each box is a "
+                                                f"pass over the map; at most {MAX_BOXES} boxes, "
+                                                f"{MAX_CELL_VISITS:.0e} cell visits)", TerrainError)
+    return count
+
+
 def _box_mask(lattice: _Lattice, box: tuple) -> np.ndarray:
     gx0, gx1, gy0, gy1 = box
     return (lattice.gx >= gx0) & (lattice.gx < gx1) & (lattice.gy >= gy0) & (lattice.gy < gy1)
@@ -182,9 +209,11 @@ def slope(*, angle_deg: float = 15.0, start_x: float = 0.5, length: float = math
 def stairs(*, rise: float = 0.1, run: float = 0.4, count: int = 2, start_x: float = 0.5,
            size_x: float = 6.0, size_y: float = 4.0, resolution: float = DEFAULT_RESOLUTION,
            seed: int = 0) -> HeightMap:
-    """``count`` steps up along +x, each ``rise`` [m] high (negative: down-stairs) and ``run`` [m]
-    deep, the first nose at start_x [m]; the top landing continues to the map's end. Defaults
-    are paper 001's BLC scene: two stairs 0.4 m deep starting 0.5 m ahead (rise 0.1 m)."""
+    """``count`` steps up along +x, each ``rise`` [m] high and ``run`` [m] deep, the first nose at
+    start_x [m]; the top landing continues to the map's end. A negative rise makes stairs down
+    (descent). |rise| may not exceed run: steeper than 45 degrees is a wall, not stairs (a single
+    tall block is ``step``). Defaults are paper 001's BLC scene: two stairs 0.4 m deep starting
+    0.5 m ahead (rise 0.1 m)."""
     _seed(seed)
     rise = _number("rise", rise)
     count = _count("count", count)
@@ -193,7 +222,16 @@ def stairs(*, rise: float = 0.1, run: float = 0.4, count: int = 2, start_x: floa
     run = _number("run", run, positive=True)
     if run < lattice.resolution:
         raise bad_value("terrain.run", run, f"must be at least one cell ({lattice.resolution} m)", TerrainError)
-    steps_passed = sum((lattice.gx >= lattice.edge(start_x + k * run)).astype(int) for k in range(count))
+    if abs(rise) > run:
+        raise bad_value("terrain.rise", rise, f"steeper than 45 degrees: |rise| must not exceed run = {run:g} m "
+                                              f"(negative: stairs down; one tall block: kind step)", TerrainError)
+    # Only noses on the map need a position: those left of it are passed everywhere, those right
+    # of it nowhere (a count of 1e9 stairs was a billion passes over the map).
+    res, gx_end = lattice.resolution, lattice.gx0 + lattice.shape[1]
+    first = min(count, max(0, math.floor((lattice.gx0 * res - start_x) / run) - 1))
+    last = min(count, max(first, math.ceil((gx_end * res - start_x) / run) + 1))
+    noses = np.array([lattice.edge(start_x + k * run) for k in range(first, last)], dtype=np.int64)
+    steps_passed = first + np.searchsorted(noses, lattice.gx, side="right")
     return lattice.map(rise * np.asarray(steps_passed, dtype=float))
 
 
@@ -226,11 +264,11 @@ def pits(*, count: int = 6, width: float = 0.3, depth: float = 0.15, clear_radiu
     """``count`` square pits ``width`` [m] wide and ``depth`` [m] deep at seeded places (they may
     overlap), none reaching within clear_radius [m] of the start."""
     rng = _seed(seed)
-    count = _count("count", count)
     width = _number("width", width, positive=True)
     depth = _number("depth", depth, low=0.0)
     clear_radius = _number("clear_radius", clear_radius, low=0.0)
     lattice = _course(size_x, size_y, resolution)
+    count = _box_count(count, lattice)
     region = (-BEHIND_START, float(lattice.x.max()), float(lattice.y.min()), float(lattice.y.max()))
     heights = np.zeros(lattice.shape)
     for box in _random_boxes(lattice, rng, count, (width, width), clear_radius, region):
@@ -259,7 +297,15 @@ def rough(*, amplitude: float = 0.03, correlation_length: float = 0.2, size_x: f
     amplitude = _number("amplitude", amplitude, low=0.0)
     correlation_length = _number("correlation_length", correlation_length, low=0.0)
     lattice = _course(size_x, size_y, resolution)
-    return lattice.map(_rough_field(rng, lattice.shape, amplitude, correlation_length / lattice.resolution))
+    # scipy's kernel reaches 4 standard deviations each side, along each of the two axes.
+    sigma_cells = correlation_length / lattice.resolution
+    visits = lattice.shape[0] * lattice.shape[1] * 2 * (8 * sigma_cells + 1)
+    if visits > MAX_CELL_VISITS:
+        longest = (MAX_CELL_VISITS / (2 * lattice.shape[0] * lattice.shape[1]) - 1) / 8 * lattice.resolution
+        raise bad_value("terrain.correlation_length", correlation_length,
+                        f"smoothing this map would take {visits:.2g} cell visits; at most {longest:.3g} m here "
+                        f"({MAX_CELL_VISITS:.0e} visits)", TerrainError)
+    return lattice.map(_rough_field(rng, lattice.shape, amplitude, sigma_cells))
 
 
 def _rough_field(rng: np.random.Generator, shape, amplitude: float, sigma_cells: float) -> np.ndarray:
@@ -278,7 +324,6 @@ def obstacles(*, count: int = 12, min_height: float = 0.05, max_height: float = 
     min_height and max_height [m] (where boxes overlap the higher wins); none reaches within
     clear_radius [m] of the start."""
     rng = _seed(seed)
-    count = _count("count", count)
     min_height = _number("min_height", min_height)
     max_height = _number("max_height", max_height)
     if max_height < min_height:
@@ -289,6 +334,7 @@ def obstacles(*, count: int = 12, min_height: float = 0.05, max_height: float = 
         raise bad_value("terrain.max_size", max_size, f"must be >= min_size {min_size}", TerrainError)
     clear_radius = _number("clear_radius", clear_radius, low=0.0)
     lattice = _course(size_x, size_y, resolution)
+    count = _box_count(count, lattice)
     region = (-BEHIND_START, float(lattice.x.max()), float(lattice.y.min()), float(lattice.y.max()))
     heights = np.zeros(lattice.shape)
     for box in _random_boxes(lattice, rng, count, (min_size, max_size), clear_radius, region):
