@@ -185,6 +185,9 @@ def _listing(folder: Path) -> set[str]:
 def test_bad_input_is_refused_in_one_line_before_any_work(inputs, capsys, monkeypatch, argv, named):
     import qz_drake.simulation
     import qz_drake.trajopt.solver
+    # Modules that bind these functions at import are imported first: imported while they are
+    # patched, they would keep the patch after the test (demo.py's ``simulate`` did).
+    import qz_drake.demo  # noqa: F401
 
     def no_work(*args, **kwargs):
         raise AssertionError("the work started before the input was checked")

@@ -128,11 +128,15 @@ def test_a_blc_mission_into_a_wall_is_a_reported_failure(tmp_path, capsys):
     code = main(["simulate", str(path), "--out", str(tmp_path / "o")])
     metrics = json.loads(capsys.readouterr().out)
     assert code == 1 and not metrics["success"]
-    # The verdict names the BLC's failure first (its reason code and the solver's words); the
-    # first mission's end put MF's shank against the wall, which the verdict reports too.
+    # The verdict names the BLC's failure first (its reason code and the solver's words). The
+    # first mission, 1 m towards the wall, used to end with MF's shank against it (a leg
+    # contact); with the legs kept clear (issue 34) it ends short of the wall or, on a loaded
+    # machine, runs out of its 5 s (its program is larger beside the wall): one failure either
+    # way, no leg and no trunk on the wall.
     assert metrics["reasons"][0] in ("blc_infeasible", "blc_time_limit") and "BLC" in metrics["reason"]
-    assert metrics["blc_failures"] == 1 and metrics["blc_solves"] == 2
-    assert metrics["trunk_terrain_contacts"] == 0
+    assert metrics["blc_failures"] == 1 and metrics["blc_solves"] in (1, 2)
+    assert "leg_contact" not in metrics["reasons"]
+    assert metrics.get("trunk_terrain_contacts", 0) == 0
 
 
 def test_a_blc_mission_turns_90_deg_in_place():

@@ -28,6 +28,7 @@ from qz_drake.errors import ConfigError, bad_value
 from qz_drake.robot import kinematics
 from qz_drake.robot.params import DEFAULT_PARAMS, LEG_NAMES, NUM_LEGS, TRIPOD_A, TRIPOD_B, QingzhuiParams
 from qz_drake.robot.topology import Topology
+from qz_drake.robot.urdf import LINK_COLLISION_RADIUS, SHANK_COLLISION_END_INSET, THIGH_COLLISION_START
 
 GRAVITY = 9.81
 # Motor-angle waypoints of a knee flip (m1, m2). [rad]
@@ -58,6 +59,17 @@ def _is_bent_out(m) -> bool:
     return m[1] < m[2]
 
 
+# Least clearance of a leg link above the raw terrain during a switch. [m]
+LINK_CLEARANCE = 0.01
+# Points along the collision capsules (robot/urdf.py) checked during a switch: every 1.5 cm of
+# the thigh's (from the hip drive to the knee) and of the shank's (from the knee to 9 cm above
+# the foot), as fractions of each link.
+_THIGH = np.linspace(THIGH_COLLISION_START, DEFAULT_PARAMS.thigh_length, 19) / DEFAULT_PARAMS.thigh_length
+_SHANK = np.linspace(0.0, DEFAULT_PARAMS.shank_length - SHANK_COLLISION_END_INSET, 23)[1:] / DEFAULT_PARAMS.shank_length
+_THIGH_POINTS = len(_THIGH)
+_LINK_FRACTIONS = np.concatenate([_THIGH, _SHANK])
+_LINK_IS_THIGH = np.arange(len(_LINK_FRACTIONS)) < _THIGH_POINTS
+
 # Foot lifts a switch tries, lowest first: a foot whose joint-space move would graze the terrain
 # (a ridge or a slope under the moving leg) may clear it lifted higher; above 0.2 m the lifted
 # foot leaves Qingzhui's reach. [m]
@@ -85,15 +97,19 @@ class TopologySwitchPlan:
     """The switch from ``from_topology`` to ``to_topology`` of a robot standing at ``start``
     (a MissionStart: base pose and feet), beginning at ``start_time``.
 
-    Raises ConfigError when a new foothold is out of reach or a foot's path would pass within
-    ``min_clearance`` of the terrain.
+    Raises ConfigError when a new foothold is out of reach, a foot's path would pass within
+    ``min_clearance`` of the terrain, or a leg's thigh or shank (standing, lifting, flipping
+    or placing) would come within ``link_clearance`` of it: such a switch is refused before
+    it starts (issue 34: four of CapPlanner's Fig. 9 walks failed in a switch whose leg hit
+    the ground).
     """
 
     is_mission = False
 
     def __init__(self, *, heightmap, start, from_topology: Topology, to_topology: Topology,
                  start_time: float, params: QingzhuiParams = DEFAULT_PARAMS,
-                 timing: SwitchTiming = SwitchTiming(), min_clearance: float = 0.02):
+                 timing: SwitchTiming = SwitchTiming(), min_clearance: float = 0.02,
+                 link_clearance: float = LINK_CLEARANCE):
         self.from_topology, self.topology = from_topology, to_topology
         self.params, self.timing = params, timing
         self.start_time = float(start_time)
@@ -129,6 +145,7 @@ class TopologySwitchPlan:
         self.end_time = t if self._groups else self.start_time + timing.settle
         self._waypoints = {i: self._joint_waypoints(i) for i in self._moves}
         self._check_clearance(min_clearance)
+        self._check_links(link_clearance)
 
     # -- construction ----------------------------------------------------------------------
     def _ik(self, leg: int, p_W, bend) -> np.ndarray:
@@ -167,6 +184,48 @@ class TopologySwitchPlan:
                         f"{100 * (feet[i, 2] - ground[i]):.1f} cm over the terrain "
                         f"{t - self.start_time:.2f} s into the switch (at least "
                         f"{100 * min_clearance:.1f} cm needed)")
+
+    def _check_links(self, min_clearance: float) -> None:
+        """Every leg's link capsules over the raw heightmap at 400 samples of the switch."""
+        from qz_drake.trajopt.leg_clearance import raw_ground, sphere_clearance
+        from qz_drake.trajopt.terrain import as_terrain
+
+        ground = raw_ground(as_terrain(self._heightmap))
+        times = np.linspace(self.start_time, self.end_time, 400)
+        points = np.stack([self.link_points(t) for t in times])  # (n, 6, J, 3)
+        clearance = sphere_clearance(points, LINK_COLLISION_RADIUS, ground)
+        # The robot stands as it stands: a link only counts where it is lower than at the start.
+        allowed = np.minimum(min_clearance, clearance[0] - 0.005)
+        excess = allowed[None] - clearance
+        if excess.max() > 0:
+            k, leg, j = np.unravel_index(int(np.argmax(excess)), excess.shape)
+            link = "thigh" if j < _THIGH_POINTS else "shank"
+            raise ConfigError(
+                f"topology switch leg {leg} ({LEG_NAMES[leg]}): its {link} would pass "
+                f"{100 * clearance[k, leg, j]:.1f} cm over the terrain {times[k] - self.start_time:.2f} s "
+                f"into the switch (at least {100 * min_clearance:.1f} cm needed)")
+
+    def link_points(self, t: float) -> np.ndarray:
+        """(6, J, 3) points every 1.5 cm along each leg's thigh and shank collision capsules,
+        world, at t (the legs' joint references: a flip's joint-space move, else the IK of
+        the foot with the leg's bend at t)."""
+        override = self.joint_override(t).reshape(NUM_LEGS, 3)
+        feet = self.foot_positions(t)
+        bends = self.topology_at(t).bends
+        out = np.empty((NUM_LEGS, len(_LINK_FRACTIONS), 3))
+        l1, l2 = self.params.thigh_length, self.params.shank_length
+        for i in range(NUM_LEGS):
+            q = override[i] if np.all(np.isfinite(override[i])) else self._ik(i, feet[i], bends[i])
+            m = kinematics.urdf_to_motor(q)
+            knee = l1 * np.array([np.cos(m[1]), np.sin(m[1]) * np.cos(m[0]), np.sin(m[1]) * np.sin(m[0])])
+            foot = kinematics.foot_position_leg_frame(m, self.params)
+            hip = np.zeros(3)
+            starts = np.where(_LINK_IS_THIGH[:, None], hip, knee)
+            ends = np.where(_LINK_IS_THIGH[:, None], knee, foot)
+            p_L = starts + _LINK_FRACTIONS[:, None] * (ends - starts)
+            p_B = p_L @ self.params.R_BL(i).T + self.params.hip_position(i)
+            out[i] = self._p_base + p_B @ self._R.T
+        return out
 
     # -- sampling ----------------------------------------------------------------------------
     def _phase(self, leg: int, t: float) -> tuple[str, float]:

@@ -36,6 +36,18 @@ from qz_drake.trajopt.terrain import FlatTerrain
 from qz_drake.trajopt.variables import BlcVariables
 
 
+# How far below its start a link point may go until its leg's second stance (see
+# BlcFormulation._start_relaxed_lower and the dense verdict). [m]
+START_LINK_ALLOWANCE = 0.005
+
+
+def first_step_end(schedule, leg: int) -> float:
+    """When the leg's second stance begins (its first step from the start ends); the task's
+    end if it never steps. [s]"""
+    stances = schedule.stance_intervals(leg)
+    return stances[1][0] if len(stances) > 1 else schedule.duration
+
+
 class LinearConstraintTerm:
     """lower <= A x <= upper, sparse."""
 
@@ -177,9 +189,60 @@ class BlcFormulation:
         # Where a stance foot has support (trajopt/support.py), for the constraint, the guess
         # and the verdict; None without the "support" constraint.
         self.support = self._support_field() if params.enabled("support") else None
+        # Where the legs' links could meet the ground (trajopt/leg_clearance.py); None without
+        # the "leg_clearance" constraint or where nothing in reach has relief.
+        self.clearance = self._clearance_field() if params.enabled("leg_clearance") else None
         self._build_bounds()
         if realized is None:
             self._build_constraints()
+
+    def _reach_region(self) -> tuple[float, float, float, float]:
+        """(xmin, xmax, ymin, ymax) of everything the feet and legs can reach along the task."""
+        reach = float(np.abs(self.robot.nominal_footholds[:, :2]).max() + self.robot.box_half_sizes[:, :2].max()) + 0.3
+        xs = [self.start_position[0], self.target[0], *self.start_feet[:, 0]]
+        ys = [self.start_position[1], self.target[1], *self.start_feet[:, 1]]
+        return (min(xs) - reach, max(xs) + reach, min(ys) - reach, max(ys) + reach)
+
+    def _clearance_field(self):
+        """The legs' clearance field over the task (leg_clearance.py), or None where no link
+        can meet the ground (flat, gentle, or a robot without modelled legs)."""
+        from qz_drake.trajopt.leg_clearance import clearance_field
+        from qz_drake.trajopt.legs import link_geometry
+
+        if link_geometry(self.robot) is None:
+            return None
+        p = self.params
+        footprint = self.robot.link_radius + p.leg_clearance_footprint
+        return clearance_field(self.terrain, footprint, p.leg_clearance_relief, self._reach_region(),
+                               p.leg_clearance_smoothing)
+
+    def link_clearance(self):
+        """The leg clearance of this task as leg_clearance.LinkClearance (what its constraint
+        checks, for one pose at a time), or None where it has none."""
+        if self.clearance is None:
+            return None
+        from qz_drake.trajopt.leg_clearance import LinkClearance, constraint_points
+        from qz_drake.trajopt.legs import link_geometry
+
+        p = self.params
+        return LinkClearance(link_geometry(self.robot),
+                             constraint_points(self.robot, p.leg_clearance_spacing),
+                             self.clearance, self.robot.link_radius + p.leg_clearance_margin)
+
+    def _start_relaxed_lower(self, c) -> np.ndarray:
+        """The leg clearance's lower bounds for this task: until each leg's second stance
+        begins (its foot still where the task found it, or leaving it) a point may stay as low
+        as it starts, less START_LINK_ALLOWANCE. A walk's mission starts where the robot
+        stands, a centimetre from where the last plan ended, and a trial's start is perturbed:
+        a link already within the margin there (a foot on an edge, a shank over a pit's rim)
+        would make every early row infeasible, though the plan can only move it away."""
+        lc = self.link_clearance()
+        start = lc.heights(self.start_position, self.start_rpy, self.start_feet)  # (L, J)
+        lower = c.lower.reshape(len(c.times), c.num_legs, c.num_points).copy()
+        for leg in range(c.num_legs):
+            first = c.times <= first_step_end(self.variables.schedule, leg) + 1e-9
+            lower[first, leg] = np.minimum(lower[first, leg], start[leg] - START_LINK_ALLOWANCE)
+        return lower.reshape(-1)
 
     def _support_field(self):
         from qz_drake.trajopt.support import support_field
@@ -187,10 +250,7 @@ class BlcFormulation:
         if isinstance(self.terrain, FlatTerrain):
             return None
         # A closed-form terrain is sampled over the footholds' reach along the task.
-        reach = float(np.abs(self.robot.nominal_footholds[:, :2]).max() + self.robot.box_half_sizes[:, :2].max()) + 0.3
-        xs = [self.start_position[0], self.target[0], *self.start_feet[:, 0]]
-        ys = [self.start_position[1], self.target[1], *self.start_feet[:, 1]]
-        region = (min(xs) - reach, max(xs) + reach, min(ys) - reach, max(ys) + reach)
+        region = self._reach_region()
         field = support_field(self.terrain, self.robot.foot_radius + self.params.support_margin,
                               self.params.support_drop, region)
         # Where every foothold in reach is supported the constraint could only change Ipopt's
@@ -248,8 +308,17 @@ class BlcFormulation:
             if term is not None:
                 self.linear.append(term)
         if p.enabled("kinematics"):
-            self.nonlinear.append(parts.get("kinematics", lambda: KinematicsConstraint(
-                v, self.kinematics_times, robot.nominal_footholds, robot.box_half_sizes)))
+            kin = parts.get("kinematics", lambda: KinematicsConstraint(
+                v, self.kinematics_times, robot.nominal_footholds, robot.box_half_sizes))
+            if self.clearance is not None and p.kinematics_box_inset > 0:
+                # Legs kept clear press stance feet to the top or bottom of their boxes (see
+                # BlcParameters.kinematics_box_inset): the boxes a little shorter along z.
+                upper = kin.upper.reshape(-1, 3).copy()
+                lower = kin.lower.reshape(-1, 3).copy()
+                upper[:, 2] -= p.kinematics_box_inset
+                lower[:, 2] += p.kinematics_box_inset
+                kin = kin.on(upper=upper.reshape(-1), lower=lower.reshape(-1))
+            self.nonlinear.append(kin)
         stance = parts.get("stance footholds", self._free_stance_footholds)
         if p.enabled("terrain"):
             if stance is not None:
@@ -271,6 +340,15 @@ class BlcFormulation:
 
             self.nonlinear.append(parts.get("support", lambda: SupportConstraint(
                 stance, self.support), field=self.support))
+        if self.clearance is not None:
+            from qz_drake.trajopt.leg_clearance import LegClearanceConstraint
+
+            def leg_clearance():
+                times = np.append(np.arange(0.0, v.duration - 1e-9, p.leg_clearance_dt), v.duration)
+                c = self.link_clearance()
+                return LegClearanceConstraint(v, times, c.geometry, c.points, c.field, c.lower)
+            c = parts.get("leg_clearance", leg_clearance, field=self.clearance)
+            self.nonlinear.append(c.on(lower=self._start_relaxed_lower(c)))
         if p.enabled("swing"):
             apex = parts.get("apex samples", lambda: self._swing_samples((0.5,)))
             if apex is not None:

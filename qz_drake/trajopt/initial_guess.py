@@ -77,9 +77,18 @@ def choose_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_yaw: flo
     return np.array([x[k], y[k], h[k] + robot.foot_radius])
 
 
+# Added to the score of a candidate whose leg's links would sink below the clearance field at
+# the stance's start or end (the body's guessed pose there), plus LINK_PENALTY_PER_METRE times
+# the depth: a foothold back from a riser where the knee-out shank would lean on its nose
+# (issue 34) outscores one at the riser's foot. Larger than the other terms: a leg on the
+# terrain is a failed walk.
+LINK_PENALTY = 0.5
+LINK_PENALTY_PER_METRE = 5.0
+
+
 def choose_stance_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_yaw: np.ndarray,
                            plane_z: float, previous_z: float = -np.inf,
-                           final: bool = False, support=None) -> np.ndarray:
+                           final: bool = False, support=None, links=None) -> np.ndarray:
     """A foothold for the guess that the foot can keep through its whole stance: body poses
     at the stance's start and end (``body_xy`` (2, 2), ``body_yaw`` (2,)); candidates over the
     union of the two kinematic boxes' footprints, scored by how far the ground around them
@@ -97,7 +106,11 @@ def choose_stance_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_y
     inside it; the box's edge there is the riser's unsupported strip, and Ipopt ran out of
     time). A candidate a move away from supported ground in the box keeps its score: the body
     tilts and the foot moves a little (scoring every metre outside that box, 10 a metre, lost
-    three of 189 capability trials that the guess had solved)."""
+    three of 189 capability trials that the guess had solved).
+
+    ``links``: (clearance, body position (2, 3), body rpy (2, 3)) with ``clearance`` a
+    leg_clearance.LinkClearance; a candidate whose leg's links would be below the clearance
+    field at either pose gets LINK_PENALTY plus LINK_PENALTY_PER_METRE per metre of depth."""
     box = robot.box_half_sizes[leg]
     nominal = robot.nominal_footholds[leg, :2]
     c, s = np.cos(body_yaw), np.sin(body_yaw)
@@ -144,6 +157,22 @@ def choose_stance_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_y
         near_x = x + c[1] * du - s[1] * dw
         near_y = y + s[1] * du + c[1] * dw
         score = score + UNREPAIRABLE_PENALTY * ((outside[1] > 0) & (support.margin(near_x, near_y) < 0))
+    if links is not None:
+        clearance, body_pos, body_rpy = links
+        # Judged where the foothold will be: an unsupported candidate is moved to the nearest
+        # supported cell afterwards (straight_line_guess), e.g. from a riser to the step below
+        # it, where the shank leans on the nose.
+        xy = np.column_stack([x, y]) if support is None else support.nearest_supported(x, y)
+        feet = np.column_stack([xy, terrain.height(xy[:, 0], xy[:, 1]) + robot.foot_radius])
+        # The leg's shape as the body will hold it over this foothold: level, at its nominal
+        # height above it (the guess's body sags into gaps and holes, and any leg over one
+        # would look buried; a gap then drew the feet into it).
+        depth = np.zeros(len(x))
+        for k in range(2):
+            com = np.column_stack([np.broadcast_to(body_pos[k, :2], (len(x), 2)),
+                                   feet[:, 2] - robot.nominal_footholds[leg, 2]])
+            depth = np.maximum(depth, clearance.depth(leg, com, [0.0, 0.0, body_rpy[k, 2]], feet))
+        score = score + (depth > 0) * (LINK_PENALTY + LINK_PENALTY_PER_METRE * depth)
     k = int(np.argmin(score))
     return np.array([x[k], y[k], terrain.height(x[k], y[k]) + robot.foot_radius])
 
@@ -209,6 +238,12 @@ def straight_line_guess(formulation) -> np.ndarray:
     schedule = v.schedule
     feet_z = robot.nominal_footholds[:, 2] - robot.foot_radius  # sole below the CoM
     window = foothold_guess(f) == "stance"
+    links = f.link_clearance() if window else None
+
+    def pose_at(t):
+        t = np.atleast_1d(t)
+        return (np.column_stack([np.interp(t, breaks, pos[:, i]) for i in range(3)]),
+                np.column_stack([np.interp(t, breaks, rpy[:, i]) for i in range(3)]))
     for leg in range(v.num_legs):
         stances = schedule.stance_intervals(leg)
         mids = np.array([0.5 * (a + b) for a, b in stances])
@@ -216,11 +251,14 @@ def straight_line_guess(formulation) -> np.ndarray:
         if window:
             ends, end_yaw = body_at(np.array(stances).reshape(-1))
             footholds = [f.start_feet[leg]]
+            end_pos, end_rpy = pose_at(np.array(stances).reshape(-1))
             for k in range(1, len(mids)):
                 footholds.append(choose_stance_foothold(
                     robot, terrain, leg, ends[2 * k:2 * k + 2, :2], end_yaw[2 * k:2 * k + 2],
                     body[k, 2] + feet_z[leg], footholds[-1][2] - robot.foot_radius,
-                    final=stances[k][1] >= T - 1e-9, support=f.support))
+                    final=stances[k][1] >= T - 1e-9, support=f.support,
+                    links=None if links is None else
+                    (links, end_pos[2 * k:2 * k + 2], end_rpy[2 * k:2 * k + 2])))
             footholds = np.array(footholds)
         else:
             footholds = np.array([

@@ -23,9 +23,12 @@ CONSTRAINT_REASONS: dict[str, str] = {
     "support": "each free stance foothold on supported ground: the raw heightmap within the "
                "foot's radius plus support_margin stays within support_drop of the foothold's "
                "height (off edges and away from risers; trajopt/support.py)",
+    "leg_clearance": "every leg's thigh and shank above the raw ground, from the legs' inverse "
+                     "kinematics, at dense samples of stance and swing where the terrain has "
+                     "relief (trajopt/leg_clearance.py; paper 000 Fig. 2)",
 }
 DEFAULT_CONSTRAINTS = ("dynamics", "base_acceleration", "kinematics", "terrain", "force", "swing",
-                       "support")
+                       "support", "leg_clearance")
 
 # How the straight-line guess chooses footholds (BlcParameters.foothold_guess).
 LINEAR_SOLVERS = ("mumps", "spral")
@@ -61,6 +64,12 @@ class BlcParameters:
     # leave their boxes by 3-5 mm between samples on stairs (the dense verdict's limit: 2 mm);
     # 0.04 s keeps them inside on the bench suite at about 1.2x the time. [s]
     kinematics_dt: float = 0.04
+    # Where the legs are kept clear (constraint "leg_clearance" active), the program's boxes
+    # are this much shorter at the top and the bottom than the robot's (the dense verdict's).
+    # Measured (issue 34): with the legs kept clear, stance feet rest against the top or bottom
+    # of their boxes on stairs and left them by 2-5 mm between samples, failing 5 of the first
+    # 10 Fig. 9 walks on the dense check. [m]
+    kinematics_box_inset: float = 0.004
     # Cubic force polynomials per stance phase (TOWR: 3), fewer in a stance where they would
     # be shorter than min_force_polynomial_duration (at least one).
     force_polynomials_per_stance: int = 3
@@ -181,6 +190,28 @@ class BlcParameters:
     support_drop: float = 0.05  # [m]
     # The dense verdict fails a stance foothold deeper than this inside unsupported ground. [m]
     dense_support_tolerance: float = 0.01
+    # Legs' links above the ground (constraint "leg_clearance", trajopt/leg_clearance.py):
+    # points every leg_clearance_spacing along each thigh's and shank's collision capsule,
+    # sampled every leg_clearance_dt, each at least the capsule's radius plus
+    # leg_clearance_margin above the raw ground's highest point within the radius plus
+    # leg_clearance_footprint (covering the capsule between points: a shank within 30 deg of
+    # the vertical has its points 5.5 cm apart horizontally). The margin covers the tracker's
+    # centimetre of error. Rows only where the ground within that reach varies by more than
+    # leg_clearance_relief (an edge, a riser, a box): not on flat ground or gentle slopes. [s, m]
+    leg_clearance_dt: float = 0.04
+    leg_clearance_spacing: float = 0.11
+    leg_clearance_footprint: float = 0.03
+    # Half-width of a mean that turns the field's steps into ramps (leg_clearance.py; the
+    # field is dilated that much further first, so it stays conservative). Off: measured on
+    # paper 000 Fig. 2's step, 0.05 m kept front_bend's low knee-in shank 13 cm from the riser
+    # out of a plan, and it solved no more of the Fig. 5 stairs. [m]
+    leg_clearance_smoothing: float = 0.0
+    leg_clearance_margin: float = 0.02
+    leg_clearance_relief: float = 0.05
+    # The dense verdict checks every leg's capsules (every 1.5 cm along them) at its rate and
+    # fails a plan whose link dips more than this into the ground (False: no link check). [m]
+    dense_link_check: bool = True
+    dense_link_tolerance: float = 0.005
     # Ipopt iteration limit.
     max_iterations: int = 3000
     # Ipopt's linear solver: "mumps", Ipopt 3.14 with MUMPS from the cyipopt wheel on the
@@ -206,7 +237,9 @@ class BlcParameters:
                      "stand_duration", "nominal_speed", "dense_check_rate",
                      "dense_clearance_tolerance", "dense_box_tolerance", "dense_force_tolerance",
                      "dense_residual_limit", "dense_residual_lever", "support_margin",
-                     "support_drop", "dense_support_tolerance"):
+                     "support_drop", "dense_support_tolerance", "leg_clearance_dt",
+                     "leg_clearance_spacing", "leg_clearance_relief", "dense_link_tolerance",
+                     "leg_clearance_footprint"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and value > 0):
                 raise bad_value(f"blc.{name}", value, "must be positive", ConfigError)
@@ -228,6 +261,9 @@ class BlcParameters:
                             "must be at least 1")
         if int(self.samples_per_binding) < 1:
             raise bad_value("blc.samples_per_binding", self.samples_per_binding, "must be at least 1")
+        for name in ("leg_clearance_margin", "leg_clearance_smoothing", "kinematics_box_inset"):
+            if not getattr(self, name) >= 0:
+                raise bad_value(f"blc.{name}", getattr(self, name), "must be non-negative")
         if not self.swing_clearance_dt >= 0:
             raise bad_value("blc.swing_clearance_dt", self.swing_clearance_dt,
                             "must be non-negative")

@@ -25,6 +25,20 @@ GRAVITY = 9.81  # [m/s^2]
 
 
 @dataclasses.dataclass(frozen=True)
+class LegLinks:
+    """A leg's thigh and shank, for keeping them off the terrain (trajopt/legs.py): the knee
+    follows from the hip, the foot and the bend in the plane of j0's axis (paper 002 Eq. 1-6)."""
+
+    # Hip to knee and knee to foot-sphere centre. [m]
+    thigh_length: float
+    shank_length: float
+    # +1: the knee radially outside the hip-foot line, -1: inside (the topology's bend).
+    knee_bend: int
+    # j0's axis (the leg plane's radial direction) in the body frame, unit.
+    radial_axis: tuple[float, float, float]
+
+
+@dataclasses.dataclass(frozen=True)
 class LegModel:
     """One leg as the BLC sees it: a point foot in a box around its nominal foothold."""
 
@@ -39,6 +53,8 @@ class LegModel:
     hip_position: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # Leg mass, already included in the robot's total mass (informative). [kg]
     mass: float = 0.0
+    # Thigh and shank (None: a point foot on an unmodelled leg; no link clearance).
+    links: LegLinks | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,6 +75,12 @@ class RobotModel:
     gravity: float = GRAVITY
     # Gaits this robot can use; the first is its default.
     gaits: tuple[str, ...] = ("trot",)
+    # Radius of the legs' link tubes (their collision capsules), for the link clearance. [m]
+    link_radius: float = 0.0
+    # How far along the thigh (from the hip) and the shank (from the knee) the links can touch
+    # anything: the collision capsules' extent. [m]
+    thigh_collision: tuple[float, float] = (0.0, 0.0)
+    shank_collision: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self):
         if not (math.isfinite(self.mass) and self.mass > 0):
@@ -154,6 +176,8 @@ def qingzhui(topology: str = "nominal") -> RobotModel:
     from qz_drake.robot.model import standing_rigid_body
     from qz_drake.robot.params import DEFAULT_PARAMS, LEG_NAMES
     from qz_drake.robot.topology import get_topology
+    from qz_drake.robot.urdf import (LINK_COLLISION_RADIUS, SHANK_COLLISION_END_INSET,
+                                     THIGH_COLLISION_START)
 
     topo = get_topology(topology)
     mass, inertia, com_B = standing_rigid_body(topology)
@@ -162,14 +186,19 @@ def qingzhui(topology: str = "nominal") -> RobotModel:
     legs = tuple(
         LegModel(name, tuple(float(v) for v in footholds[i]),
                  tuple(float(v) for v in topo.box_half_size), QINGZHUI_MAX_NORMAL_FORCE,
-                 tuple(float(v) for v in params.hip_position(i) - com_B), params.leg_mass)
+                 tuple(float(v) for v in params.hip_position(i) - com_B), params.leg_mass,
+                 LegLinks(params.thigh_length, params.shank_length, int(topo.bends[i]),
+                          tuple(float(v) for v in params.R_BL(i)[:, 0])))
         for i, name in enumerate(LEG_NAMES))
     inertia = 0.5 * (inertia + inertia.T)
     return RobotModel(name=f"qingzhui/{topology}", mass=float(mass),
                       inertia=tuple(tuple(float(v) for v in row) for row in inertia),
                       legs=legs, foot_radius=params.foot_radius,
                       com_B=tuple(float(v) for v in com_B),
-                      gaits=("tripod", "tetrapod", "wave"))
+                      gaits=("tripod", "tetrapod", "wave"),
+                      link_radius=LINK_COLLISION_RADIUS,
+                      thigh_collision=(THIGH_COLLISION_START, params.thigh_length),
+                      shank_collision=(0.0, params.shank_length - SHANK_COLLISION_END_INSET))
 
 
 ROBOT_NAMES = ("qingzhui", "hyq", "quadruped")

@@ -10,6 +10,8 @@ the .npz is saved at) on the terrain model the problem was solved on:
 * stance feet inside their kinematic boxes (Eq. 1; swing feet are reported);
 * free stance footholds on supported ground (support.py: no edge or riser within the foot's
   radius plus a margin);
+* every leg's thigh and shank above the ground (leg_clearance.py: the collision capsules
+  sampled every 1.5 cm against the raw cells), in stance and swing;
 * stance forces: normal part at least zero, inside the friction pyramid of the terrain frame at
   the foothold (Eq. 5);
 * single-rigid-body residuals (Eq. 2): the linear one ``|m (r'' - g) - sum f| / (m g)`` and the
@@ -51,6 +53,9 @@ class DenseCheck:
     # Least signed distance of a free stance foothold to unsupported ground (support.py;
     # negative: inside it); +inf without the support check. [m]
     min_support_margin: float
+    # Least clearance of a leg link (capsule surface above the raw ground, leg_clearance.py);
+    # +inf without the link check or without modelled legs. [m]
+    min_link_clearance: float
     # Least stance normal force. [body weights]
     min_normal_force: float
     # Largest tangential force beyond the friction pyramid (0 inside). [body weights]
@@ -168,6 +173,11 @@ def dense_check(formulation, x: np.ndarray, rate: float | None = None) -> DenseC
                 failures.append(f"{names[leg]} stance foot on unsupported ground from t = {t:.2f} s "
                                 f"(the ground within {f.support.radius:.2f} m differs by {relief:.2f} m)")
 
+    # Legs' links above the ground (leg_clearance.py), through the stance and the swing.
+    min_link = np.inf
+    if p.dense_link_check:
+        min_link = _link_check(f, x, times, rate, failures)
+
     # Stance forces (Eq. 5): normal >= 0, inside the friction pyramid.
     min_normal, max_friction = np.inf, 0.0
     worst_normal = worst_friction = None
@@ -221,9 +231,43 @@ def dense_check(formulation, x: np.ndarray, rate: float | None = None) -> DenseC
                     f"{q:g}th percentile (worst {values[k]:.3f} at t = {far[k]:.2f} s)")
     return DenseCheck(min_swing_clearance=min_clearance, max_box_excess=max_box,
                       max_swing_box_excess=max_swing_box, min_support_margin=min_support,
-                      min_normal_force=min_normal, max_friction_excess=max_friction,
+                      min_link_clearance=min_link, min_normal_force=min_normal, max_friction_excess=max_friction,
                       linear_residual=linear, angular_residual=angular, num_samples=len(times),
                       num_residual_samples=len(far), failures=failures, refine_times=refine)
+
+
+def _link_check(f, x: np.ndarray, times: np.ndarray, rate: float, failures: list[str]) -> float:
+    """The least link clearance of the plan at ``times``; appends a failure naming the leg,
+    the link point, the time and the depth where a link dips into the ground."""
+    from qz_drake.trajopt.formulation import first_step_end
+    from qz_drake.trajopt.leg_clearance import dense_link_check
+    from qz_drake.trajopt.legs import link_geometry
+
+    v, robot = f.variables, f.robot
+    if link_geometry(robot) is None:
+        return np.inf
+    com_s, rpy_s, feet_s = f.parts.get(("dense", rate, "links"), lambda: (
+        v.base_position.sample(times, 0), v.base_rpy.sample(times, 0),
+        [v.foot_position[leg].sample(times, 0) for leg in range(v.num_legs)]))
+    feet = np.stack([s.value(x) for s in feet_s], axis=1)
+    check = dense_link_check(robot, f.terrain, times, com_s.value(x), rpy_s.value(x), feet)
+    # The start is given, not planned: a leg whose links start within the constraint's margin
+    # of the ground (a foot on an edge, its shank at a pit's rim: measured on the raw cells,
+    # whose edges are sharp, a millimetre of body motion there is a centimetre of depth) is
+    # judged from its second stance on; the others, from the start.
+    tolerance = f.params.dense_link_tolerance
+    allowed = np.full(check.clearance.shape, -tolerance)
+    near = dense_link_check(robot, f.terrain, times[:1], com_s.value(x)[:1], rpy_s.value(x)[:1],
+                            feet[:1], radius=robot.link_radius + f.params.leg_clearance_margin)
+    for leg in range(v.num_legs):
+        if near.clearance[0, leg].min() < 0:
+            allowed[times <= first_step_end(v.schedule, leg) + 1e-9, leg] = -np.inf
+    excess = allowed - check.clearance
+    if excess.max() > 0:
+        k, leg, j = np.unravel_index(int(np.argmax(excess)), excess.shape)
+        failures.append(f"{robot.leg_names[leg]} leg ({check.names[j]}) "
+                        f"{-check.clearance[k, leg, j]:.3f} m into the ground at t = {times[k]:.2f} s")
+    return check.min_clearance
 
 
 def _worst_times(times: np.ndarray, values: np.ndarray, limit: float,

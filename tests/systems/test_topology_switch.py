@@ -125,3 +125,25 @@ def test_a_switch_lifts_its_feet_higher_to_clear_a_ridge_and_says_when_nothing_c
     np.testing.assert_allclose(feet[-1, 0, :2], [0.83, 0.0], atol=0.02)  # MF on its split_up foothold
     with pytest.raises(ConfigError, match=r"topology switch leg 0 \(MF\).*foot lifts up to 0.20 m"):
         switch(ridge(0.4))
+
+
+def test_a_switch_whose_knee_in_leg_would_rest_on_a_box_is_refused_before_it_starts():
+    """A 0.3 m box under the front of the trunk (x = 0.30-0.45 m, |y| < 0.15 m): the nominal
+    MF leg (knee out, its knee at x = 0.89 m) stands clear of it, but front_bend's knee-in MF
+    knee comes down at x = 0.38 m, 0.23 m high, inside the box. The switch is refused before
+    it starts, naming the leg and the link (issue 34); the same switch on flat ground is fine."""
+    from qz_drake.terrain.heightmap import HeightMap
+
+    ground = flat()
+    heights = np.array(ground.heights, copy=True)
+    xs = ground.origin[0] + np.arange(heights.shape[1]) * ground.resolution
+    ys = ground.origin[1] + np.arange(heights.shape[0]) * ground.resolution
+    heights[np.ix_(np.abs(ys) < 0.15, (xs > 0.30) & (xs < 0.45))] = 0.3
+    box = HeightMap(heights=heights, resolution=ground.resolution, origin=ground.origin)
+    with pytest.raises(ConfigError, match=r"topology switch leg 0 \(MF\): its (thigh|shank) would pass "
+                                          r"-[0-9.]+ cm over the terrain [0-9.]+ s into the switch"):
+        _plan("front_bend", heightmap=box)
+    plan, _ = _plan("front_bend")
+    # Every link of every leg clears flat ground by more than the capsule's radius all along.
+    points = np.stack([plan.link_points(t) for t in np.linspace(plan.start_time, plan.end_time, 50)])
+    assert points[..., 2].min() > 0.025
