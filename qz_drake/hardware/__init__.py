@@ -7,4 +7,6 @@
   (``qz robot-sim``).
 * ``loopback.py``: both in one diagram over ``memq://`` (``qz simulate --station lcm``, tests).
 * ``watchdog.py``, ``codec.py``: the link checks both ends share.
+* ``pacer.py``: StatusPacer, the interface keeping time with a driver in another process.
+* ``relay.py``: ``qz lcm-relay``, LCM's tcpq:// server on 127.0.0.1 for processes on one machine.
 """

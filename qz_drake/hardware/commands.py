@@ -12,8 +12,11 @@ from __future__ import annotations
 
 import json
 import math
+import signal
 
 from qz_drake.errors import bad_value
+from qz_drake.hardware.relay import DEFAULT_PORT as DEFAULT_RELAY_PORT
+from qz_drake.hardware.relay import connect_lcm, tcpq_url
 
 
 def load_hardware_file(path: str | None):
@@ -26,8 +29,11 @@ def load_hardware_file(path: str | None):
     return load_hardware_config(read_text_file(path, "--hardware", "a protocol settings .yaml file"))
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def run_robot_sim(args) -> int:
-    from pydrake.lcm import DrakeLcm
     from pydrake.systems.analysis import Simulator
 
     from qz_drake.config import load_scenario
@@ -40,10 +46,7 @@ def run_robot_sim(args) -> int:
     if not (math.isfinite(args.realtime_rate) and args.realtime_rate >= 0):
         raise bad_value("--realtime-rate", args.realtime_rate, "must be >= 0 (0: as fast as possible)")
     config = load_hardware_file(args.hardware)
-    try:
-        lcm = DrakeLcm(args.lcm_url)
-    except RuntimeError as e:
-        raise bad_value("--lcm-url", args.lcm_url, str(e)) from None
+    lcm = connect_lcm(args.lcm_url, "--lcm-url")
     meshcat = None
     if args.meshcat:
         from pydrake.geometry import Meshcat
@@ -53,6 +56,9 @@ def run_robot_sim(args) -> int:
     driver = QingzhuiRobotDriver(scenario=scenario, lcm=lcm, config=config, meshcat=meshcat)
     simulator = Simulator(driver)
     simulator.set_target_realtime_rate(args.realtime_rate)
+    # A plain kill (a script's `kill %1`, a test's terminate()) ends it as Ctrl-C does, with the
+    # report.
+    signal.signal(signal.SIGTERM, _interrupt)
     simulator.Initialize()
     end = math.inf if args.duration is None else args.duration
     with ProgressReport("robot-sim", args.duration, unit="s simulated", digits=1) as report:
@@ -67,17 +73,39 @@ def run_robot_sim(args) -> int:
     context = simulator.get_context()
     x = driver.GetOutputPort("true_state").Eval(context)
     print(json.dumps({"sim_time_s": float(context.get_time()), "lcm_url": args.lcm_url,
+                      "realtime_factor": simulator.get_actual_realtime_rate(),
                       "base_position_m": x[4:7].tolist(), **driver.counters(context)}))
+    return 0
+
+
+def run_lcm_relay(args) -> int:
+    from qz_drake.hardware.relay import LcmTcpRelay
+
+    relay = LcmTcpRelay(args.port)
+    # Stopped with Ctrl-C or a plain kill alike, so a script's `kill %1` also prints the counters.
+    signal.signal(signal.SIGTERM, lambda *_: relay.close())
+    print(json.dumps({"lcm_url": relay.url, "listening": True}), flush=True)
+    try:
+        relay.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    print(json.dumps(relay.counters()), flush=True)
     return 0
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("robot-sim", help="the simulated robot driver behind the LCM interface")
     p.add_argument("scenario", help="scenario YAML file (terrain, robot, control mode)")
-    p.add_argument("--lcm-url", default="udpm://239.255.76.67:7667?ttl=0",
-                   help="LCM URL (default: UDP multicast on this machine only, ttl=0)")
+    p.add_argument("--lcm-url", default=tcpq_url(DEFAULT_RELAY_PORT),
+                   help="LCM URL (default: the `qz lcm-relay` on this machine; on a robot's network "
+                        "udpm://239.255.76.67:7667?ttl=1)")
     p.add_argument("--duration", type=float, default=None, help="simulated time [s] (default: until Ctrl-C)")
     p.add_argument("--realtime-rate", type=float, default=1.0, help="pacing (1: real time; 0: unpaced)")
     p.add_argument("--hardware", default=None, help="protocol settings YAML (qz_drake.hardware.config)")
     p.add_argument("--meshcat", action="store_true", help="draw the simulated robot in meshcat")
     p.set_defaults(func=run_robot_sim)
+
+    p = subparsers.add_parser("lcm-relay", help="LCM's tcpq:// relay on 127.0.0.1, for processes on this machine")
+    p.add_argument("--port", type=int, default=DEFAULT_RELAY_PORT,
+                   help=f"TCP port on 127.0.0.1 (default {DEFAULT_RELAY_PORT}; 0: any free one, printed)")
+    p.set_defaults(func=run_lcm_relay)

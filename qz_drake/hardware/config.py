@@ -41,15 +41,23 @@ class HardwareConfig:
     control_period: float = 0.002
     # Localisation (qz_pose) period of the simulated driver; LiDAR odometry runs at ~10 Hz. [s]
     pose_period: float = 0.002
-    # A status (interface side) or command (driver side) older than this latches a safe stop:
-    # 2.5 periods, so the third missing message trips it. [s]
-    status_timeout: float = 0.005
-    command_timeout: float = 0.005
-    # Lost messages tolerated between two consecutive ones (UDP drops a datagram now and then,
-    # and Drake's subscriber keeps only the newest); a larger gap latches a safe stop.
-    max_missed_messages: int = 2
+    # The time budget of a link: a status (interface side) or command (driver side) older than
+    # this latches a safe stop; until then the last good one is held and lost ones are only
+    # counted. 10.5 periods: the eleventh missing message trips it. Two processes on this
+    # 2-core machine, busy with other work, went up to 9 periods without a command at
+    # --realtime-rate 0.5 (6 at 0.1) and lost up to 7 statuses in a row in walks that
+    # succeeded, where the former 2.5 periods stopped walks within a second (a process held
+    # off the CPU for longer still latches: README). In 21 ms the trunk moves 5 mm at the
+    # walking speed, and a status outage during a tripod swing let the robot sink 0.7 cm (the
+    # interface repeating its last command through the budget, then the safe stop's hold). [s]
+    status_timeout: float = 0.021
+    command_timeout: float = 0.021
+    # (There is no limit on messages lost in a row, the former max_missed_messages: the age is
+    # checked every period, so a burst longer than the budget is a stale link anyway, and a
+    # shorter one is what the budget allows.)
     # The sender's clock may advance differently from the receiver's by this much between two
-    # messages before it counts as a clock jump (network jitter stays well below it). [s]
+    # messages before it counts as a clock jump (network jitter stays well below it; an end
+    # that fell this far behind the other sees the same). [s]
     clock_tolerance: float = 0.02
     # A measured joint angle this far outside the joint limits marks a malformed status. [rad]
     joint_limit_margin: float = 0.05
@@ -71,8 +79,6 @@ def validate_hardware_config(config: HardwareConfig) -> HardwareConfig:
     if config.status_timeout <= config.control_period or config.command_timeout <= config.control_period:
         raise bad_value("hardware.status_timeout", config.status_timeout,
                         f"must exceed one control period ({config.control_period} s)")
-    if config.max_missed_messages < 0:
-        raise bad_value("hardware.max_missed_messages", config.max_missed_messages, "must be >= 0")
     if config.joint_limit_margin < 0:
         raise bad_value("hardware.joint_limit_margin", config.joint_limit_margin, "must be >= 0")
     for name in ("status", "command", "pose"):

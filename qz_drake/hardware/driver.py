@@ -29,7 +29,8 @@ from qz_drake.config import Scenario
 from qz_drake.hardware.codec import EncodedMessageSerializer, command_problem, decode, joint_limits, message_key
 from qz_drake.hardware.config import HardwareConfig, validate_hardware_config
 from qz_drake.hardware.qz_lcm import qz_command, qz_pose, qz_status
-from qz_drake.hardware.watchdog import LinkState, WatchdogLimits, reset_watchdog, step_watchdog
+from qz_drake.hardware.watchdog import (LinkState, WatchdogLimits, declare_message_intake, reset_watchdog,
+                                       step_watchdog)
 from qz_drake.robot.params import NUM_JOINTS, NUM_LEGS, QingzhuiParams
 from qz_drake.systems.state_layout import BASE_POS, BASE_QUAT, BASE_VEL, IMU_SIZE, JOINT_Q, JOINT_V, STATE_SIZE
 
@@ -59,6 +60,12 @@ class DriverCommandState:
     clamped_commands: int = 0
     clamped_torques: int = 0
     clamped_positions: int = 0
+    # Control periods from the measurement an accepted command answers (its status_sequence) to
+    # the tick that applies it: 1 in the lockstep diagram; summed over ``answered`` commands,
+    # and the most. Over a network it says whether the controller keeps up.
+    answered: int = 0
+    loop_delay_sum: int = 0
+    loop_delay_max: int = 0
 
     def __deepcopy__(self, memo):  # immutable: Drake's state copies may share it
         return self
@@ -97,14 +104,15 @@ class CommandReceiver(LeafSystem):
         self._position_mode = position_mode
         self._effort = params.effort_limit
         self._lower, self._upper = joint_limits(params)
-        self._limits = WatchdogLimits(timeout=config.command_timeout, max_missed=config.max_missed_messages,
-                                      clock_tolerance=config.clock_tolerance)
+        self._limits = WatchdogLimits(timeout=config.command_timeout,
+                                      clock_tolerance=config.clock_tolerance, message="command")
         # The encoded message (bytes, see EncodedMessageSerializer).
         self._command = self.DeclareAbstractInputPort("lcm_command", AbstractValue.Make(b""))
         self._state = self.DeclareVectorInputPort("state", STATE_SIZE)
         self._applied = self.DeclareAbstractState(AbstractValue.Make(DriverCommandState()))
         self.DeclarePeriodicUnrestrictedUpdateEvent(config.control_period, COMMAND_PHASE * config.control_period,
                                                     self._update)
+        declare_message_intake(self, config.control_period, COMMAND_PHASE)
         self.DeclareVectorOutputPort("joint_torque", NUM_JOINTS, self._calc_torque)
         if position_mode:
             self.DeclareVectorOutputPort("joint_position_command", NUM_JOINTS, self._calc_position,
@@ -136,6 +144,12 @@ class CommandReceiver(LeafSystem):
             commanded_stop = fields["commanded_stop"] = m.mode == qz_command.MODE_SAFE_STOP
             if not commanded_stop:
                 fields.update(self._accept(s, m))
+                # The status published after tick k carries sequence k + 1; this command is
+                # applied at the next tick.
+                tick = int(round(context.get_time() / self._config.control_period - COMMAND_PHASE))
+                delay = tick + 2 - m.status_sequence
+                fields.update(answered=s.answered + 1, loop_delay_sum=s.loop_delay_sum + delay,
+                              loop_delay_max=max(s.loop_delay_max, delay))
         hold = link.latched or not link.armed or commanded_stop
         if hold and (not s.holding or s.hold is None):  # (waiting for the first command: no hold yet)
             fields.update(holding=True, hold=tuple(self._state.Eval(context)[JOINT_Q]))
@@ -338,7 +352,9 @@ class QingzhuiRobotDriver(Diagram):
         return {**s.link.counters(), "safe_stop_latched": s.link.latched, "safe_stop_reason": s.link.reason,
                 "safe_stop_time_s": s.link.latched_time if s.link.latched else None,
                 "holding": s.holding, "clamped_commands": s.clamped_commands,
-                "clamped_torques": s.clamped_torques, "clamped_positions": s.clamped_positions}
+                "clamped_torques": s.clamped_torques, "clamped_positions": s.clamped_positions,
+                "mean_loop_delay_periods": s.loop_delay_sum / s.answered if s.answered else None,
+                "longest_loop_delay_periods": s.loop_delay_max}
 
     def reset_safe_stop(self, root_context) -> None:
         self._receiver.reset(self._receiver.GetMyMutableContextFromRoot(root_context))

@@ -20,6 +20,7 @@ from qz_drake.config import Scenario
 from qz_drake.hardware.config import HardwareConfig
 from qz_drake.hardware.driver import QingzhuiRobotDriver
 from qz_drake.hardware.interface import make_hardware_interface
+from qz_drake.hardware.relay import connect_lcm
 
 # The station's ports that controllers use: all of them come from the interface.
 CONTROLLER_OUTPUTS = ("state", "joint_torque_measured", "imu", "foot_contact")
@@ -81,9 +82,20 @@ class LcmLoopbackStation(Diagram):
         self.set_name("station")
 
     def station_metrics(self, root_context) -> dict:
-        """Both ends' watchdog and clamp counters, for a run's metrics."""
-        return {"lcm_interface": self.interface.counters(root_context),
-                "lcm_driver": self.driver.counters(root_context)}
+        """Both ends' watchdog and clamp counters, and the first safe stop, for a run's metrics."""
+        ends = {"interface": self.interface.counters(root_context), "driver": self.driver.counters(root_context)}
+        return {"lcm_interface": ends["interface"], "lcm_driver": ends["driver"], "safe_stop": first_safe_stop(ends)}
+
+
+def first_safe_stop(ends: dict[str, dict]) -> str:
+    """The earliest latched safe stop among the link ends' counters ({"interface": ...}), as
+    "at 0.420 s on the interface: <its reason>"; "" when none latched."""
+    latched = [(c["safe_stop_time_s"], end, c["safe_stop_reason"]) for end, c in ends.items()
+               if c["safe_stop_latched"]]
+    if not latched:
+        return ""
+    t, end, reason = min(latched)
+    return f"at {t:.3f} s on the {end}: {reason}"
 
 
 def make_lcm_loopback_station(scenario: Scenario, meshcat=None, *, mesh_dir=None, lcm_url: str = "memq://",
@@ -130,11 +142,16 @@ class RemoteLcmStation(Diagram):
         self.set_name("station")
 
     def station_metrics(self, root_context) -> dict:
-        return {"lcm_interface": self.interface.counters(root_context), "trunk_contact_observed": False}
+        """The interface's counters and its safe stop, or the driver's as its status reports it."""
+        interface = self.interface.counters(root_context)
+        stop = first_safe_stop({"interface": interface})
+        if not stop and interface["driver_safe_stop"]:
+            stop = "reported by the robot driver (its own report says why)"
+        return {"lcm_interface": interface, "trunk_contact_observed": False, "safe_stop": stop}
 
 
 def make_remote_lcm_station(scenario: Scenario, meshcat=None, *, mesh_dir=None, lcm_url: str,
                             config: HardwareConfig | None = None):
     """A make_station-compatible factory: (RemoteLcmStation, StationInfo) on ``lcm_url``."""
-    station = RemoteLcmStation(scenario=scenario, lcm=DrakeLcm(lcm_url), config=config)
+    station = RemoteLcmStation(scenario=scenario, lcm=connect_lcm(lcm_url), config=config)
     return station, station.info

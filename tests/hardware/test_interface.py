@@ -5,6 +5,8 @@ pacing). Faults are injected by the message hooks of the driver (status) and the
 (command); the assertions are on counters, latch times and the robot's motion.
 """
 
+import math
+
 import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
@@ -129,7 +131,7 @@ def test_a_duplicated_sequence_number_is_detected():
     simulator, station = stand(0.3, status_filter=faulty_status(100, repeat))
     interface = station.station_metrics(simulator.get_context())["lcm_interface"]
     assert interface["duplicates"] == 1 and interface["missed"] == 1 and interface["sequence_jumps"] == 0
-    assert interface["safe_stop_reason"] == "duplicated sequence number"
+    assert interface["safe_stop_reason"] == "status sequence number 99 repeated"
 
 
 def test_an_out_of_limit_torque_is_clamped_and_counted():
@@ -163,8 +165,12 @@ def test_a_stale_or_malformed_command_latches_the_drivers_safe_stop():
     root = simulator.get_context()
     driver = station.station_metrics(root)["lcm_driver"]
     assert driver["stale"] == 1 and driver["safe_stop_latched"] and driver["holding"]
-    # Command 99 was checked at 98.875 periods; the third missing one trips the bound.
-    assert driver["safe_stop_time_s"] == pytest.approx(101.875 * H)
+    # Command 99 was taken in at 98.875 periods; the first check at which it is older than the
+    # budget latches, and says so.
+    timeout = HardwareConfig().command_timeout
+    assert driver["safe_stop_time_s"] == pytest.approx((98.875 + math.floor(timeout / H) + 1) * H)
+    assert driver["safe_stop_reason"] == (f"command stale for {(math.floor(timeout / H) + 1) * H * 1e3:.1f} ms "
+                                          f"(timeout {timeout * 1e3:.1f} ms)")
     assert station.station_metrics(root)["lcm_interface"]["driver_safe_stop"]
 
     def nan(m):
@@ -177,11 +183,47 @@ def test_a_stale_or_malformed_command_latches_the_drivers_safe_stop():
         "safe_stop_reason"]
 
 
+def test_lost_statuses_are_counted_and_ridden_through():
+    """UDP loses a few statuses: the interface holds the last good one, counts the gaps, and the
+    controller and the driver carry on without a safe stop."""
+    lost = {100, 101, 102, 103, 200}
+    commands = {}
+
+    def record(m):
+        commands[m.sequence] = m
+        return m
+    simulator, station = stand(0.5, status_filter=lambda m: None if m.sequence in lost else m,
+                               command_filter=record)
+    root = simulator.get_context()
+    interface = station.station_metrics(root)["lcm_interface"]
+    assert interface["missed"] == 5 and interface["gaps"] == 2 and interface["longest_gap"] == 4
+    assert interface["received"] == 250 - 5 and interface["safe_stops"] == 0 and interface["stale"] == 0
+    assert not interface["safe_stop_latched"] and not interface["driver_safe_stop"]
+    assert station.station_metrics(root)["safe_stop"] == ""
+    driver = station.station_metrics(root)["lcm_driver"]
+    assert not driver["holding"] and driver["safe_stops"] == 0
+    x = station.GetOutputPort("true_state").Eval(station.GetMyContextFromRoot(root))
+    assert abs(x[6] - 0.55) < 0.01 and tilt_deg(x) < 1.0
+    # Command k answers status k; while statuses were missing, the command that answered the
+    # last one came again (a fresh sequence number, the same joints).
+    assert [commands[k].status_sequence for k in range(98, 106)] == [98, 99, 99, 99, 99, 99, 104, 105]
+    assert all(list(commands[k].joint_torque) == list(commands[99].joint_torque) for k in range(100, 104))
+    assert list(commands[104].joint_torque) != list(commands[99].joint_torque)
+
+
 def test_reset_resumes_after_a_status_outage():
     drop = lambda m: None if 100 <= m.sequence < 125 else m  # noqa: E731
     simulator, station = stand(0.3, status_filter=drop)
     root = simulator.get_context()
     assert station.interface.watchdog(root).latched
+    # Status 99 was taken in at 98.5 periods; stale at the first check past the budget.
+    timeout = HardwareConfig().status_timeout
+    checks = math.floor(timeout / H) + 1
+    metrics = station.station_metrics(root)
+    assert metrics["lcm_interface"]["safe_stop_reason"] == (f"status stale for {checks * H * 1e3:.1f} ms "
+                                                            f"(timeout {timeout * 1e3:.1f} ms)")
+    assert metrics["safe_stop"] == f"at {(98.5 + checks) * H:.3f} s on the interface: " + \
+        metrics["lcm_interface"]["safe_stop_reason"]
     station.interface.reset_safe_stop(root)
     simulator.AdvanceTo(0.4)
     interface = station.station_metrics(root)["lcm_interface"]
