@@ -10,6 +10,13 @@ server): ``recording_meshcat`` makes one per process, on localhost only and with
 follow_robot=True)`` adds a few lines of script to the page that point the camera at the robot
 and keep it there while the animation plays (the view follows the base body; the user can
 still orbit and zoom).
+
+Recordings are lit evenly and coloured for reading at a glance (issue 39): ``style_recording``
+replaces meshcat's default lights (point lights near the origin that left a 20 m world
+near-black outside a spotlit patch) with an ambient light and one overhead directional light,
+and draws Qingzhui's trunk orange and its legs blue over the terrain's greens and sands (the
+terrain's colours are set where it is registered, qz_drake/terrain/drake_geometry.py). Every
+saved page shows the animation's time in a corner of the view (``show_time``).
 """
 
 from __future__ import annotations
@@ -19,6 +26,8 @@ import json
 import logging
 import re
 from pathlib import Path
+
+from qz_drake.robot.params import LEG_NAMES
 
 _PAYLOAD = re.compile(rb'data:application/octet-binary;base64,([A-Za-z0-9+/=]+)')
 
@@ -30,6 +39,33 @@ CAMERA_OFFSET = (-2.6, -2.6, 1.8)
 # (Drake's default is 64): a walking gait of 1-2 s cycles reads smoothly at 32, and the demo's
 # 150 s walk was a 46 MB page at 64.
 RECORDING_FPS = 32.0
+
+# Lights of recordings, replacing meshcat's defaults. The ambient light carries most of the
+# brightness so that every face, even one turned from the sun, reads; the directional light
+# (meshcat's "FillLight", moved from the horizon to above the scene and brightened) comes from
+# behind-left of the walking direction, so that treads, risers and the sides of boxes take three
+# different shades. Meshcat's two point lights fade out 10 m from the origin: off.
+AMBIENT_INTENSITY = 1.1
+SUN_INTENSITY = 1.5
+# Where the directional light shines from, in the world frame (towards the origin). [m]
+SUN_POSITION = (-4.0, -6.0, 10.0)
+# Sky gradient behind the scene (top, bottom), light enough that the terrain's edge shows.
+BACKGROUND_TOP = (0.58, 0.72, 0.9)
+BACKGROUND_BOTTOM = (0.9, 0.93, 0.96)
+# Qingzhui's colours in recordings, by the suffix of a body's name: a saturated orange trunk and
+# blue legs stand apart from the terrain's height ramp (greens to sands) and from each other.
+# (The URDF's own colours are kept: models/qingzhui.urdf is part of the robot's fingerprint,
+# which the shipped capability model is checked against.)
+ROBOT_COLOURS = {
+    "base": (1.0, 0.3, 0.0, 1.0),
+    "_hip": (0.03, 0.08, 0.3, 1.0),
+    "_thigh": (0.05, 0.2, 0.8, 1.0),
+    "_shank": (0.15, 0.4, 1.0, 1.0),
+    "_foot": (0.05, 0.05, 0.06, 1.0),
+}
+ROBOT_PATH = ROBOT_BASE_PATH.rpartition("/")[0]
+# MeshcatVisualizer draws a body's unnamed URDF visual at BODY/MODEL/SHAPE, SHAPE its Drake type.
+_DRAKE_SHAPES = ("Box", "Sphere", "Cylinder", "Capsule", "Ellipsoid", "Mesh", "Convex")
 
 _meshcat = None
 
@@ -86,21 +122,73 @@ def recording_meshcat():
     return _meshcat
 
 
+# The animation's time, bottom left over the view. It reads the animator's progress (what its
+# time slider shows: kept at the end when the animation finishes, set by a seek in recording_at),
+# so it needs nothing but the page itself.
+_CLOCK_SCRIPT = """<div id="qz-clock" style="position: fixed; left: 12px; bottom: 12px; z-index: 10;
+  padding: 4px 10px; border-radius: 4px; background: rgba(0, 0, 0, 0.6); color: #fff;
+  font: 600 18px/1.3 monospace; pointer-events: none;">t = 0.00 s</div>
+<script>
+(function () {
+  var clock = document.getElementById("qz-clock"), shown = null;
+  function tick() {
+    var animator = viewer.animator;
+    var text = "t = " + animator.time.toFixed(2) + " s" +
+      (animator.duration > 0 ? " / " + animator.duration.toFixed(2) + " s" : "");
+    if (text !== shown) { clock.textContent = text; shown = text; }
+    requestAnimationFrame(tick);
+  }
+  requestAnimationFrame(tick);
+})();
+</script>
+"""
+
+
+def style_recording(meshcat, *, robot_path: str = ROBOT_PATH) -> None:
+    """Sets the lights, the background and (where ``robot_path`` is in the scene) Qingzhui's
+    colours described at the top of this module. Properties set without a time hold for the
+    whole recording."""
+    meshcat.SetProperty("/Lights/PointLightNegativeX", "visible", False)
+    meshcat.SetProperty("/Lights/PointLightPositiveX", "visible", False)
+    meshcat.SetProperty("/Lights/AmbientLight/<object>", "intensity", AMBIENT_INTENSITY)
+    meshcat.SetProperty("/Lights/FillLight/<object>", "intensity", SUN_INTENSITY)
+    meshcat.SetProperty("/Lights/FillLight/<object>", "position", list(SUN_POSITION))
+    # Meshcat's grid lies at z = 0, in the ground of every terrain, and streaks it.
+    meshcat.SetProperty("/Grid", "visible", False)
+    meshcat.SetProperty("/Background/<object>", "top_color", list(BACKGROUND_TOP))
+    meshcat.SetProperty("/Background/<object>", "bottom_color", list(BACKGROUND_BOTTOM))
+    model = robot_path.rpartition("/")[2]
+    for part, colour in ROBOT_COLOURS.items():
+        for body in [part] if part == "base" else [leg + part for leg in LEG_NAMES]:
+            # On the geometry's own path: a saved page sets a body's properties before its
+            # geometry exists, so a colour set on the body would find nothing to paint.
+            for shape in _DRAKE_SHAPES:
+                path = f"{robot_path}/{body}/{model}/{shape}"
+                if meshcat.HasPath(path):
+                    meshcat.SetProperty(path, "color", list(colour))
+
+
 def save_recording(meshcat, path: str | Path, *, follow_robot: bool = False,
-                   follow_path: str = ROBOT_BASE_PATH) -> Path:
-    """Publishes the meshcat recording and writes the static HTML.
+                   follow_path: str = ROBOT_BASE_PATH, show_time: bool = True) -> Path:
+    """Publishes the meshcat recording, lit and coloured by ``style_recording``, and writes the
+    static HTML.
 
     Args:
         follow_robot: the page's camera starts at CAMERA_OFFSET from the scene object
             ``follow_path`` (Qingzhui's base), looking at it, and follows it while the
             animation plays.
+        show_time: the page shows the animation's time (the simulated time) in a corner.
     """
+    style_recording(meshcat)
     meshcat.PublishRecording()
     html = meshcat.StaticHtml()
+    scripts = ""
     if follow_robot:
-        script = _FOLLOW_SCRIPT % {"path": json.dumps([p for p in follow_path.split("/") if p]),
-                                   "offset": json.dumps(list(CAMERA_OFFSET))}
-        html = html.replace("</body>", script + "</body>", 1) if "</body>" in html else html + script
+        scripts += _FOLLOW_SCRIPT % {"path": json.dumps([p for p in follow_path.split("/") if p]),
+                                     "offset": json.dumps(list(CAMERA_OFFSET))}
+    if show_time:
+        scripts += _CLOCK_SCRIPT
+    html = html.replace("</body>", scripts + "</body>", 1) if "</body>" in html else html + scripts
     path = Path(path)
     path.write_text(html)
     return path
@@ -111,6 +199,7 @@ window.addEventListener("load", function () {
   setTimeout(function () {
     viewer.animator.pause();
     viewer.animator.seek(%(time)r);
+    viewer.animator.display_progress(%(time)r);
     viewer.render();
     viewer.render();
     var node = viewer.scene_tree.find(%(path)s);
@@ -155,4 +244,5 @@ def recording_summary(path: str | Path) -> dict:
                 break
     return {"bytes": len(data), "commands": counts, "animation_bytes": animation_bytes,
             "has_animation": counts["set_animation"] > 0 and animation_bytes > 1000,
-            "follows_robot": b"viewer.render_callback" in data}
+            "follows_robot": b"viewer.render_callback" in data,
+            "shows_time": b'id="qz-clock"' in data}

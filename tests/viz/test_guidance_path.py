@@ -1,10 +1,11 @@
-"""CapPlanner's guidance path in meshcat: drawn when the guidance changes, one polyline per
-mission over the terrain, and in a recording each guidance visible only while it was the plan."""
+"""CapPlanner's guidance path in meshcat: drawn when the guidance changes, one band per mission
+over the terrain, and in a recording each guidance visible only while it was the plan."""
 
 import base64
 import re
 
 import numpy as np
+import pytest
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
@@ -12,7 +13,8 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from qz_drake.planning.capability_mdp import PathStep
 from qz_drake.planning.guidance import GuidedMission
 from qz_drake.terrain.generators import step
-from qz_drake.viz.guidance_path import LIFT, ROOT, add_guidance_visualizer, mission_polyline
+from qz_drake.viz.guidance_path import (LIFT, PATH_WIDTH, ROOT, add_guidance_visualizer, mission_polyline,
+                                        ribbon)
 from qz_drake.viz.recording import recording_meshcat
 
 
@@ -44,6 +46,23 @@ def test_polyline_follows_the_cells_of_the_actions():
     np.testing.assert_allclose(mission_polyline(m), [[0, 0], [1, 0], [2, 0], [3, 1]])
 
 
+def test_path_is_a_band_of_its_width_along_the_polyline():
+    # Meshcat draws lines one pixel wide whatever their width: the path is a band of triangles.
+    points = np.array([[0.0, 0.0, 0.05], [1.0, 0.0, 0.05], [2.0, 1.0, 0.25]])
+    vertices, faces = ribbon(points, width=0.2)
+    assert vertices.shape == (3, 6) and faces.shape == (3, 4) and faces.max() == 5
+    # Straight ends: the edges lie 0.1 m to the left and right of the point, at its height.
+    np.testing.assert_allclose(vertices[:, 0], [0.0, 0.1, 0.05], atol=1e-12)
+    np.testing.assert_allclose(vertices[:, 1], [0.0, -0.1, 0.05], atol=1e-12)
+    np.testing.assert_allclose(vertices[:, 5] - points[2], [0.1 / np.sqrt(2), -0.1 / np.sqrt(2), 0.0], atol=1e-12)
+    # At the bend the edges lie across the mean direction, (1, 0) and (1, 1) / sqrt(2) averaged.
+    across = vertices[:, 2] - vertices[:, 3]
+    np.testing.assert_allclose(across @ [1 + 1 / np.sqrt(2), 1 / np.sqrt(2), 0.0], 0.0, atol=1e-12)
+    assert np.linalg.norm(across) == pytest.approx(0.2)
+    # Every triangle spans the band: two corners on one edge, one on the other.
+    assert all(len(set(face % 2)) == 2 for face in faces.T)
+
+
 def test_guidance_drawn_over_the_terrain_and_replaced_at_a_replan(tmp_path):
     heightmap = step(height=0.2, start_x=1.5)
     first = [_mission(0.0, 0.0, 0, ["forward", "forward"]),
@@ -58,7 +77,7 @@ def test_guidance_drawn_over_the_terrain_and_replaced_at_a_replan(tmp_path):
     simulator.AdvanceTo(2.0)
     meshcat.StopRecording()
     assert viz.count == 2  # drawn once per guidance, not at every publish
-    for path in (f"{ROOT}/0/mission_0/line", f"{ROOT}/0/mission_1/target", f"{ROOT}/1/mission_0/line"):
+    for path in (f"{ROOT}/0/mission_0/path", f"{ROOT}/0/mission_1/target", f"{ROOT}/1/mission_0/path"):
         assert meshcat.HasPath(path), path
     meshcat.PublishRecording()
     html = meshcat.StaticHtml().encode()
@@ -66,6 +85,8 @@ def test_guidance_drawn_over_the_terrain_and_replaced_at_a_replan(tmp_path):
                 re.findall(rb"data:application/octet-binary;base64,([A-Za-z0-9+/=]+)", html)]
     animation = [p for p in payloads if b"set_animation" in p[:64]]
     assert animation and b"guidance" in animation[0] and b"visible" in animation[0]
-    # The first mission's line runs 5 cm above the ground, then above the 0.2 m step.
-    line = [p for p in payloads if b"mission_0/line" in p and b"set_object" in p[:64]][0]
-    assert np.float32(LIFT).tobytes() in line and np.float32(0.2 + LIFT).tobytes() in line
+    # The first mission's band runs 5 cm above the ground, then above the 0.2 m step, its edges
+    # PATH_WIDTH / 2 to either side of the cells' centres (y = 0).
+    band = [p for p in payloads if b"0/mission_0/path" in p and b"set_object" in p[:64]][0]
+    for value in (LIFT, 0.2 + LIFT, PATH_WIDTH / 2, -PATH_WIDTH / 2):
+        assert np.float32(value).tobytes() in band, value
