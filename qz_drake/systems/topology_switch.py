@@ -29,6 +29,8 @@ from qz_drake.robot import kinematics
 from qz_drake.robot.params import DEFAULT_PARAMS, LEG_NAMES, NUM_LEGS, TRIPOD_A, TRIPOD_B, QingzhuiParams
 from qz_drake.robot.topology import Topology
 from qz_drake.robot.urdf import LINK_COLLISION_RADIUS, SHANK_COLLISION_END_INSET, THIGH_COLLISION_START
+from qz_drake.trajopt.leg_clearance import raw_ground, sphere_clearance
+from qz_drake.trajopt.terrain import as_terrain
 
 GRAVITY = 9.81
 # Motor-angle waypoints of a knee flip (m1, m2). [rad]
@@ -187,9 +189,6 @@ class TopologySwitchPlan:
 
     def _check_links(self, min_clearance: float) -> None:
         """Every leg's link capsules over the raw heightmap at 400 samples of the switch."""
-        from qz_drake.trajopt.leg_clearance import raw_ground, sphere_clearance
-        from qz_drake.trajopt.terrain import as_terrain
-
         ground = raw_ground(as_terrain(self._heightmap))
         times = np.linspace(self.start_time, self.end_time, 400)
         points = np.stack([self.link_points(t) for t in times])  # (n, 6, J, 3)

@@ -31,6 +31,9 @@ from qz_drake.trajopt.constraints import (AngularDynamicsConstraint, ForceConstr
                                           TerrainConstraint, acceleration_continuity_matrix,
                                           linear_dynamics_matrix)
 from qz_drake.trajopt.ipopt_mumps import VectorisedRows
+from qz_drake.trajopt.leg_clearance import (LegClearanceConstraint, LinkClearance, clearance_field,
+                                            constraint_points)
+from qz_drake.trajopt.legs import link_geometry
 from qz_drake.trajopt.splines import LinearSamples
 from qz_drake.trajopt.terrain import FlatTerrain
 from qz_drake.trajopt.variables import BlcVariables
@@ -206,9 +209,6 @@ class BlcFormulation:
     def _clearance_field(self):
         """The legs' clearance field over the task (leg_clearance.py), or None where no link
         can meet the ground (flat, gentle, or a robot without modelled legs)."""
-        from qz_drake.trajopt.leg_clearance import clearance_field
-        from qz_drake.trajopt.legs import link_geometry
-
         if link_geometry(self.robot) is None:
             return None
         p = self.params
@@ -221,9 +221,6 @@ class BlcFormulation:
         checks, for one pose at a time), or None where it has none."""
         if self.clearance is None:
             return None
-        from qz_drake.trajopt.leg_clearance import LinkClearance, constraint_points
-        from qz_drake.trajopt.legs import link_geometry
-
         p = self.params
         return LinkClearance(link_geometry(self.robot),
                              constraint_points(self.robot, p.leg_clearance_spacing),
@@ -341,8 +338,6 @@ class BlcFormulation:
             self.nonlinear.append(parts.get("support", lambda: SupportConstraint(
                 stance, self.support), field=self.support))
         if self.clearance is not None:
-            from qz_drake.trajopt.leg_clearance import LegClearanceConstraint
-
             def leg_clearance():
                 times = np.append(np.arange(0.0, v.duration - 1e-9, p.leg_clearance_dt), v.duration)
                 c = self.link_clearance()

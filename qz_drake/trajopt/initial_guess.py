@@ -78,8 +78,8 @@ def choose_foothold(robot, terrain, leg: int, body_xy: np.ndarray, body_yaw: flo
 
 
 # Added to the score of a candidate whose leg's links would sink below the clearance field at
-# the stance's start or end (the body's guessed pose there), plus LINK_PENALTY_PER_METRE times
-# the depth: a foothold back from a riser where the knee-out shank would lean on its nose
+# the stance's start or end (the body level at its nominal height over the candidate, at the
+# guess's position and heading there), plus LINK_PENALTY_PER_METRE times the depth: a foothold back from a riser where the knee-out shank would lean on its nose
 # (issue 34) outscores one at the riser's foot. Larger than the other terms: a leg on the
 # terrain is a failed walk.
 LINK_PENALTY = 0.5

@@ -34,6 +34,9 @@ import numpy as np
 from qz_drake.trajopt.constraints import (AngularDynamicsConstraint, ForceConstraint,
                                           KinematicsConstraint, TerrainConstraint,
                                           linear_dynamics_matrix)
+from qz_drake.trajopt.formulation import first_step_end
+from qz_drake.trajopt.leg_clearance import dense_link_check
+from qz_drake.trajopt.legs import link_geometry
 from qz_drake.trajopt.splines import LinearSamples
 
 
@@ -239,10 +242,6 @@ def dense_check(formulation, x: np.ndarray, rate: float | None = None) -> DenseC
 def _link_check(f, x: np.ndarray, times: np.ndarray, rate: float, failures: list[str]) -> float:
     """The least link clearance of the plan at ``times``; appends a failure naming the leg,
     the link point, the time and the depth where a link dips into the ground."""
-    from qz_drake.trajopt.formulation import first_step_end
-    from qz_drake.trajopt.leg_clearance import dense_link_check
-    from qz_drake.trajopt.legs import link_geometry
-
     v, robot = f.variables, f.robot
     if link_geometry(robot) is None:
         return np.inf
