@@ -7,8 +7,9 @@ The feet were clear; nothing kept the legs off. Here each leg's links are a few 
 (``legs.LinkPoints``, placed along the collision capsules of the URDF) whose positions follow
 from the body pose and the foot by the leg's inverse kinematics (``legs.py``), and each point
 must stay ``margin`` above the *clearance field*: the raw heightmap's maximum within
-``footprint`` of it (the capsule's radius plus half the spacing of the points, so that the
-capsule between two points is covered), interpolated with exact derivatives by the same
+``footprint`` of it (the capsule's radius plus ``BlcParameters.leg_clearance_footprint``, and a
+cell more so that the interpolant stays above it, _EXTRA_CELLS), interpolated with exact
+derivatives by the same
 shape-preserving bicubic as the feet's terrain (``GridTerrain``). On raw cells a riser is a
 vertical wall at the cell border; the smoothed surface the feet stand on would move it half a
 cell and round it off, which is why the field is built from the raw cells.
@@ -31,7 +32,7 @@ import numpy as np
 from qz_drake.trajopt.constraints import SampledConstraint, _Block
 from qz_drake.trajopt.legs import LinkPoints, link_geometry, link_points
 from qz_drake.trajopt.splines import LinearSamples
-from qz_drake.trajopt.terrain import FlatTerrain, GridTerrain
+from qz_drake.trajopt.terrain import FlatTerrain, GridTerrain, grid_window
 
 # Grid step for closed-form terrains (sampled over the task's region), as support.py. [m]
 CLOSED_FORM_RESOLUTION = 0.02
@@ -126,12 +127,8 @@ def _relief_in(field: ClearanceField, region, relief_limit: float) -> bool:
     """Whether a cell of ``region`` has more relief than relief_limit within the footprint."""
     if not field.has_relief:
         return False
-    xmin, xmax, ymin, ymax = region
-    H, W = field.raw.shape
-    res = field.resolution
-    i0, i1 = (int(np.clip(np.floor((v - field.origin[0]) / res), 0, W)) for v in (xmin, xmax + res))
-    j0, j1 = (int(np.clip(np.floor((v - field.origin[1]) / res), 0, H)) for v in (ymin, ymax + res))
-    return bool(np.any(field.relief[j0:j1, i0:i1] > relief_limit + 1e-6))
+    window = grid_window(field.origin, field.resolution, field.raw.shape, region)
+    return bool(np.any(field.relief[window] > relief_limit + 1e-6))
 
 
 def constraint_points(robot, spacing: float, thigh_start: bool = False) -> LinkPoints:

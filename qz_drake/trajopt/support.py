@@ -26,7 +26,7 @@ import numpy as np
 
 from qz_drake.trajopt.constraints import SampledConstraint, _Block
 from qz_drake.trajopt.splines import LinearSamples
-from qz_drake.trajopt.terrain import GridTerrain
+from qz_drake.trajopt.terrain import GridTerrain, grid_window
 
 # Distances beyond this are clipped: the constraint is inactive there anyway. [m]
 _CLIP = 0.3
@@ -69,11 +69,8 @@ class SupportField:
 
     def any_unsupported(self, region) -> bool:
         """Whether any cell within (xmin, xmax, ymin, ymax) is unsupported."""
-        xmin, xmax, ymin, ymax = region
-        H, W = self.unsupported.shape
-        i0, i1 = (int(np.clip(np.floor((v - self.origin[0]) / self.resolution), 0, W)) for v in (xmin, xmax + self.resolution))
-        j0, j1 = (int(np.clip(np.floor((v - self.origin[1]) / self.resolution), 0, H)) for v in (ymin, ymax + self.resolution))
-        return bool(self.unsupported[j0:j1, i0:i1].any())
+        window = grid_window(self.origin, self.resolution, self.unsupported.shape, region)
+        return bool(self.unsupported[window].any())
 
     def relief_at(self, x, y) -> np.ndarray:
         """The largest height difference within the radius of each point's cell. [m]"""

@@ -327,6 +327,16 @@ def _hermite_combine(corners, pu, pv):
     return out
 
 
+def grid_window(origin, resolution: float, shape, region) -> tuple[slice, slice]:
+    """(rows, columns) of the cells of a grid (heights[iy, ix] at origin + (ix, iy) *
+    resolution, ``shape`` (H, W)) that cover region (xmin, xmax, ymin, ymax), clipped to it."""
+    xmin, xmax, ymin, ymax = region
+    H, W = shape
+    i0, i1 = (int(np.clip(np.floor((v - origin[0]) / resolution), 0, W)) for v in (xmin, xmax + resolution))
+    j0, j1 = (int(np.clip(np.floor((v - origin[1]) / resolution), 0, H)) for v in (ymin, ymax + resolution))
+    return slice(j0, j1), slice(i0, i1)
+
+
 def as_terrain(terrain) -> TerrainModel:
     """None -> flat ground; a TerrainModel as is; a gridded heightmap -> GridTerrain."""
     if terrain is None:
