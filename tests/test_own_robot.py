@@ -9,6 +9,9 @@ on Qingzhui's URDF gives exactly the package's own Qingzhui model: the hand chec
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
 import pytest
 from pydrake.math import RollPitchYaw
@@ -24,6 +27,9 @@ from qz_drake.trajopt.solver import BlcTask, solve_blc
 from qz_drake.config import TerrainConfig
 from qz_drake.station import make_heightmap
 
+REPO = Path(__file__).resolve().parents[1]
+GUIDE = REPO / "docs" / "own_robot.md"
+STILT_URDF = REPO / "docs" / "own_robot" / "stilt.urdf"
 # The stilt quadruped: a 0.7 x 0.4 x 0.12 m, 16 kg trunk; hips at (+-0.3, +-0.17); thigh 0.30 m,
 # shank 0.32 m, 1.5 kg per leg; feet spheres of 0.025 m at the shank's end.
 HALF_LENGTH, HALF_WIDTH = 0.30, 0.17
@@ -37,38 +43,61 @@ STANDING = {**{f"{leg}_hfe": 0.5 for leg in LEGS}, **{f"{leg}_kfe": -1.0 for leg
 def _link(name: str, mass: float, length: float) -> str:
     # A thin rod along z (its axial moment small but physical: no larger than the other two).
     inertia = mass * length ** 2 / 12 + 1e-5
-    return (f'<link name="{name}"><inertial><origin xyz="0 0 {-length / 2}"/><mass value="{mass}"/>'
-            f'<inertia ixx="{inertia}" iyy="{inertia}" izz="1e-5" ixy="0" ixz="0" iyz="0"/></inertial></link>')
+    return (f'  <link name="{name}">\n    <inertial>\n      <origin xyz="0 0 {-length / 2:g}"/>\n'
+            f'      <mass value="{mass:g}"/>\n'
+            f'      <inertia ixx="{inertia:.6g}" iyy="{inertia:.6g}" izz="1e-05" ixy="0" ixz="0" iyz="0"/>\n'
+            '    </inertial>\n  </link>\n')
 
 
 def _joint(name: str, parent: str, child: str, xyz, axis: str, lower: float, upper: float) -> str:
-    return (f'<joint name="{name}" type="revolute"><parent link="{parent}"/><child link="{child}"/>'
-            f'<origin xyz="{xyz[0]} {xyz[1]} {xyz[2]}"/><axis xyz="{axis}"/>'
-            f'<limit lower="{lower}" upper="{upper}" effort="150" velocity="10"/></joint>')
+    return (f'  <joint name="{name}" type="revolute">\n    <parent link="{parent}"/>\n    <child link="{child}"/>\n'
+            f'    <origin xyz="{xyz[0]:g} {xyz[1]:g} {xyz[2]:g}"/>\n    <axis xyz="{axis}"/>\n'
+            f'    <limit lower="{lower:g}" upper="{upper:g}" effort="150" velocity="10"/>\n  </joint>\n')
 
 
 def stilt_urdf() -> str:
-    parts = ['<?xml version="1.0"?><robot name="stilt">',
-             '<link name="trunk"><inertial><mass value="16"/>'
-             '<inertia ixx="0.23" iyy="0.67" izz="0.87" ixy="0" ixz="0" iyz="0"/></inertial></link>']
+    """The text of docs/own_robot/stilt.urdf."""
+    parts = ['<?xml version="1.0"?>\n',
+             "<!-- The stilt quadruped of docs/own_robot.md, written by tests/test_own_robot.py:stilt_urdf. -->\n",
+             '<robot name="stilt">\n',
+             '  <link name="trunk">\n    <inertial>\n      <mass value="16"/>\n'
+             '      <inertia ixx="0.23" iyy="0.67" izz="0.87" ixy="0" ixz="0" iyz="0"/>\n    </inertial>\n  </link>\n']
     for leg, (sx, sy) in LEGS.items():
-        parts += [_link(f"{leg}_hip", 0.8, 0.01), _link(f"{leg}_thigh", 0.4, THIGH),
-                  _link(f"{leg}_shank", 0.25, SHANK),
-                  f'<link name="{leg}_foot"><inertial><mass value="0.05"/>'
-                  '<inertia ixx="1e-5" iyy="1e-5" izz="1e-5" ixy="0" ixz="0" iyz="0"/></inertial></link>',
+        parts += [_link(f"{leg}_hip", 0.8, 0.01), _link(f"{leg}_thigh", 0.4, THIGH), _link(f"{leg}_shank", 0.25, SHANK),
+                  f'  <link name="{leg}_foot">\n    <inertial>\n      <mass value="0.05"/>\n'
+                  '      <inertia ixx="1e-05" iyy="1e-05" izz="1e-05" ixy="0" ixz="0" iyz="0"/>\n'
+                  '    </inertial>\n  </link>\n',
                   _joint(f"{leg}_haa", "trunk", f"{leg}_hip", (sx * HALF_LENGTH, sy * HALF_WIDTH, 0), "1 0 0", -0.6, 0.6),
                   _joint(f"{leg}_hfe", f"{leg}_hip", f"{leg}_thigh", (0, 0, 0), "0 1 0", -1.2, 1.6),
                   _joint(f"{leg}_kfe", f"{leg}_thigh", f"{leg}_shank", (0, 0, -THIGH), "0 1 0", -2.6, -0.2),
-                  f'<joint name="{leg}_foot_fixed" type="fixed"><parent link="{leg}_shank"/>'
-                  f'<child link="{leg}_foot"/><origin xyz="0 0 {-SHANK}"/></joint>']
-    return "".join(parts) + "</robot>"
+                  f'  <joint name="{leg}_foot_fixed" type="fixed">\n    <parent link="{leg}_shank"/>\n'
+                  f'    <child link="{leg}_foot"/>\n    <origin xyz="0 0 {-SHANK:g}"/>\n  </joint>\n']
+    return "".join(parts) + "</robot>\n"
+
+
+def test_committed_stilt_urdf_is_the_tests():
+    assert STILT_URDF.read_text() == stilt_urdf(), "docs/own_robot/stilt.urdf is stale: write stilt_urdf() to it"
+
+
+def test_the_guides_code_runs():
+    """docs/own_robot.md's Python blocks, run in order from the repository's root as a user would."""
+    text = GUIDE.read_text()
+    blocks = [block.split("```", 1)[0] for block in text.split("```python\n")[1:]]
+    assert len(blocks) >= 3
+    namespace = {}
+    cwd = os.getcwd()
+    os.chdir(REPO)
+    try:
+        exec(compile("\n".join(blocks), str(GUIDE), "exec"), namespace)
+    finally:
+        os.chdir(cwd)
+    assert namespace["solution"].success, namespace["solution"].reason
+    assert namespace["robot"].name == "stilt" and namespace["robot"].num_legs == 4
 
 
 @pytest.fixture(scope="module")
-def stilt(tmp_path_factory) -> UrdfRobot:
-    path = tmp_path_factory.mktemp("stilt") / "stilt.urdf"
-    path.write_text(stilt_urdf())
-    return UrdfRobot(path, feet={leg: f"{leg}_foot" for leg in LEGS}, standing=STANDING)
+def stilt() -> UrdfRobot:
+    return UrdfRobot(STILT_URDF, feet={leg: f"{leg}_foot" for leg in LEGS}, standing=STANDING)
 
 
 def stilt_model(stilt: UrdfRobot) -> RobotModel:
@@ -188,7 +217,8 @@ def test_bad_descriptions_are_refused(kwargs, named):
 
 def test_a_leg_off_its_plane_has_no_two_link_model():
     # The knee moved 3 cm sideways: thigh and shank no longer in a plane through j0's axis.
-    urdf = stilt_urdf().replace(f'<origin xyz="0 0 {-THIGH}"/>', f'<origin xyz="0 0.03 {-THIGH}"/>', 1)
+    urdf = stilt_urdf().replace(f'<origin xyz="0 0 {-THIGH:g}"/>', f'<origin xyz="0 0.03 {-THIGH:g}"/>', 1)
+    assert urdf != stilt_urdf()
     robot = UrdfRobot(urdf, feet={leg: f"{leg}_foot" for leg in LEGS}, standing=STANDING)
     with pytest.raises(KinematicsError, match=r"^feet\[LF\] = 'LF_foot': its knee lies [0-9.]+ mm off"):
         robot.leg_chain(0)
