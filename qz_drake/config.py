@@ -408,6 +408,20 @@ _HEIGHT_PARAMS = {"stairs": "rise", "step": "height", "gap": "depth", "pits": "d
                   "grid_map": "max_height", "file": "max_height"}
 
 
+def parse_key_values(items: list[str] | None, field: str = "--param") -> dict[str, float]:
+    """Parses ``k=v`` pairs into floats, naming the bad item on error."""
+    out: dict[str, float] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"{field} = {item!r}: expected KEY=VALUE")
+        try:
+            out[key] = float(value)
+        except ValueError:
+            raise ConfigError(f"{field} {key} = {value!r}: not a number") from None
+    return out
+
+
 def feet_on_ground(p_BF, xy, yaw: float) -> np.ndarray:
     """(n, 2) world (x, y) of feet at base-frame positions ``p_BF`` (n, >= 2) for a base at
     ``xy`` turned by ``yaw``. [m]"""

@@ -599,11 +599,10 @@ def _capability_planner(scenario, info):
     from qz_drake.errors import bad_value
     from qz_drake.robot.topology import TOPOLOGY_NAMES
 
-    from qz_drake.planning.plan_command import check_model_robot, check_standable
+    from qz_drake.station import check_standable
 
     control = scenario.controller
     model = CapabilityModel.load(control.capability_model or None)
-    check_model_robot(model)
     # The topologies the model knows all three moves of.
     topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
     if info.topology.name not in topologies:

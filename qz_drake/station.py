@@ -33,7 +33,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
 from qz_drake.config import Scenario, TerrainConfig
-from qz_drake.errors import ConfigError, bad_value
+from qz_drake.errors import ConfigError, QzError, bad_value
 from qz_drake.robot import kinematics
 from qz_drake.robot.model import JointOrder, add_qingzhui
 from qz_drake.robot.params import DEFAULT_PARAMS, LEG_NAMES, NUM_LEGS, QingzhuiParams
@@ -114,6 +114,30 @@ def standing_state(heightmap, topology: Topology, xy=(0.0, 0.0), yaw: float = 0.
                             f"is {abs(offset):.2f} m {'above' if offset > 0 else 'below'} the mean under the "
                             f"six feet, out of the leg's reach for a standing pose", ConfigError)
     return make_state([xy[0], xy[1], base_z], [0.0, 0.0, yaw], q.reshape(-1))
+
+
+def check_standable(heightmap, xy, topology: str, field: str) -> None:
+    """Raises QzError naming ``field`` when the robot cannot stand at xy in the topology."""
+    xmin, xmax, ymin, ymax = heightmap.bounds
+    if not (xmin <= xy[0] <= xmax and ymin <= xy[1] <= ymax):
+        raise bad_value(field, f"{xy[0]:g},{xy[1]:g}", f"off the map (x in [{xmin:g}, {xmax:g}], "
+                                                      f"y in [{ymin:g}, {ymax:g}])")
+    try:
+        x0 = standing_state(heightmap, get_topology(topology), xy, 0.0)
+    except QzError:
+        raise bad_value(field, f"{xy[0]:g},{xy[1]:g}",
+                        f"the robot cannot stand there in {topology} (a foot out of reach)") from None
+    # The trunk must clear the ground under it (any heading: the disc the trunk sweeps).
+    lx, ly, lz = DEFAULT_PARAMS.trunk_size
+    radius = 0.5 * float(np.hypot(lx, ly))
+    g = np.arange(-radius, radius + 1e-9, 0.05)
+    gx, gy = np.meshgrid(g, g)
+    inside = np.hypot(gx, gy) <= radius
+    ground = heightmap.height(xy[0] + gx[inside], xy[1] + gy[inside])
+    if float(ground.max()) > float(x0[6]) - 0.5 * lz - 0.02:
+        raise bad_value(field, f"{xy[0]:g},{xy[1]:g}",
+                        f"the robot cannot stand there in {topology}: ground {ground.max():.2f} m under "
+                        f"the trunk (inside an obstacle?)")
 
 
 # Half-width of the simulated terrain around a standing robot's start. [m]

@@ -17,7 +17,7 @@ def synthetic_model_dir(tmp_path_factory):
     torch.set_num_threads(1)
     arrays, manifest = synthetic_arrays(scenes=40, headings=12)
     # No component fingerprints: the model describes no robot configuration, so the robot
-    # check of planners (plan_command.check_model_robot) lets it through.
+    # check of CapabilityModel.load lets it through.
     result = train_networks(arrays, fingerprint=manifest["fingerprint"], fingerprints=None,
                             config=TrainingConfig(max_epochs=40, patience=8))
     # The planners' tests rely on the three nominal networks being there and having learned

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import functools
 import hashlib
 import json
 import os
@@ -43,7 +44,7 @@ FINGERPRINT_ROOTS = ("qz_drake.capability.trials", "qz_drake.simulation", "qz_dr
                      "qz_drake.systems.blc_plan")
 UNFINGERPRINTED = ("qz_drake.viz", "qz_drake.cli", "qz_drake.bench", "qz_drake.hardware",
                    "qz_drake.planning", "qz_drake.systems.capability_planner",
-                   "qz_drake.capability.collect", "qz_drake.capability.commands",
+                   "qz_drake.capability.collect", "qz_drake.capability.stats",
                    "qz_drake.capability.model", "qz_drake.capability.model_commands",
                    "qz_drake.capability.networks", "qz_drake.capability.training",
                    "qz_drake.capability.evaluation", "qz_drake.capability.plots",
@@ -130,12 +131,10 @@ def _digest(*parts) -> str:
 def fingerprints(trial_config, criteria=None) -> dict[str, str]:
     """The running code's fingerprint per component (and the trial settings' own)."""
     from qz_drake.config import SuccessCriteria
-    from qz_drake.robot.params import DEFAULT_PARAMS
-    from qz_drake.robot.urdf import make_urdf
     from qz_drake.trajopt.parameters import BlcParameters
 
     config = {
-        "robot": (repr(DEFAULT_PARAMS), make_urdf(DEFAULT_PARAMS)),
+        "robot": _robot_config(),
         "blc": (repr(BlcParameters()),),
         "controller": (repr((trial_config.speed, trial_config.phase_duration, trial_config.kp,
                              trial_config.kd, trial_config.settle_after)),),
@@ -144,6 +143,20 @@ def fingerprints(trial_config, criteria=None) -> dict[str, str]:
     }
     return {name: _digest(*config[name], *(f"{m}:{_code_hash(m)}" for m in modules))
             for name, modules in fingerprinted_modules().items()}
+
+
+def _robot_config() -> tuple:
+    from qz_drake.robot.params import DEFAULT_PARAMS
+    from qz_drake.robot.urdf import make_urdf
+
+    return repr(DEFAULT_PARAMS), make_urdf(DEFAULT_PARAMS)
+
+
+@functools.cache
+def robot_fingerprint() -> str:
+    """The running code's robot fingerprint (fingerprints()["robot"]: no trial setting enters it);
+    the code does not change while a process runs, so it is computed once."""
+    return _digest(*_robot_config(), *(f"{m}:{_code_hash(m)}" for m in fingerprinted_modules()["robot"]))
 
 
 def combined_fingerprint(parts: dict[str, str]) -> str:

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from qz_drake.capability import patches as P
+from qz_drake.capability.dataset import robot_fingerprint
 from qz_drake.errors import QzError, bad_value
 
 MODEL_FORMAT = "qz_drake.capability_model"
@@ -249,6 +250,11 @@ class CapabilityModel:
             raise _error("model.version", top.get("version"), f"this code reads version {FORMAT_VERSION}")
         if fingerprint is not None and top.get("fingerprint") != fingerprint:
             raise _error("model.fingerprint", top.get("fingerprint"), f"expected the dataset's {fingerprint!r}")
+        # A model learned another robot's capability (its card names the robot code it was
+        # trained with); one without robot fingerprints (a synthetic model) describes none.
+        robot = top.get("fingerprints", {}).get("robot")
+        if robot is not None and robot != robot_fingerprint():
+            raise _error("model.fingerprints.robot", robot, "the model was trained on another robot configuration")
         networks = {}
         for name, entry in top.get("networks", {}).items():
             card = _read_json(folder / entry["card"], f"model.networks.{name}.card")

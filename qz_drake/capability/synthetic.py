@@ -74,7 +74,9 @@ def synthetic_arrays(*, scenes: int = 40, headings: int = 12, topologies=("nomin
             rows["topology"].append(np.full(n, topology))
             rows["kind"].append(np.full(n, kind))
     arrays = {k: np.concatenate(v) for k, v in rows.items()}
-    fingerprints = {"robot": "synthetic-robot", "blc": "synthetic-blc", "controller": "synthetic-controller",
+    # No robot fingerprint: the labels describe no robot configuration, so CapabilityModel.load's
+    # robot check lets a model trained on them through.
+    fingerprints = {"blc": "synthetic-blc", "controller": "synthetic-controller",
                     "verdict": f"synthetic-range<={max_step}"}
     manifest = {"fingerprint": f"synthetic-{seed}-{max_step}", "fingerprints": fingerprints,
                 "synthetic": True, "topologies": list(topologies), "kinds": list(kinds)}

@@ -11,6 +11,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from qz_drake.cli.capability import SUMMARY_KEYS, register_model_commands  # noqa: E402
 from qz_drake.capability import model_commands  # noqa: E402
 from qz_drake.capability import patches as P  # noqa: E402
 from qz_drake.capability.model import CapabilityModel, save_model  # noqa: E402
@@ -110,6 +111,22 @@ def test_replaced_weights_are_refused(saved):
         CapabilityModel.load(saved)
 
 
+def test_a_model_of_another_robot_is_refused_where_it_is_loaded(saved):
+    # Every planner that loads a model gets the check (it was in two of eight callers).
+    from qz_drake.capability.dataset import robot_fingerprint
+    from qz_drake.capability.model import MODEL_CARD
+
+    top = json.loads((saved / MODEL_CARD).read_text())
+    top["fingerprints"] = dict(top["fingerprints"], robot=robot_fingerprint())
+    (saved / MODEL_CARD).write_text(json.dumps(top))
+    CapabilityModel.load(saved)
+    top["fingerprints"]["robot"] = "0123456789abcdef"
+    (saved / MODEL_CARD).write_text(json.dumps(top))
+    with pytest.raises(QzError, match=r"model.fingerprints.robot = '0123456789abcdef': the model was trained on "
+                                      r"another robot configuration"):
+        CapabilityModel.load(saved)
+
+
 def test_card_with_another_fingerprint_is_refused(saved):
     card_path = saved / "nominal_diagonal.json"
     card = json.loads(card_path.read_text())
@@ -194,7 +211,7 @@ def test_all_topologies_at_once_give_each_networks_own_answer(kind):
 # -- commands ---------------------------------------------------------------------------------
 def _parser():
     parser = argparse.ArgumentParser(prog="qz capability")
-    model_commands.register_model_commands(parser.add_subparsers(dest="command", required=True))
+    register_model_commands(parser.add_subparsers(dest="command", required=True))
     return parser
 
 
@@ -221,7 +238,7 @@ def test_commands_train_evaluate_map(data, tmp_path, monkeypatch, capsys):
     assert args.func(args) == 0
     result = json.loads(capsys.readouterr().out)
     entries = {(e["topology"], e["kind"]): e for e in result["networks"]}
-    assert set(entries[("nominal", "orthogonal")]) == set(model_commands.SUMMARY_KEYS)
+    assert set(entries[("nominal", "orthogonal")]) == set(SUMMARY_KEYS)
     assert entries[("nominal", "orthogonal")]["n"] == int(np.sum((arrays["kind"] == "orthogonal")
                                                                    & (arrays["topology"] == "nominal")))
     assert entries[("nominal", "diagonal")].get("missing") is True

@@ -5,7 +5,7 @@ flight, the rise bins, and the Wilson intervals that say how sure each rate is."
 import numpy as np
 import pytest
 
-from qz_drake.capability.commands import stairs_up_rows, wilson_interval
+from qz_drake.capability.stats import stairs_up_rows, wilson_interval
 from qz_drake.capability.scenes import scene_for
 
 
@@ -36,7 +36,7 @@ def test_only_moves_heading_up_a_rising_flight_are_compared():
 
 
 def test_markdown_summary_lists_every_row_and_the_failure_shares():
-    from qz_drake.capability.commands import stats_markdown
+    from qz_drake.capability.stats import stats_markdown
 
     stats = {
         "trials": 12, "executed": 10, "invalid_starts": 2, "errors": 0, "successes": 6, "fingerprint": "abc",
@@ -58,7 +58,7 @@ def test_markdown_summary_lists_every_row_and_the_failure_shares():
 def test_topologies_are_compared_with_nominal_on_the_higher_stairs_by_fishers_test():
     from scipy.stats import fisher_exact
 
-    from qz_drake.capability.commands import stairs_up_comparisons
+    from qz_drake.capability.stats import stairs_up_comparisons
 
     rows = [{"rise_m": [0.04, 0.10], "topology": "front_bend", "executed": 30, "successes": 30},
             {"rise_m": [0.10, 0.16], "topology": "front_bend", "executed": 30, "successes": 12},
@@ -98,7 +98,7 @@ def test_two_collections_of_the_same_trials_are_compared_pair_by_pair(monkeypatc
     other_seed = records([True] * 8, seed=1)
     folders = {"new": new, "old": old, "seed1": other_seed}
     monkeypatch.setattr(dataset, "load_records", lambda path: folders[str(path)])
-    from qz_drake.capability.commands import paired_against
+    from qz_drake.capability.stats import paired_against
 
     result = paired_against("new", "old")
     everything = result["rows"][0]
@@ -110,7 +110,7 @@ def test_two_collections_of_the_same_trials_are_compared_pair_by_pair(monkeypatc
     assert groups["kind orthogonal"]["trials"] + groups["kind turn"]["trials"] == 7
     assert groups["gap hard"]["trials"] == 7
 
-    monkeypatch.setattr("qz_drake.capability.commands.dataset_stats", lambda path: {
+    monkeypatch.setattr("qz_drake.capability.stats.dataset_stats", lambda path: {
         "trials": 8, "executed": 7, "invalid_starts": 1, "errors": 0, "successes": 4, "fingerprint": "x",
         "rows": [], "scene_kinds": [], "kinds": [], "failure_reasons": {}, "stairs_up": []})
     assert main(["capability", "stats", "new", "--against", "old", "--markdown"]) == 0

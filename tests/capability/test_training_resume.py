@@ -9,6 +9,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from qz_drake.cli.capability import register_model_commands  # noqa: E402
 from qz_drake.capability import model_commands, training  # noqa: E402
 from qz_drake.capability.model import UNFINISHED_DIR, CapabilityModel  # noqa: E402
 from qz_drake.capability.synthetic import synthetic_arrays  # noqa: E402
@@ -114,7 +115,7 @@ def test_restart_discards_an_interrupted_training(data, tmp_path, monkeypatch):
 
 def _train_args(out, *extra):
     parser = argparse.ArgumentParser(prog="qz capability")
-    model_commands.register_model_commands(parser.add_subparsers(dest="command", required=True))
+    register_model_commands(parser.add_subparsers(dest="command", required=True))
     return parser.parse_args(["train", "--dataset", "ds", "--out", str(out), "--network", "nominal/turn", *extra])
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from qz_drake.cli import output_folder
+from qz_drake.cli.arguments import output_folder
 from qz_drake.errors import ConfigError, bad_value
 
 ROBOTS = ("qingzhui", "quadruped")

@@ -8,7 +8,7 @@ import json
 
 
 def _names(text, field, valid) -> tuple[str, ...]:
-    from qz_drake.cli import parse_names
+    from qz_drake.cli.arguments import parse_names
 
     return parse_names(text, field, valid) or tuple(valid)
 

@@ -1,10 +1,6 @@
-"""``qz capability ...``: the capability pipeline of paper 000 II-E.1 on the command line.
-
-``collect`` runs (or resumes) BLC trials into a dataset folder, on local processes or a Ray
-cluster; ``stats`` summarises a dataset; ``recertify`` re-runs a sample of its trials after a
-change to the code that should not change behaviour, and moves the manifest to the new code
-only if every record comes out identical. The model commands (``train``, ``evaluate``, ``map``)
-are added by qz_drake.capability.model_commands when present.
+"""Summaries of a capability dataset (``qz capability stats``): success rates per topology and
+kind, the up-stairs comparison of paper 000 with Wilson intervals, and two datasets of the same
+trials paired with McNemar's exact test.
 """
 
 from __future__ import annotations
@@ -17,33 +13,6 @@ import sys
 import numpy as np
 
 from qz_drake.errors import bad_value
-
-
-def run_collect(args) -> int:
-    from qz_drake.capability.collect import collect
-    from qz_drake.cli import parse_names
-    from qz_drake.capability.patches import KINDS
-    from qz_drake.capability.trials import TrialConfig
-    from qz_drake.robot.topology import TOPOLOGY_NAMES
-
-    if args.scenes < 1:
-        raise bad_value("--scenes", args.scenes, "must be a positive whole number")
-    if args.workers < 1:
-        raise bad_value("--workers", args.workers, "must be at least 1")
-    if args.headings < 1:
-        raise bad_value("--headings", args.headings, "must be at least 1")
-    if not args.log_every >= 0:
-        raise bad_value("--log-every", args.log_every, "must be 0 (off) or a number of seconds")
-    config = TrialConfig(headings_per_scene=args.headings)
-    summary = collect(args.out, seed=args.seed, scenes=args.scenes,
-                      topologies=parse_names(args.topologies, "--topologies", TOPOLOGY_NAMES),
-                      kinds=parse_names(args.kinds, "--kinds", KINDS), config=config,
-                      workers=args.workers, ray_address=args.ray_address, shard_size=args.shard_size,
-                      progress=not args.json and sys.stderr.isatty() or args.progress,
-                      command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
-                      limit=args.limit, log_every=args.log_every)
-    print(json.dumps(dataclasses.asdict(summary), indent=None if args.json else 2))
-    return 0
 
 
 # Bins of the stair rise [m] for the topology comparison (paper 000: bend-inside legs are
@@ -274,125 +243,3 @@ def stats_markdown(stats: dict) -> str:
             lines.append(f"| {row['group']} | {row['trials']} | {row['other_successes']} | {row['successes']} "
                          f"| {row['only_this']} | {row['only_other']} | {row['p_value']:.2g} |")
     return "\n".join(lines)
-
-
-def run_stats(args) -> int:
-    stats = dataset_stats(args.dataset)
-    if args.against:
-        stats["against"] = paired_against(args.dataset, args.against)
-    if args.json:
-        print(json.dumps(stats))
-        return 0
-    if args.markdown:
-        print(stats_markdown(stats))
-        return 0
-    print(f"{stats['dataset']}: {stats['executed']} executed, {stats['invalid_starts']} invalid starts, "
-          f"{stats['errors']} errors, {stats['successes']} successes")
-    for row in stats["rows"]:
-        rate = "-" if row["success_rate"] is None else f"{100 * row['success_rate']:.0f} %"
-        print(f"  {row['topology']:>13} {row['kind']:>10}: {row['successes']}/{row['executed']} ({rate}), "
-              f"BLC alone {row['blc_successes']}, errors {row['errors']}")
-    if stats["stairs_up"]:
-        print("  up stairs (orthogonal and diagonal moves), per rise and topology:")
-        for row in stats["stairs_up"]:
-            low, high = row["rise_m"]
-            lo, hi = row["ci95"]
-            print(f"    {low:.2f}-{high:.2f} m {row['topology']:>13}: {row['successes']}/{row['executed']} "
-                  f"({100 * row['success_rate']:.0f} %, 95 % CI {100 * lo:.0f}-{100 * hi:.0f} %)")
-    if stats.get("against"):
-        print(f"  against {stats['against']['other']} (the trials executed in both):")
-        for row in stats["against"]["rows"]:
-            print(f"    {row['group']:>18}: {row['successes']}/{row['trials']} here, {row['other_successes']} there "
-                  f"(only here {row['only_this']}, only there {row['only_other']}, McNemar p {row['p_value']:.2g})")
-    return 0
-
-
-def run_recertify(args) -> int:
-    from qz_drake.capability.collect import recertify
-
-    result = recertify(args.dataset, sample=args.sample, workers=args.workers,
-                       command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
-                       reference_code=args.reference_code)
-    if args.json:
-        print(json.dumps(dataclasses.asdict(result)))
-    elif not result.changed:
-        print(f"{result.dataset}: the code's fingerprints are the dataset's; nothing to certify")
-    elif result.identical:
-        print(f"{result.dataset}: {', '.join(result.changed)} changed; {result.rerun} trials re-run, "
-              f"every record the same (labels and inputs equal, successful walks' measurements "
-              f"within 2 %; largest relative difference of any measurement "
-              f"{result.largest_relative_difference:.1e}): the manifest now names this code "
-              f"({result.fingerprint_after})"
-              + (f"; {len(result.machine_differences)} differed from the stored record the same way with the "
-                 f"certified code on this machine (the collecting processor's, listed in the manifest)"
-                 if result.machine_differences else ""))
-    else:
-        first = result.mismatches[0]
-        print(f"{result.dataset}: {', '.join(result.changed)} changed; {len(result.mismatches)} of "
-              f"{result.rerun} re-run trials differ (trial {first['index']}: {', '.join(first['fields'])}): "
-              f"the labels describe other behaviour; collect a new dataset"
-              + ("" if args.reference_code else
-                 " (or, if the records came from another processor, compare with the certified code on this "
-                 "machine: --reference-code DIR)"))
-    return 0 if result.identical else 1
-
-
-def register(subparsers) -> None:
-    """Adds ``capability`` (collect, stats, and the model commands) to the ``qz`` command."""
-    from qz_drake.capability.patches import KINDS
-    from qz_drake.cli import one_of
-    from qz_drake.robot.topology import TOPOLOGY_NAMES
-
-    capability = subparsers.add_parser("capability", help="capability trials, dataset and model (paper 000)")
-    sub = capability.add_subparsers(dest="capability_command", required=True, parser_class=type(capability))
-
-    p = sub.add_parser("collect", help="run (or resume) BLC trials into a dataset folder")
-    p.add_argument("--out", required=True, help="dataset folder (manifest.json + shards)")
-    p.add_argument("--scenes", type=int, default=1000, help="number of scenes (paper 000: 1000)")
-    p.add_argument("--headings", type=int, default=1, help="heading samples per scene (each in every topology and kind)")
-    p.add_argument("--topologies", default=None,
-                   help=f"comma-separated topologies, each {one_of(TOPOLOGY_NAMES)} (default: all)")
-    p.add_argument("--kinds", default=None, help=f"comma-separated kinds, each {one_of(KINDS)} (default: all)")
-    p.add_argument("--workers", type=int, default=1, help="local worker processes")
-    p.add_argument("--ray-address", default=None, help="run the trials on this Ray cluster (host:port)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--shard-size", type=int, default=100, help="records per shard file")
-    p.add_argument("--limit", type=int, default=None, help="stop after this many new trials")
-    p.add_argument("--progress", action="store_true", help="show the progress display even when not on a terminal")
-    p.add_argument("--log-every", type=float, default=0.0, metavar="SECONDS",
-                   help="print a plain progress line on stderr at most this often (background runs)")
-    p.add_argument("--json", action="store_true", help="print one JSON line")
-    p.set_defaults(func=run_collect)
-
-    p = sub.add_parser("stats", help="summarise a capability dataset")
-    p.add_argument("dataset", help="dataset folder")
-    output = p.add_mutually_exclusive_group()
-    output.add_argument("--json", action="store_true", help="print one JSON line")
-    output.add_argument("--markdown", action="store_true", help="print the summary as Markdown tables")
-    p.add_argument("--against", default=None, metavar="DIR",
-                   help="another dataset of the same trials (the same seed, e.g. collected with another BLC): "
-                        "the trials executed in both, paired, with McNemar's exact test")
-    p.set_defaults(func=run_stats)
-
-    p = sub.add_parser("recertify", help="re-run a sample of a dataset's trials with this code; "
-                                         "if all are identical, the manifest names this code")
-    p.add_argument("dataset", help="dataset folder")
-    p.add_argument("--sample", type=int, default=36, help="trials to re-run (spread over kinds, "
-                                                          "topologies and outcomes)")
-    p.add_argument("--workers", type=int, default=1, help="local worker processes")
-    p.add_argument("--reference-code", default=None, metavar="DIR",
-                   help="a source tree of the code the manifest names (e.g. a git worktree): mismatched "
-                        "trials are re-run with it here, and a difference it reproduces is the machine's")
-    p.add_argument("--json", action="store_true", help="print one JSON line")
-    p.set_defaults(func=run_recertify)
-
-    try:
-        from qz_drake.capability.model_commands import register_model_commands
-    except ModuleNotFoundError as e:
-        if e.name != "qz_drake.capability.model_commands":
-            raise
-    else:
-        register_model_commands(sub)
-
-
-__all__ = ["register", "dataset_stats"]

@@ -17,51 +17,8 @@ from pathlib import Path
 from qz_drake.errors import bad_value
 
 
-def check_model_robot(model) -> None:
-    """Refuses a model whose card says it was trained on another robot (or robot code)."""
-    from qz_drake.capability.dataset import fingerprints
-    from qz_drake.capability.trials import TrialConfig
-
-    theirs = model.fingerprints.get("robot")
-    if theirs is not None and theirs != fingerprints(TrialConfig())["robot"]:
-        raise bad_value("--model", f"fingerprints.robot = {theirs}",
-                        "the model was trained on another robot configuration")
-
-
-def check_standable(heightmap, xy, topology: str, field: str) -> None:
-    """Raises QzError naming ``field`` when the robot cannot stand at xy in the topology."""
-    from qz_drake.errors import QzError
-    from qz_drake.robot.topology import get_topology
-    from qz_drake.station import standing_state
-
-    xmin, xmax, ymin, ymax = heightmap.bounds
-    if not (xmin <= xy[0] <= xmax and ymin <= xy[1] <= ymax):
-        raise bad_value(field, f"{xy[0]:g},{xy[1]:g}", f"off the map (x in [{xmin:g}, {xmax:g}], "
-                                                      f"y in [{ymin:g}, {ymax:g}])")
-    import numpy as np
-
-    from qz_drake.robot.params import DEFAULT_PARAMS
-
-    try:
-        x0 = standing_state(heightmap, get_topology(topology), xy, 0.0)
-    except QzError:
-        raise bad_value(field, f"{xy[0]:g},{xy[1]:g}",
-                        f"the robot cannot stand there in {topology} (a foot out of reach)") from None
-    # The trunk must clear the ground under it (any heading: the disc the trunk sweeps).
-    lx, ly, lz = DEFAULT_PARAMS.trunk_size
-    radius = 0.5 * float(np.hypot(lx, ly))
-    g = np.arange(-radius, radius + 1e-9, 0.05)
-    gx, gy = np.meshgrid(g, g)
-    inside = np.hypot(gx, gy) <= radius
-    ground = heightmap.height(xy[0] + gx[inside], xy[1] + gy[inside])
-    if float(ground.max()) > float(x0[6]) - 0.5 * lz - 0.02:
-        raise bad_value(field, f"{xy[0]:g},{xy[1]:g}",
-                        f"the robot cannot stand there in {topology}: ground {ground.max():.2f} m under "
-                        f"the trunk (inside an obstacle?)")
-
-
 def run_plan(args) -> int:
-    from qz_drake.planning.commands import parse_xy
+    from qz_drake.cli.planning import parse_xy
     from qz_drake.capability.model import CapabilityModel
     from qz_drake.capability.model_commands import load_terrain
     from qz_drake.capability.patches import KINDS
@@ -69,6 +26,7 @@ def run_plan(args) -> int:
     from qz_drake.planning.capability_mdp import CapabilityMdpConfig, plan
     from qz_drake.planning.guidance import split_missions
     from qz_drake.config import check_feet_on_map, feet_on_ground
+    from qz_drake.station import check_standable
     from qz_drake.robot.topology import TOPOLOGY_NAMES, get_topology
 
     start, goal = parse_xy(args.start, "--start"), parse_xy(args.goal, "--goal")
@@ -88,7 +46,6 @@ def run_plan(args) -> int:
     check_standable(heightmap, start, args.topology, "--start")
     check_standable(heightmap, goal, args.topology, "--goal")
     model = CapabilityModel.load(args.model)
-    check_model_robot(model)
     topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
     if args.topology not in topologies:
         raise bad_value("--topology", args.topology, f"the model has no networks for it (it has "
@@ -140,7 +97,7 @@ def register(subparsers) -> None:
     """Adds ``plan`` to the ``qz`` command."""
     import argparse
 
-    from qz_drake.cli import one_of, terrain_kinds_text, terrain_names
+    from qz_drake.cli.arguments import one_of, terrain_kinds_text, terrain_names
     from qz_drake.robot.topology import TOPOLOGY_NAMES
 
     p = subparsers.add_parser("plan", help="CapPlanner's TLC alone: utility map, guidance path, missions",

@@ -76,7 +76,7 @@ def run_impedance_sweep(args) -> int:
 
 def run_trot(args) -> int:
     from qz_drake.classification.runs import simulate_trot
-    from qz_drake.cli import output_folder, positive_seconds, prepare_scenario
+    from qz_drake.cli.arguments import output_folder, positive_seconds, prepare_scenario
     from qz_drake.config import load_scenario
     from qz_drake.viz.recording import recording_meshcat, save_recording
 
@@ -114,7 +114,7 @@ def _collect_config(args):
     if args.stances is not None:
         config.stances_per_class = args.stances
     if args.run_duration is not None:
-        from qz_drake.cli import positive_seconds
+        from qz_drake.cli.arguments import positive_seconds
 
         config.run_duration = positive_seconds(args.run_duration, "--run-duration")
     if args.mixed_runs is not None:
@@ -204,7 +204,7 @@ def run_stiffness_sweep(args) -> int:
 
 def register(subparsers) -> None:
     """Adds ``impedance-sweep``, ``trot`` and ``classify`` to the ``qz`` command."""
-    from qz_drake.cli import one_of
+    from qz_drake.cli.arguments import one_of
     from qz_drake.terrain import MATERIALS
 
     p = subparsers.add_parser("impedance-sweep", help="leg impedance stiffness sweep (paper 002 Fig. 13)")

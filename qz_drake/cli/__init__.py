@@ -1,0 +1,66 @@
+"""The ``qz`` command.
+
+The application layer: nothing in the package imports it. Each command group is a module with
+``register(subparsers)`` that sets ``func(args) -> exit code`` on its parsers; the groups are
+listed in ``COMMAND_GROUPS`` (a group that fails to import fails the command, it is never
+skipped). Errors a user can cause (QzError) print one line and exit with status 2; a failed
+solve or a fall is a reported outcome with exit status 1.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+from qz_drake.cli import capability, classification, core, experiments, hardware, plan, planning
+from qz_drake.cli.arguments import OneLineParser, check_output_argument, package_version
+# trajopt/commands.py imports these from here; it moves into this package once the work on
+# trajopt/ has landed.
+from qz_drake.cli.arguments import one_of, parse_key_values, terrain_kinds_text, terrain_names  # noqa: F401
+from qz_drake.errors import QzError
+from qz_drake.trajopt import commands as trajopt_commands
+
+# In the order of `qz --help`.
+COMMAND_GROUPS = (core, trajopt_commands, planning, plan, classification, capability, hardware, experiments)
+
+
+def build_parser():
+    parser = OneLineParser(prog="qz", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
+    for group in COMMAND_GROUPS:
+        group.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        check_output_argument(args)
+        return int(args.func(args))
+    except QzError as e:
+        print(f"qz {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except UnicodeDecodeError as e:
+        # A binary file where a text file was meant, read by a loader that did not name it.
+        print(f"qz {args.command}: error: a file given is not UTF-8 text (byte 0x{e.object[e.start]:02x} at "
+              f"offset {e.start}); expected a text file", file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        # The reader went away (`qz ... | head`): stop quietly, as Unix tools do, and keep
+        # the interpreter's final flush from failing on the closed pipe.
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM (collections write what finished first)
+        print(f"qz {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except OSError as e:
+        # A file the user named cannot be read or written (a folder where a file was meant, no
+        # permission, a full disk): the same one line as for any other bad input.
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"qz {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)
+        return 2
+

@@ -1,0 +1,314 @@
+"""``qz capability ...``: the capability pipeline of paper 000 II-E.1 on the command line.
+
+``collect`` runs (or resumes) BLC trials into a dataset folder, on local processes or a Ray
+cluster; ``stats`` summarises a dataset; ``recertify`` re-runs a sample of its trials after a
+change to the code that should not change behaviour, and moves the manifest to the new code
+only if every record comes out identical.
+
+``train --dataset DIR --out DIR [--json] [--restart]`` trains the 18 networks on a trial
+dataset (split by scene), writes the model directory (safetensors + JSON cards) with
+``reliability.png`` and ``confusion.png`` of the test scenes, and prints the metrics table (or
+one JSON line). Each network is kept as soon as it is trained: after Ctrl-C the same command
+trains only the missing ones.
+
+``evaluate [--model DIR] --dataset DIR [--json] [--out DIR]`` scores a model on every trial of
+a dataset whose fingerprints are the model's; the JSON has one entry per network with
+topology, kind, n, positives, auc, brier, ece, ece_floor (the ECE a calibrated model would
+score on so few trials), accuracy.
+
+``map --model DIR --terrain NAME|FILE --topology T --out FILE.png`` draws the predicted success
+of moving forward from every 1 m cell and heading over the heightmap.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shlex
+import sys
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from qz_drake.capability import model_commands, stats, training
+from qz_drake.capability.collect import collect, recertify
+from qz_drake.capability.evaluation import evaluate_model
+from qz_drake.capability.model import CapabilityModel
+from qz_drake.capability.patches import KINDS
+from qz_drake.capability.plots import plot_capability_map, plot_confusion, plot_reliability
+from qz_drake.capability.trials import TrialConfig
+from qz_drake.cli.arguments import one_of, parse_names, terrain_names
+from qz_drake.errors import bad_value
+from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+SUMMARY_KEYS = ("topology", "kind", "n", "positives", "auc", "brier", "ece", "ece_floor", "accuracy")
+
+
+def run_collect(args) -> int:
+    if args.scenes < 1:
+        raise bad_value("--scenes", args.scenes, "must be a positive whole number")
+    if args.workers < 1:
+        raise bad_value("--workers", args.workers, "must be at least 1")
+    if args.headings < 1:
+        raise bad_value("--headings", args.headings, "must be at least 1")
+    if not args.log_every >= 0:
+        raise bad_value("--log-every", args.log_every, "must be 0 (off) or a number of seconds")
+    config = TrialConfig(headings_per_scene=args.headings)
+    summary = collect(args.out, seed=args.seed, scenes=args.scenes,
+                      topologies=parse_names(args.topologies, "--topologies", TOPOLOGY_NAMES),
+                      kinds=parse_names(args.kinds, "--kinds", KINDS), config=config,
+                      workers=args.workers, ray_address=args.ray_address, shard_size=args.shard_size,
+                      progress=not args.json and sys.stderr.isatty() or args.progress,
+                      command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+                      limit=args.limit, log_every=args.log_every)
+    print(json.dumps(dataclasses.asdict(summary), indent=None if args.json else 2))
+    return 0
+
+
+def run_stats(args) -> int:
+    summary = stats.dataset_stats(args.dataset)
+    if args.against:
+        summary["against"] = stats.paired_against(args.dataset, args.against)
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    if args.markdown:
+        print(stats.stats_markdown(summary))
+        return 0
+    print(f"{stats['dataset']}: {stats['executed']} executed, {stats['invalid_starts']} invalid starts, "
+          f"{stats['errors']} errors, {stats['successes']} successes")
+    for row in stats["rows"]:
+        rate = "-" if row["success_rate"] is None else f"{100 * row['success_rate']:.0f} %"
+        print(f"  {row['topology']:>13} {row['kind']:>10}: {row['successes']}/{row['executed']} ({rate}), "
+              f"BLC alone {row['blc_successes']}, errors {row['errors']}")
+    if stats["stairs_up"]:
+        print("  up stairs (orthogonal and diagonal moves), per rise and topology:")
+        for row in stats["stairs_up"]:
+            low, high = row["rise_m"]
+            lo, hi = row["ci95"]
+            print(f"    {low:.2f}-{high:.2f} m {row['topology']:>13}: {row['successes']}/{row['executed']} "
+                  f"({100 * row['success_rate']:.0f} %, 95 % CI {100 * lo:.0f}-{100 * hi:.0f} %)")
+    if stats.get("against"):
+        print(f"  against {stats['against']['other']} (the trials executed in both):")
+        for row in stats["against"]["rows"]:
+            print(f"    {row['group']:>18}: {row['successes']}/{row['trials']} here, {row['other_successes']} there "
+                  f"(only here {row['only_this']}, only there {row['only_other']}, McNemar p {row['p_value']:.2g})")
+    return 0
+
+
+def run_recertify(args) -> int:
+    result = recertify(args.dataset, sample=args.sample, workers=args.workers,
+                       command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+                       reference_code=args.reference_code)
+    if args.json:
+        print(json.dumps(dataclasses.asdict(result)))
+    elif not result.changed:
+        print(f"{result.dataset}: the code's fingerprints are the dataset's; nothing to certify")
+    elif result.identical:
+        print(f"{result.dataset}: {', '.join(result.changed)} changed; {result.rerun} trials re-run, "
+              f"every record the same (labels and inputs equal, successful walks' measurements "
+              f"within 2 %; largest relative difference of any measurement "
+              f"{result.largest_relative_difference:.1e}): the manifest now names this code "
+              f"({result.fingerprint_after})"
+              + (f"; {len(result.machine_differences)} differed from the stored record the same way with the "
+                 f"certified code on this machine (the collecting processor's, listed in the manifest)"
+                 if result.machine_differences else ""))
+    else:
+        first = result.mismatches[0]
+        print(f"{result.dataset}: {', '.join(result.changed)} changed; {len(result.mismatches)} of "
+              f"{result.rerun} re-run trials differ (trial {first['index']}: {', '.join(first['fields'])}): "
+              f"the labels describe other behaviour; collect a new dataset"
+              + ("" if args.reference_code else
+                 " (or, if the records came from another processor, compare with the certified code on this "
+                 "machine: --reference-code DIR)"))
+    return 0 if result.identical else 1
+
+
+def register(subparsers) -> None:
+    """Adds ``capability`` (collect, stats, and the model commands) to the ``qz`` command."""
+    capability = subparsers.add_parser("capability", help="capability trials, dataset and model (paper 000)")
+    sub = capability.add_subparsers(dest="capability_command", required=True, parser_class=type(capability))
+
+    p = sub.add_parser("collect", help="run (or resume) BLC trials into a dataset folder")
+    p.add_argument("--out", required=True, help="dataset folder (manifest.json + shards)")
+    p.add_argument("--scenes", type=int, default=1000, help="number of scenes (paper 000: 1000)")
+    p.add_argument("--headings", type=int, default=1, help="heading samples per scene (each in every topology and kind)")
+    p.add_argument("--topologies", default=None,
+                   help=f"comma-separated topologies, each {one_of(TOPOLOGY_NAMES)} (default: all)")
+    p.add_argument("--kinds", default=None, help=f"comma-separated kinds, each {one_of(KINDS)} (default: all)")
+    p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    p.add_argument("--ray-address", default=None, help="run the trials on this Ray cluster (host:port)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--shard-size", type=int, default=100, help="records per shard file")
+    p.add_argument("--limit", type=int, default=None, help="stop after this many new trials")
+    p.add_argument("--progress", action="store_true", help="show the progress display even when not on a terminal")
+    p.add_argument("--log-every", type=float, default=0.0, metavar="SECONDS",
+                   help="print a plain progress line on stderr at most this often (background runs)")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_collect)
+
+    p = sub.add_parser("stats", help="summarise a capability dataset")
+    p.add_argument("dataset", help="dataset folder")
+    output = p.add_mutually_exclusive_group()
+    output.add_argument("--json", action="store_true", help="print one JSON line")
+    output.add_argument("--markdown", action="store_true", help="print the summary as Markdown tables")
+    p.add_argument("--against", default=None, metavar="DIR",
+                   help="another dataset of the same trials (the same seed, e.g. collected with another BLC): "
+                        "the trials executed in both, paired, with McNemar's exact test")
+    p.set_defaults(func=run_stats)
+
+    p = sub.add_parser("recertify", help="re-run a sample of a dataset's trials with this code; "
+                                         "if all are identical, the manifest names this code")
+    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("--sample", type=int, default=36, help="trials to re-run (spread over kinds, "
+                                                          "topologies and outcomes)")
+    p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    p.add_argument("--reference-code", default=None, metavar="DIR",
+                   help="a source tree of the code the manifest names (e.g. a git worktree): mismatched "
+                        "trials are re-run with it here, and a difference it reproduces is the machine's")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.set_defaults(func=run_recertify)
+
+    register_model_commands(sub)
+
+def _fmt(value, spec=".3f") -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def _print_table(rows: list[dict], title: str, extra: tuple[tuple[str, str], ...] = ()) -> None:
+    table = Table(title=title)
+    table.add_column("network", no_wrap=True, min_width=21)
+    for column in ("n", "pos", "AUC", "Brier", "ECE", "ECE floor", "acc") + tuple(name for name, _ in extra):
+        table.add_column(column, justify="right", no_wrap=True)
+    for row in rows:
+        table.add_row(f"{row['topology']}/{row['kind']}", str(row["n"]), str(row["positives"]), _fmt(row["auc"]),
+                      _fmt(row["brier"]), _fmt(row["ece"]), _fmt(row.get("ece_floor")), _fmt(row["accuracy"]),
+                      *(str(row.get(key, "-")) for _, key in extra))
+    console = Console()
+    # Piped output (a log file) gets the table's natural width instead of 80 columns.
+    Console(width=max(console.width, 120) if not console.is_terminal else None).print(table)
+
+
+def _figures(entries: list[dict], out: Path, what: str) -> list[str]:
+    named = [dict(e, name=f"{e['topology']}/{e['kind']}") for e in entries if e.get("n")]
+    return [str(plot_reliability(named, out / "reliability.png", title=f"Reliability, {what}")),
+            str(plot_confusion(named, out / "confusion.png", title=f"Confusion at 0.5, {what}"))]
+
+
+def run_train(args) -> int:
+    # Looked up in their modules when the command runs (the tests replace them there).
+    arrays, manifest = model_commands.load_dataset(args.dataset)
+    config = training.TrainingConfig(seed=args.seed)
+    if args.max_epochs is not None:
+        config.max_epochs = args.max_epochs
+    if args.network:
+        config.networks = list(args.network)
+    result, resumed = model_commands.train_resumably(arrays, manifest, config, args.out, restart=args.restart,
+                                      progress=not args.json)
+    out = Path(args.out)
+    rows = []
+    for (topology, kind), network in sorted(result.networks.items(), key=lambda item: training.ALL_NETWORKS.index(item[0])):
+        card = network.card
+        logistic, boosting = card["baselines"]["logistic"], card["baselines"]["gradient_boosting"]
+        rows.append({"topology": topology, "kind": kind, **{k: card["test"][k] for k in SUMMARY_KEYS[2:]},
+                     "loss": card.get("run", card["loss"]), "logistic_auc": logistic["auc"], "logistic_brier": logistic["brier"],
+                     "boosting_auc": boosting["auc"], "boosting_brier": boosting["brier"],
+                     "base_rate_brier": card["baselines"]["base_rate"]["brier"],
+                     "beats_baselines": card["beats_baselines"]})
+    figures = _figures([dict(r, **result.networks[(r["topology"], r["kind"])].card["test"]) for r in rows],
+                       out, "test scenes")
+    summary = {"model": str(out), "fingerprint": result.fingerprint, "networks": rows, "missing": result.missing,
+               "split_scenes": {k: len(v) for k, v in result.split.items()}, "figures": figures,
+               "resumed": [training.network_name(*key) for key in resumed]}
+    (out / "report.json").write_text(json.dumps(summary, indent=2))
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        for row in rows:
+            row["lr_auc"], row["lr_brier"] = _fmt(row["logistic_auc"]), _fmt(row["logistic_brier"])
+            row["gb_auc"], row["gb_brier"] = _fmt(row["boosting_auc"]), _fmt(row["boosting_brier"])
+            row["rate_brier"] = _fmt(row["base_rate_brier"])
+        _print_table(rows, f"Test scenes ({len(result.split['test'])}), model {out}",
+                     extra=(("loss", "loss"), ("LR AUC", "lr_auc"), ("LR Brier", "lr_brier"), ("GB AUC", "gb_auc"),
+                            ("GB Brier", "gb_brier"), ("rate Brier", "rate_brier"), ("beats", "beats_baselines")))
+        print("LR / GB: logistic regression / gradient boosting on patch features; rate: the training base rate; "
+              "beats: higher AUC and lower Brier than LR and GB, lower Brier than the rate")
+        not_requested = [n for n, why in result.missing.items() if why.startswith("not requested")]
+        for name, why in result.missing.items():
+            if name not in not_requested:
+                print(f"no network {name}: {why}")
+        if not_requested:
+            print(f"not requested: {', '.join(not_requested)}")
+        if resumed:
+            print(f"resumed: {', '.join(summary['resumed'])} came from the interrupted training")
+        print("figures: " + ", ".join(figures))
+    return 0
+
+
+def run_evaluate(args) -> int:
+    model = CapabilityModel.load(args.model)
+    arrays, manifest = model_commands.load_dataset(args.dataset)
+    results = evaluate_model(model, arrays, manifest)
+    summary = {"model": str(args.model or "shipped"), "dataset": str(args.dataset),
+               "networks": [{k: r.get(k) for k in SUMMARY_KEYS} | ({"missing": True} if r.get("missing") else {})
+                            for r in results]}
+    if args.out:
+        out = Path(args.out)
+        summary["figures"] = _figures(results, out, f"dataset {args.dataset}")
+        (out / "evaluation.json").write_text(json.dumps({"networks": results}, indent=2))
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        _print_table(summary["networks"], f"Model on {args.dataset}")
+    return 0
+
+
+def run_map(args) -> int:
+    if args.topology not in TOPOLOGY_NAMES:
+        raise bad_value("--topology", args.topology, f"expected one of {', '.join(TOPOLOGY_NAMES)}")
+    model = CapabilityModel.load(args.model)
+    heightmap = model_commands.load_terrain(args.terrain, args.terrain_param, args.seed)
+    capability = model.map_success(heightmap, [args.topology])
+    png = plot_capability_map(heightmap, capability, args.out, topology=args.topology,
+                              title=f"P(forward success), {args.topology}, {args.terrain}")
+    forward = capability.forward[0]
+    print(json.dumps({"png": str(png), "topology": args.topology, "cells": [len(capability.ys), len(capability.xs)],
+                      "mean_forward_success": float(np.mean(forward)),
+                      "min_forward_success": float(np.min(forward))}))
+    return 0
+
+
+def register_model_commands(subparsers) -> None:
+    """Adds ``train``, ``evaluate`` and ``map`` to the ``qz capability`` subparsers."""
+    p = subparsers.add_parser("train", help="train the capability networks on a trial dataset")
+    p.add_argument("--dataset", required=True, help="trial dataset folder")
+    p.add_argument("--out", required=True, help="model folder to write")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.add_argument("--seed", type=int, default=0, help="split, initialisation and batch order")
+    p.add_argument("--max-epochs", type=int, default=None, help="cap on epochs per run")
+    p.add_argument("--network", action="append", metavar="TOPOLOGY/KIND",
+                   help="train only this network (repeatable); default all with data")
+    p.add_argument("--restart", action="store_true",
+                   help="discard the networks an interrupted training left in --out and train all again "
+                        "(without it, the same command goes on where the training stopped)")
+    p.set_defaults(func=run_train)
+
+    p = subparsers.add_parser("evaluate", help="score a capability model on a trial dataset")
+    p.add_argument("--model", default=None, help="model folder (default: the shipped model)")
+    p.add_argument("--dataset", required=True, help="trial dataset folder")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.add_argument("--out", default=None, help="also write reliability / confusion PNGs here")
+    p.set_defaults(func=run_evaluate)
+
+    p = subparsers.add_parser("map", help="draw the predicted success of moving forward over a terrain")
+    p.add_argument("--model", default=None, help="model folder (default: the shipped model)")
+    p.add_argument("--terrain", required=True,
+                   help=f"a .npz / .yaml heightmap, or a terrain generator, {one_of(terrain_names())} "
+                        f"(parameters: qz terrain --help)")
+    p.add_argument("--terrain-param", action="append", metavar="KEY=VALUE", help="generator parameter, seed included")
+    p.add_argument("--seed", type=int, default=0, help="terrain generator seed")
+    p.add_argument("--topology", default="nominal", help=f"body topology, {one_of(TOPOLOGY_NAMES)}")
+    p.add_argument("--out", required=True, help="PNG file to write")
+    p.set_defaults(func=run_map, out_kind="file")
