@@ -225,3 +225,11 @@ def test_a_leg_off_its_plane_has_no_two_link_model():
     assert robot.leg_chain(1).knee_bend == -1
     with pytest.raises(KinematicsError, match=r"^half_size = \[0.1, -0.1, 0.1\]"):
         robot.unreachable_corners(1, (0.1, -0.1, 0.1))
+
+
+def test_a_standing_pose_on_a_joint_limit_has_no_box():
+    # Knees at their upper limit (-0.2 rad, nearly straight): no foot can move down from there.
+    at_limit = {**{f"{leg}_hfe": 0.1 for leg in LEGS}, **{f"{leg}_kfe": -0.2 for leg in LEGS}}
+    robot = UrdfRobot(STILT_URDF, feet={leg: f"{leg}_foot" for leg in LEGS}, standing=at_limit)
+    with pytest.raises(KinematicsError, match=r"^feet\[RF\] = 'RF_foot': cannot move from its standing foothold"):
+        robot.largest_box(1, (0.1, 0.1, 0.1))
