@@ -592,7 +592,7 @@ def _capability_planner(scenario, info):
     ``controller.capability_model`` (empty: the shipped one), the goal at the route's last
     waypoint, planned over the station's heightmap from the robot's start."""
     from qz_drake.capability.model import CapabilityModel
-    from qz_drake.systems.capability_planner import CapabilityVIPlanner
+    from qz_drake.planning.capability_planner import CapabilityVIPlanner
     from qz_drake.systems.state_layout import base_rpy
 
     from qz_drake.capability.patches import KINDS

@@ -41,21 +41,13 @@ ALLOWED = {
     ("qz_drake.config", "qz_drake.station"): "until issue 35 lands",
     ("qz_drake.hardware.driver", "qz_drake.station"): "until issue 35 lands",
     ("qz_drake.hardware.interface", "qz_drake.station"): "until issue 35 lands",
-    ("qz_drake.robot.quadruped", "qz_drake.planning.static_gait"): "until issue 35 lands",
     ("qz_drake.simulation", "qz_drake.capability.model"): "until issue 35 lands",
     ("qz_drake.simulation", "qz_drake.capability.patches"): "until issue 35 lands",
     ("qz_drake.simulation", "qz_drake.capability.plots"): "until issue 35 lands",
     ("qz_drake.simulation", "qz_drake.capability.trials"): "until issue 35 lands",
     ("qz_drake.simulation", "qz_drake.planning.capability_mdp"): "until issue 35 lands",
-    ("qz_drake.systems.capability_planner", "qz_drake.capability.model"): "until issue 35 lands",
-    ("qz_drake.systems.capability_planner", "qz_drake.capability.patches"): "until issue 35 lands",
-    ("qz_drake.systems.capability_planner", "qz_drake.planning.capability_mdp"): "until issue 35 lands",
-    ("qz_drake.systems.capability_planner", "qz_drake.planning.guidance"): "until issue 35 lands",
-    ("qz_drake.systems.terrain_classifier", "qz_drake.classification.features"): "until issue 35 lands",
-    ("qz_drake.viz.costmap_plots", "qz_drake.planning.static_gait"): "until issue 35 lands",
-    ("qz_drake.viz.guidance_path", "qz_drake.planning.guidance"): "until issue 35 lands",
+    ("qz_drake.simulation", "qz_drake.planning.capability_planner"): "until issue 35 lands",
     ("qz_drake.viz.plots", "qz_drake.systems.state_layout"): "until issue 35 lands",
-    ("qz_drake.capability.evaluation", "qz_drake.capability.training"): "until issue 35 lands",
 }
 
 

@@ -27,8 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
+from qz_drake.capability.patches import PATCH_SIZE
 from qz_drake.errors import ConfigError, bad_value
 
+# The arrays of the dataset contract (load_training_arrays) that the networks learn from.
+REQUIRED_KEYS = ("patch", "feet", "direction", "success", "blc_success", "scene", "topology", "kind")
 FORMAT = "qz_drake.capability.dataset/1"
 MANIFEST = "manifest.json"
 
@@ -43,7 +46,7 @@ MANIFEST = "manifest.json"
 FINGERPRINT_ROOTS = ("qz_drake.capability.trials", "qz_drake.simulation", "qz_drake.systems.blc",
                      "qz_drake.systems.blc_plan")
 UNFINGERPRINTED = ("qz_drake.viz", "qz_drake.cli", "qz_drake.bench", "qz_drake.hardware",
-                   "qz_drake.planning", "qz_drake.systems.capability_planner",
+                   "qz_drake.planning",
                    "qz_drake.capability.collect", "qz_drake.capability.stats",
                    "qz_drake.capability.model", "qz_drake.capability.model_commands",
                    "qz_drake.capability.networks", "qz_drake.capability.training",
@@ -307,6 +310,23 @@ def check_same(manifest: dict, *, seed=None, settings=None, parts=None, where: s
                 raise ConfigError(
                     f"{where}: fingerprints.{key} = {manifest.get('fingerprints', {}).get(key)} in the "
                     f"dataset, {parts.get(key)} in this code: the labels describe another {key}")
+
+
+def check_arrays(arrays: dict) -> int:
+    """Checks the keys and shapes of the dataset contract; returns the number of rows."""
+    for key in REQUIRED_KEYS:
+        if key not in arrays:
+            raise bad_value("dataset.arrays", sorted(arrays), f"missing the {key!r} array")
+    n = len(arrays["success"])
+    shapes = {"patch": (n, PATCH_SIZE, PATCH_SIZE), "feet": (n, 6, 3)}
+    for key in REQUIRED_KEYS:
+        expected = shapes.get(key, (n,))
+        if np.shape(arrays[key]) != expected:
+            raise bad_value(f"dataset.{key}", f"array of shape {np.shape(arrays[key])}", f"expected {expected}")
+    for key in ("patch", "feet"):
+        if not np.isfinite(arrays[key]).all():
+            raise bad_value(f"dataset.{key}", "non-finite values", "every trial's inputs must be finite")
+    return n
 
 
 def records_to_arrays(records: list[dict]) -> dict[str, np.ndarray]:

@@ -20,6 +20,7 @@ import dataclasses
 
 import numpy as np
 
+from qz_drake.capability.dataset import check_arrays
 from qz_drake.capability.patches import MOVE_PATCH_SPACING, TURN_PATCH_SPACING
 
 # Names of the baseline's patch features, in column order.
@@ -265,7 +266,6 @@ def evaluate_model(model, arrays: dict, manifest: dict, config: EvaluationConfig
     (topology, kind) present in the data: topology, kind and the metrics of binary_metrics.
     """
     from qz_drake.capability.patches import KINDS
-    from qz_drake.capability.training import check_arrays
     from qz_drake.robot.topology import TOPOLOGY_NAMES
 
     config = config or EvaluationConfig()

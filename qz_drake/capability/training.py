@@ -26,6 +26,7 @@ import time
 
 import numpy as np
 
+from qz_drake.capability.dataset import REQUIRED_KEYS, check_arrays
 from qz_drake.capability.evaluation import (EvaluationConfig, baseline_inputs, baseline_metrics, beats_baselines,
                                             binary_metrics)
 from qz_drake.capability.patches import KINDS, PATCH_SIZE, mirror_inputs
@@ -33,8 +34,6 @@ from qz_drake.errors import ConfigError, bad_value
 from qz_drake.progress import ProgressReport
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 
-# Keys of the dataset contract (qz_drake.capability.dataset.load_training_arrays) used here.
-REQUIRED_KEYS = ("patch", "feet", "direction", "success", "blc_success", "scene", "topology", "kind")
 LOSSES = ("mse", "bce")
 INITIALISATIONS = ("scratch", "pooled")
 # The 18 networks (topology, kind), in TOPOLOGY_NAMES x KINDS order.
@@ -160,23 +159,6 @@ class TrainingResult:
     fingerprint: str
     fingerprints: dict[str, str]
     config: TrainingConfig
-
-
-def check_arrays(arrays: dict) -> int:
-    """Checks the keys and shapes of the dataset contract; returns the number of rows."""
-    for key in REQUIRED_KEYS:
-        if key not in arrays:
-            raise bad_value("dataset.arrays", sorted(arrays), f"missing the {key!r} array")
-    n = len(arrays["success"])
-    shapes = {"patch": (n, PATCH_SIZE, PATCH_SIZE), "feet": (n, 6, 3)}
-    for key in REQUIRED_KEYS:
-        expected = shapes.get(key, (n,))
-        if np.shape(arrays[key]) != expected:
-            raise bad_value(f"dataset.{key}", f"array of shape {np.shape(arrays[key])}", f"expected {expected}")
-    for key in ("patch", "feet"):
-        if not np.isfinite(arrays[key]).all():
-            raise bad_value(f"dataset.{key}", "non-finite values", "every trial's inputs must be finite")
-    return n
 
 
 def split_scenes(scene_ids, fractions=(0.70, 0.15, 0.15), seed: int = 0) -> dict[str, np.ndarray]:

@@ -253,7 +253,7 @@ def collect_dataset(config: CollectConfig, out_dir, *, progress: bool = True, wo
     With ``workers`` > 1 the runs are simulated in that many processes, ``workers`` runs of a
     material at a time; the dataset is the same as with one.
     """
-    from qz_drake.systems.terrain_classifier import DEFAULT_STIFFNESS
+    from qz_drake.classification.terrain_classifier import DEFAULT_STIFFNESS
 
     config.check()
     if not (isinstance(workers, int) and workers >= 1):

@@ -25,7 +25,7 @@ import numpy as np
 
 from qz_drake.progress import ProgressReport
 from qz_drake.robot.params import LEG_NAMES, NUM_LEGS
-from qz_drake.systems.terrain_classifier import CONFIRMATIONS
+from qz_drake.classification.terrain_classifier import CONFIRMATIONS
 
 
 @dataclasses.dataclass

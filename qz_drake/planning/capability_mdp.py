@@ -11,7 +11,7 @@ the robot standing on that topology's nominal footholds; all of them come from o
 evaluation of the map (qz_drake.capability.model.predict_map). With probability p the robot
 reaches the next (cell, heading) in the new topology (the goal state when that cell is the
 goal's). A failure is one of two things, and the trials tell them apart: the BLC found no plan
-(the robot stands where it was, and the TLC goes round: qz_drake.systems.capability_planner)
+(the robot stands where it was, and the TLC goes round: qz_drake.planning.capability_planner)
 or the walk failed (a fall, a leg in the terrain, a slip: the end). With q the probability
 that the BLC finds no plan, the robot stays in its state with probability q at
 ``plan_failure_cost``, and falls into the absorbing failure state with probability (1 - p) - q.

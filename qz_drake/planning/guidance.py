@@ -19,6 +19,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
+
 from qz_drake.capability.patches import CELL_SIZE, HEADING_STEP
 from qz_drake.errors import bad_value
 
@@ -59,6 +61,16 @@ class GuidedMission:
     @property
     def length(self) -> float:
         return sum(CELL_SIZE * math.hypot(*_STEPS[s.heading]) for s in self.steps if s.motion == "forward")
+
+    def polyline(self) -> np.ndarray:
+        """(N, 2) x, y of the cell centres the mission's actions cross, in order (what the
+        guidance path visualizer draws)."""
+        points = [(self.steps[0].x, self.steps[0].y)] if self.steps else [tuple(self.target[:2])]
+        for step in self.steps:
+            x, y, _ = _after(step)
+            if (x, y) != points[-1]:
+                points.append((x, y))
+        return np.asarray(points, dtype=float)
 
 
 def _after(step) -> tuple[float, float, int]:

@@ -42,8 +42,68 @@ from pathlib import Path
 import numpy as np
 
 from qz_drake.errors import KinematicsError, bad_value
-from qz_drake.planning.static_gait import LEGS, QuadrupedGeometry
 from qz_drake.robot.urdf import _f, _inertial, _joint, _transmission, _vec
+
+LEGS = ("LF", "RF", "LB", "RB")
+"""Index order of feet in arrays."""
+_SIGN = {"LF": (1, 1), "RF": (1, -1), "LB": (-1, 1), "RB": (-1, -1)}
+
+
+@dataclasses.dataclass
+class QuadrupedGeometry:
+    """LittleDog-like leg geometry (Boston Dynamics LittleDog: 0.2 m hip-to-hip body, 0.08 m
+    thigh and shank); the paper's Table 6 lost its numbers."""
+
+    # Hip x from the body centre (the paper's half body length). [m]
+    half_length: float = 0.10
+    # Hip y from the body centre (half body width). [m]
+    half_width: float = 0.045
+    # Lateral offset of the leg plane from the hip (shoulder width). [m]
+    shoulder: float = 0.03
+    # Thigh length. [m]
+    thigh: float = 0.08
+    # Shank length. [m]
+    shank: float = 0.09
+    # Body box (length, width, height) for collisions. [m]
+    body_size: list[float] = dataclasses.field(default_factory=lambda: [0.26, 0.12, 0.05])
+    # Largest abduction angle of the leg plane from vertical. [rad]
+    max_abduction: float = 0.6
+    # Largest hip swing angle of the hip-to-foot line from vertical in the leg plane. [rad]
+    max_hip_swing: float = 0.9
+    # Reach limits as fractions of thigh + shank: a straight leg is singular, a folded one weak.
+    min_reach: float = 0.45
+    max_reach: float = 0.95
+
+    def hip_B(self, leg: str) -> np.ndarray:
+        sx, sy = _SIGN[leg]
+        return np.array([sx * self.half_length, sy * self.half_width, 0.0])
+
+    def default_foothold_B(self, leg: str) -> np.ndarray:
+        """Nominal foothold (x, y) in the body frame: under the hip, out by the shoulder. [m]"""
+        sx, sy = _SIGN[leg]
+        return np.array([sx * self.half_length, sy * (self.half_width + self.shoulder)])
+
+    def reachable(self, leg: str, p_BF: np.ndarray) -> bool:
+        """Whether the foot at p_BF (body frame) is in the leg's workspace."""
+        x, y, z = np.asarray(p_BF, dtype=float) - self.hip_B(leg)
+        y *= _SIGN[leg][1]  # outward positive
+        if z >= 0.0:
+            return False
+        r_yz2 = y * y + z * z
+        d = self.shoulder
+        if r_yz2 < d * d:
+            return False
+        down = math.sqrt(r_yz2 - d * d)  # foot below the hip in the leg plane
+        # The leg plane's tilt from vertical: direction (y, z) minus the shoulder offset.
+        abduction = math.atan2(y, -z) - math.atan2(d, down)
+        if abs(abduction) > self.max_abduction:
+            return False
+        if abs(math.atan2(x, down)) > self.max_hip_swing:
+            return False
+        reach = math.hypot(x, down)
+        total = self.thigh + self.shank
+        return self.min_reach * total <= reach <= self.max_reach * total
+
 
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
 QUADRUPED_URDF = MODELS_DIR / "quadruped.urdf"

@@ -113,7 +113,7 @@ _LEG_COLOURS = {"LF": "tab:red", "RF": "tab:orange", "LB": "tab:blue", "RB": "ta
 def plot_static_gait(heightmap, result, path: str | Path, *, title: str = "") -> Path:
     """Footholds of a searched static gait over the heightmap (Fig. 9 / Fig. 14): each leg's
     footholds in its colour, the body centre's path during the swings in white."""
-    from qz_drake.planning.static_gait import LEGS
+    from qz_drake.robot.quadruped import LEGS
 
     h = np.asarray(heightmap.heights)
     H, W = h.shape

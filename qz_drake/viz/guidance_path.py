@@ -37,19 +37,6 @@ TARGET_RADIUS = 0.12
 ROOT = "/capplanner/guidance"
 
 
-def mission_polyline(mission) -> np.ndarray:
-    """(N, 2) x, y of the cell centres a GuidedMission's actions cross, in order."""
-    from qz_drake.planning.guidance import _after
-
-    points = [(mission.steps[0].x, mission.steps[0].y)] if mission.steps else \
-        [tuple(mission.target[:2])]
-    for step in mission.steps:
-        x, y, _ = _after(step)
-        if (x, y) != points[-1]:
-            points.append((x, y))
-    return np.asarray(points, dtype=float)
-
-
 def ribbon(points: np.ndarray, width: float = PATH_WIDTH) -> tuple[np.ndarray, np.ndarray]:
     """A flat band ``width`` wide along a polyline: (vertices (3, 2N), faces (3, 2N-2)). Points
     are (N, 3) x, y, z, no two consecutive ones alike; the band's edges lie width/2 to either
@@ -107,7 +94,7 @@ class GuidancePathVisualizer(LeafSystem):
             meshcat.SetProperty(f"{ROOT}/{self.count - 1}", "visible", False, t)
         path = f"{ROOT}/{self.count}"
         for i, mission in enumerate(missions):
-            xy = mission_polyline(mission)
+            xy = mission.polyline()
             z = np.asarray(self._heightmap.height(xy[:, 0], xy[:, 1]), dtype=float) + LIFT
             colour = TOPOLOGY_COLOURS.get(mission.topology, Rgba(0.5, 0.5, 0.5, 1.0))
             if len(xy) > 1:
@@ -133,4 +120,4 @@ def add_guidance_visualizer(builder, guidance_port, meshcat, heightmap) -> Guida
     return system
 
 
-__all__ = ["GuidancePathVisualizer", "add_guidance_visualizer", "mission_polyline", "ribbon"]
+__all__ = ["GuidancePathVisualizer", "add_guidance_visualizer", "ribbon"]

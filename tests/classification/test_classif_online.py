@@ -11,7 +11,7 @@ from pydrake.trajectories import PiecewisePolynomial
 from qz_drake.robot import kinematics
 from qz_drake.robot.topology import get_topology
 from qz_drake.station import standing_state
-from qz_drake.systems.terrain_classifier import TerrainClassifier
+from qz_drake.classification.terrain_classifier import TerrainClassifier
 from qz_drake.systems.trotting import LDS, LTS, THS, WAS
 from qz_drake.terrain import make_terrain
 from qz_drake.errors import ConfigError

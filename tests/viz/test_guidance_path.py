@@ -13,7 +13,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from qz_drake.planning.capability_mdp import PathStep
 from qz_drake.planning.guidance import GuidedMission
 from qz_drake.terrain.generators import step
-from qz_drake.viz.guidance_path import (LIFT, PATH_WIDTH, ROOT, add_guidance_visualizer, mission_polyline,
+from qz_drake.viz.guidance_path import (LIFT, PATH_WIDTH, ROOT, add_guidance_visualizer,
                                         ribbon)
 from qz_drake.viz.recording import recording_meshcat
 
@@ -43,7 +43,7 @@ class _Replanner(LeafSystem):
 
 def test_polyline_follows_the_cells_of_the_actions():
     m = _mission(0.0, 0.0, 0, ["forward", "forward", "turn_left", "forward"])
-    np.testing.assert_allclose(mission_polyline(m), [[0, 0], [1, 0], [2, 0], [3, 1]])
+    np.testing.assert_allclose(m.polyline(), [[0, 0], [1, 0], [2, 0], [3, 1]])
 
 
 def test_path_is_a_band_of_its_width_along_the_polyline():

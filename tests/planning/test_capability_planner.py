@@ -10,7 +10,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
 
 from qz_drake.planning.capability_mdp import CapabilityMdpConfig
-from qz_drake.systems.capability_planner import CapabilityVIPlanner
+from qz_drake.planning.capability_planner import CapabilityVIPlanner
 from qz_drake.systems.state_layout import make_state
 from qz_drake.terrain import HeightMap
 
