@@ -35,13 +35,15 @@ from qz_drake.trajopt.leg_clearance import (LegClearanceConstraint, LinkClearanc
                                             constraint_points)
 from qz_drake.trajopt.legs import link_geometry
 from qz_drake.trajopt.splines import LinearSamples
-from qz_drake.trajopt.terrain import FlatTerrain
+from qz_drake.trajopt.terrain import FlatTerrain, GridTerrain, grid_window
 from qz_drake.trajopt.variables import BlcVariables
 
 
 # How far below its start a link point may go until its leg's second stance (see
 # BlcFormulation._start_relaxed_lower and the dense verdict). [m]
 START_LINK_ALLOWANCE = 0.005
+# Height range below which the ground in reach counts as level (no swing/lift rows). [m]
+LEVEL_TOLERANCE = 1e-3
 
 
 def first_step_end(schedule, leg: int) -> float:
@@ -345,6 +347,10 @@ class BlcFormulation:
             c = parts.get("leg_clearance", leg_clearance, field=self.clearance)
             self.nonlinear.append(c.on(lower=self._start_relaxed_lower(c)))
         if p.enabled("swing"):
+            lift = (None if p.swing_lift_height is None or self._level_in_reach()
+                    else parts.get("swing/lift", self._swing_lift))
+            if lift is not None:
+                self.linear.append(lift)
             apex = parts.get("apex samples", lambda: self._swing_samples((0.5,)))
             if apex is not None:
                 self.nonlinear.append(parts.get("swing/apex", lambda: TerrainConstraint(
@@ -354,6 +360,40 @@ class BlcFormulation:
             force = parts.get("force", self._build_force_constraint, terrain=terrain)
             if force is not None:
                 self.nonlinear.append(force)
+
+    def _level_in_reach(self) -> bool:
+        """Whether the ground is level everywhere the feet can reach along the task (within
+        LEVEL_TOLERANCE): there the apex's terrain row already lifts every swing above its
+        footholds, and rows that cannot bind would only move Ipopt's path (a flat warm start
+        measured another local solution with them)."""
+        t = self.terrain
+        if isinstance(t, FlatTerrain):
+            return True
+        if isinstance(t, GridTerrain):
+            rows, cols = grid_window(t.origin, t.resolution, t.heights.shape, self._reach_region())
+            window = t.heights[rows, cols]
+            return window.size == 0 or float(np.ptp(window)) < LEVEL_TOLERANCE
+        return False
+
+    def _swing_lift(self) -> LinearConstraintTerm | None:
+        """Each swing's apex at least swing_lift_height above both of its footholds (the
+        foot-centre heights), or None without swings. The apex's terrain row alone lets a foot
+        cross a gap or step down at the height it lifted off (the terrain under the apex is
+        low), so that it leaves the ground sideways and drags on it: a walk's foot slid 6 cm
+        along a trench's edge in a plan whose apex was 2 mm above the foothold."""
+        v = self.variables
+        rows = []
+        for leg in range(v.num_legs):
+            footholds, apex = v.footholds[leg], v.apex_heights[leg]
+            for s in range(len(apex)):
+                rows.extend((apex[s], footholds[end, 2]) for end in (s, s + 1))
+        if not rows:
+            return None
+        rows = np.asarray(rows)
+        n = len(rows)
+        A = sp.csr_matrix((np.tile([1.0, -1.0], n), (np.repeat(np.arange(n), 2), rows.reshape(-1))),
+                          shape=(n, v.num_vars))
+        return LinearConstraintTerm("swing/lift", A, self.params.swing_lift_height, np.inf)
 
     def _build_force_constraint(self):
         """Eq. 5 at every stance force point of every foot, or None without stances."""

@@ -19,7 +19,8 @@ CONSTRAINT_REASONS: dict[str, str] = {
     "terrain": "stance feet on the ground, swing feet above it (Eq. 4)",
     "force": "normal force in [f_min, f_max] and inside the friction pyramid of the "
              "terrain's tangent frame (Eq. 5)",
-    "swing": "swing apex at least swing_apex_height above the terrain",
+    "swing": "swing apex at least swing_apex_height above the terrain under it, and "
+             "swing_lift_height above both of the swing's footholds",
     "support": "each free stance foothold on supported ground: the raw heightmap within the "
                "foot's radius plus support_margin stays within support_drop of the foothold's "
                "height (off edges and away from risers; trajopt/support.py)",
@@ -92,6 +93,11 @@ class BlcParameters:
     friction_coefficient: float = 0.5
     # Least height of the swing apex above the terrain under it (foot sphere surface). [m]
     swing_apex_height: float = 0.06
+    # Least height of the swing apex above both of the swing's footholds (foot centres); None:
+    # not required. Without it a foot crosses a gap or steps down at the height it lifted off
+    # (the terrain under the apex is low) and drags along the edge it leaves (a walk's foot
+    # slid 6 cm on a trench's edge, session 34). [m]
+    swing_lift_height: float | None = 0.06
     # Free x, y offset and rate of each swing's mid node (variables.py): a foot can rise
     # before it moves forward. Without it the horizontal motion is a fixed smooth cubic and,
     # with clearance checked densely (issue 11), TOWR's HyQ block takes 5-20x the iterations.
@@ -266,6 +272,9 @@ class BlcParameters:
         for name in ("leg_clearance_margin", "leg_clearance_smoothing", "kinematics_box_inset"):
             if not getattr(self, name) >= 0:
                 raise bad_value(f"blc.{name}", getattr(self, name), "must be non-negative")
+        if self.swing_lift_height is not None and not self.swing_lift_height >= 0:
+            raise bad_value("blc.swing_lift_height", self.swing_lift_height,
+                            "must be non-negative (or null: not required)")
         if not self.swing_clearance_dt >= 0:
             raise bad_value("blc.swing_clearance_dt", self.swing_clearance_dt,
                             "must be non-negative")

@@ -25,7 +25,7 @@ PARAMS = BlcParameters(time_limit=60.0)
 # mid-stance foothold guess.
 BEFORE_ISSUE_11 = dict(swing_clearance_dt=0.0, force_points="samples", dynamics_dt=0.1,
                        kinematics_dt=0.08, max_refinements=0, time_limit=60.0,
-                       foothold_guess="mid")
+                       foothold_guess="mid", swing_lift_height=None)
 
 
 def _hyq_stairs_formulation(params):

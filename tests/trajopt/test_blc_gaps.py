@@ -113,3 +113,68 @@ def test_the_stance_guess_does_not_stand_a_foot_on_top_of_a_wall():
                                     np.zeros(2), 0.0)
     assert chosen[0] < 1.0 - robot.foot_radius
     assert chosen[2] == pytest.approx(robot.foot_radius, abs=1e-6)
+
+
+def test_every_swing_lifts_above_both_footholds_where_the_ground_is_not_level(gap_map):
+    """Over a gap the apex's terrain row is met by a foot that never lifts (the floor under the
+    apex is 0.5 m down), so the swing/lift rows hold each apex swing_lift_height above both of
+    its footholds; on level ground they are not added (the apex row already implies them)."""
+    from qz_drake.trajopt.formulation import BlcFormulation
+    from qz_drake.trajopt.gait import make_gait
+    from qz_drake.trajopt.initial_guess import straight_line_guess
+    from qz_drake.trajopt.robot_model import qingzhui
+    from qz_drake.trajopt.solver import standing_start
+    from qz_drake.trajopt.terrain import as_terrain
+
+    robot = qingzhui("nominal")
+
+    def formulation(terrain, lift=0.06):
+        params = BlcParameters(swing_lift_height=lift)
+        schedule = make_gait("tripod", robot.num_legs, 3.0, stand_duration=params.stand_duration)
+        start, rpy, feet = standing_start(robot, terrain)
+        return BlcFormulation(robot, terrain, params, schedule, start_position=start,
+                              start_rpy=rpy, start_feet=feet, target=(1.5, 0.0, 0.0))
+
+    f = formulation(as_terrain(gap_map))
+    [lift] = [t for t in f.linear if t.name == "swing/lift"]
+    v = f.variables
+    assert lift.num_constraints == 2 * sum(len(a) for a in v.apex_heights)
+    x = straight_line_guess(f)
+    # The guess lifts each apex 1.5 apex heights above the higher foothold: the rows hold...
+    assert lift.violation(x).max() == 0.0
+    # ... and an apex 2 cm over the foothold it leaves violates its row by 4 cm.
+    leg, s = 1, 1
+    x[v.apex_heights[leg][s]] = x[v.footholds[leg][s, 2]] + 0.02
+    assert lift.violation(x).max() == pytest.approx(0.04, abs=1e-9)
+    assert all(t.name != "swing/lift" for t in formulation(as_terrain(None)).linear)
+    assert all(t.name != "swing/lift" for t in formulation(as_terrain(gap_map), lift=None).linear)
+    with pytest.raises(Exception, match="blc.swing_lift_height"):
+        BlcParameters(swing_lift_height=-0.01)
+
+
+def test_a_foot_crossing_a_trench_lifts_off_its_edge_first():
+    """The mission of the demo's seed-2 crossing (long_range) that starts at t = 35.3 s, from the
+    state measured there: LF crosses a 0.4 m deep trench beside the body. With only the apex's
+    terrain row its swing lifted 2.5 mm off the edge it left and slid 5.9 cm along it in Drake
+    (a failed walk); with the swing/lift rows each LF swing rises at least 6 cm above both of
+    its footholds."""
+    from qz_drake.demo import demo_scenario
+
+    scenario = demo_scenario(seed=2)
+    world = make_heightmap(scenario.terrain, scenario.random_seed)
+    feet = np.array([[4.521, 7.5197, 0.0276], [4.636, 6.8392, 0.0274], [4.1123, 6.3175, 0.0276],
+                     [3.4308, 6.4308, 0.0277], [3.3172, 7.1127, 0.0276], [3.8393, 7.6343, 0.0274]])
+    task = BlcTask(target=(5.0, 8.0, 0.7854), start_position=(3.9813, 6.9818, 0.5147),
+                   start_rpy=(-0.0004, 0.0007, 0.7853), start_feet=feet, duration=5.6)
+    params = BlcParameters(max_iterations=30, time_limit=120.0)  # a CapPlanner walk's budget
+    solution = solve_blc(task, terrain=world, params=params)
+    assert solution.success, solution.reason
+    lf = solution.foot_positions[5]
+    lifts = []
+    for t0, t1 in solution.contact_schedule.swing_intervals(5):
+        t = np.linspace(t0, t1, 61)
+        z = np.array([lf.value(s).ravel()[2] for s in t])
+        lifts.append(z.max() - max(z[0], z[-1]))
+    assert min(lifts) >= 0.06 - 1e-4, lifts
+    # LF starts before the trench (y 7.82-8.12 m here) and ends beyond it: one swing crossed it.
+    assert lf.value(0.0).ravel()[1] < 7.82 and lf.value(solution.duration).ravel()[1] > 8.12
