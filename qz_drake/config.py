@@ -401,13 +401,6 @@ def save_scenario(scenario: Scenario, path) -> None:
     Path(path).write_text(yaml_dump_typed(scenario, defaults=Scenario()))
 
 
-# The generator parameter that sets the height of the terrain's features, by terrain kind: a
-# start that Qingzhui cannot stand on is blamed on it (the terrain is what the user changed).
-_HEIGHT_PARAMS = {"stairs": "rise", "step": "height", "gap": "depth", "pits": "depth", "waves": "amplitude",
-                  "rough": "amplitude", "obstacles": "max_height", "slope": "angle_deg",
-                  "grid_map": "max_height", "file": "max_height"}
-
-
 def parse_key_values(items: list[str] | None, field: str = "--param") -> dict[str, float]:
     """Parses ``k=v`` pairs into floats, naming the bad item on error."""
     out: dict[str, float] = {}
@@ -451,51 +444,3 @@ def check_feet_on_map(heightmap, feet_xy, *, map_field: str, map_value, position
     raise bad_value(position_field, position_value,
                     f"{robot}'s foot {k} would stand at ({feet_xy[k, 0]:.2f}, {feet_xy[k, 1]:.2f}), off the map "
                     f"(x in [{xmin:g}, {xmax:g}], y in [{ymin:g}, {ymax:g}] m)")
-
-
-def check_against_map(scenario: Scenario, heightmap) -> None:
-    """Checks what only the map can decide: the start and every waypoint lie on it, and the
-    robot can stand at the start. Raises ConfigError naming the field and its value.
-
-    A waypoint off the map would be simulated and reported only as a goal missed by tens of
-    metres; a start the legs cannot stand on would be blamed on the start position although
-    the terrain's parameters made it."""
-    from qz_drake.errors import KinematicsError, QzError
-    from qz_drake.robot.params import DEFAULT_PARAMS
-    from qz_drake.robot.topology import get_topology
-    from qz_drake.station import standing_state
-
-    xmin, xmax, ymin, ymax = heightmap.bounds
-    where = f"off the map (x in [{xmin:g}, {xmax:g}], y in [{ymin:g}, {ymax:g}] m)"
-    r = scenario.robot
-    if not bool(heightmap.contains(r.initial_xy[0], r.initial_xy[1])):
-        raise bad_value("scenario.robot.initial_xy", list(r.initial_xy), where)
-    for k, w in enumerate(scenario.controller.route):
-        if not bool(heightmap.contains(w.x, w.y)):
-            raise bad_value(f"scenario.controller.route[{k}]", {"x": w.x, "y": w.y}, where)
-    # The nominal stance: initial_foot_offsets move the feet by centimetres, and standing_state
-    # checks their shape.
-    t = scenario.terrain
-    check_feet_on_map(heightmap, feet_on_ground(get_topology(r.topology).footholds_B, r.initial_xy, r.initial_yaw),
-                      map_field="scenario.terrain.file" if t.kind == "file" else "scenario.terrain.params",
-                      map_value=t.file if t.kind == "file" else dict(t.params),
-                      position_field="scenario.robot.initial_xy", position_value=list(r.initial_xy))
-    params = dataclasses.replace(DEFAULT_PARAMS, payload_mass=r.payload_kg)
-    try:
-        standing_state(heightmap, get_topology(r.topology, params), r.initial_xy, r.initial_yaw, params,
-                       foot_offsets=r.initial_foot_offsets or None)
-    except (ConfigError, KinematicsError) as e:
-        if "initial_foot_offsets" in str(e):
-            raise
-        name = _HEIGHT_PARAMS.get(t.kind)
-        why = str(e).split(": ", 1)[-1]
-        if name in t.params:
-            raise bad_value(f"scenario.terrain.params.{name}", t.params[name],
-                            f"Qingzhui cannot stand at scenario.robot.initial_xy = {list(r.initial_xy)} on this "
-                            f"terrain: {why}") from None
-        if t.kind == "file":
-            raise bad_value("scenario.robot.initial_xy", list(r.initial_xy),
-                            f"Qingzhui cannot stand there on scenario.terrain.file = {t.file!r}: {why}") from None
-        raise
-    except QzError:
-        raise

@@ -42,7 +42,7 @@ def nearer_goal(candidates=NEAR_GOALS, seed: int = DEMO_SEED, model=None) -> tup
     fall, and the walk failed there by a leg on the terrain)."""
     from qz_drake.capability.model import CapabilityModel, predict_map
     from qz_drake.planning.capability_mdp import CapabilityMdpConfig, plan_on_map, switchable_cells
-    from qz_drake.station import make_heightmap
+    from qz_drake.scene import make_heightmap
 
     model = CapabilityModel.load() if model is None else model
     scenario = demo_scenario(seed=seed)

@@ -18,7 +18,8 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 
 from qz_drake.config import Scenario
-from qz_drake.station import GRAVITY, make_station
+from qz_drake.scene import GRAVITY
+from qz_drake.station import make_station
 from qz_drake.systems.joint_pd import JointPdController
 from qz_drake.systems.state_layout import BASE_POS, JOINT_Q, base_rpy, tilt_deg
 from qz_drake.viz.recording import RECORDING_FPS, recording_meshcat
@@ -599,7 +600,7 @@ def _capability_planner(scenario, info):
     from qz_drake.errors import bad_value
     from qz_drake.robot.topology import TOPOLOGY_NAMES
 
-    from qz_drake.station import check_standable
+    from qz_drake.scene import check_standable
 
     control = scenario.controller
     model = CapabilityModel.load(control.capability_model or None)

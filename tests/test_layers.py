@@ -38,9 +38,6 @@ ALLOWED = {
         "trajopt/commands.py is a command module; it moves into cli/ once the work on trajopt/ has landed",
     ("qz_drake.trajopt.commands", "qz_drake.station"):
         "trajopt/commands.py is a command module; it moves into cli/ once the work on trajopt/ has landed",
-    ("qz_drake.config", "qz_drake.station"): "until issue 35 lands",
-    ("qz_drake.hardware.driver", "qz_drake.station"): "until issue 35 lands",
-    ("qz_drake.hardware.interface", "qz_drake.station"): "until issue 35 lands",
     ("qz_drake.simulation", "qz_drake.capability.model"): "until issue 35 lands",
     ("qz_drake.simulation", "qz_drake.capability.patches"): "until issue 35 lands",
     ("qz_drake.simulation", "qz_drake.capability.plots"): "until issue 35 lands",

@@ -15,7 +15,7 @@ from qz_drake.capability.model import UNFINISHED_DIR, save_model, save_network, 
 from qz_drake.capability.training import train_networks, training_identity
 from qz_drake.config import TerrainConfig, parse_key_values
 from qz_drake.errors import bad_value
-from qz_drake.station import make_heightmap
+from qz_drake.scene import make_heightmap
 from qz_drake.terrain import HeightMap
 
 

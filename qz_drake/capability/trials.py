@@ -211,7 +211,7 @@ def run_trial(spec: TrialSpec, config: TrialConfig = TrialConfig(), criteria=Non
     try:
         from qz_drake.robot.topology import get_topology
         from qz_drake.simulation import SETTLE_TIME, feet_in_world, walk
-        from qz_drake.station import standing_state
+        from qz_drake.scene import standing_state
 
         scenario, _ = trial_scenario(spec, config, criteria)
         params = scenario_params(scenario)

@@ -11,9 +11,9 @@ import re
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
-from qz_drake.config import MAX_SIMULATED_TIME, check_against_map, parse_key_values  # noqa: F401 (the commands' --param)
+from qz_drake.config import MAX_SIMULATED_TIME, parse_key_values  # noqa: F401 (the commands' --param)
 from qz_drake.errors import ConfigError, bad_value
-from qz_drake.station import make_heightmap
+from qz_drake.scene import check_against_map, make_heightmap
 from qz_drake.terrain import TERRAIN_KINDS, grid_map_terrain
 
 
@@ -140,7 +140,7 @@ def package_version() -> str:
 
 def prepare_scenario(scenario):
     """The scenario's heightmap, after the checks that need it (start and waypoints on the map,
-    a start the robot can stand on: qz_drake.config.check_against_map)."""
+    a start the robot can stand on: qz_drake.scene.check_against_map)."""
     heightmap = make_heightmap(scenario.terrain, scenario.random_seed)
     check_against_map(scenario, heightmap)
     return heightmap

@@ -16,7 +16,8 @@ from qz_drake.demo import run_demo
 from qz_drake.errors import ConfigError
 from qz_drake.progress import ProgressReport, simulation_progress
 from qz_drake.simulation import simulate
-from qz_drake.station import make_heightmap, make_station
+from qz_drake.scene import make_heightmap
+from qz_drake.station import make_station
 
 
 def _cmd_simulate(args) -> int:

@@ -26,7 +26,7 @@ def run_plan(args) -> int:
     from qz_drake.planning.capability_mdp import CapabilityMdpConfig, plan
     from qz_drake.planning.guidance import split_missions
     from qz_drake.config import check_feet_on_map, feet_on_ground
-    from qz_drake.station import check_standable
+    from qz_drake.scene import check_standable
     from qz_drake.robot.topology import TOPOLOGY_NAMES, get_topology
 
     start, goal = parse_xy(args.start, "--start"), parse_xy(args.goal, "--goal")

@@ -55,7 +55,7 @@ def _footprint(robot: str):
 def _load(args):
     """Scenario and its heightmap, cropped to scenario.terrain.region when that is set."""
     from qz_drake.config import load_scenario
-    from qz_drake.station import make_heightmap
+    from qz_drake.scene import make_heightmap
 
     scenario = load_scenario(args.scenario)
     heightmap = make_heightmap(scenario.terrain, scenario.random_seed)

@@ -32,6 +32,7 @@ from qz_drake.hardware.qz_lcm import qz_command, qz_pose, qz_status
 from qz_drake.hardware.watchdog import (LinkState, WatchdogLimits, declare_message_intake, reset_watchdog,
                                        step_watchdog)
 from qz_drake.robot.params import NUM_JOINTS, NUM_LEGS, QingzhuiParams
+from qz_drake.sim_station import make_sim_station
 from qz_drake.systems.state_layout import BASE_POS, BASE_QUAT, BASE_VEL, IMU_SIZE, JOINT_Q, JOINT_V, STATE_SIZE
 
 # The driver publishes its status a quarter period after its tick, and takes the newest command
@@ -302,8 +303,6 @@ class QingzhuiRobotDriver(Diagram):
 
     def __init__(self, *, scenario: Scenario, lcm: DrakeLcm, config: HardwareConfig | None = None,
                  meshcat=None, mesh_dir=None, status_filter=None, pose_filter=None):
-        from qz_drake.station import make_station
-
         super().__init__()
         config = validate_hardware_config(config or HardwareConfig())
         if abs(config.control_period - scenario.simulation.time_step) > 1e-12:
@@ -315,7 +314,7 @@ class QingzhuiRobotDriver(Diagram):
         self.config = config
         position_mode = scenario.station.control_mode == "position"
         builder = DiagramBuilder()
-        station_diagram, self.info = make_station(scenario, meshcat, mesh_dir=mesh_dir)
+        station_diagram, self.info = make_sim_station(scenario, meshcat, mesh_dir=mesh_dir)
         station = builder.AddSystem(station_diagram)
         builder.AddSystem(LcmInterfaceSystem(lcm))
         subscriber = builder.AddSystem(LcmSubscriberSystem(config.channels.command,

@@ -41,7 +41,7 @@ from qz_drake.hardware.watchdog import (LinkState, WatchdogLimits, declare_messa
                                        step_watchdog)
 from qz_drake.robot.params import DEFAULT_PARAMS, NUM_JOINTS, NUM_LEGS, QingzhuiParams
 from qz_drake.robot.topology import get_topology
-from qz_drake.station import StationInfo, _crop_to, default_region, make_heightmap, standing_state
+from qz_drake.scene import StationInfo, crop_to_region, default_region, make_heightmap, standing_state
 from qz_drake.systems.state_layout import (BASE_ANGVEL, BASE_POS, BASE_QUAT, BASE_VEL, IMU_SIZE,
                                            JOINT_Q, JOINT_V, STATE_SIZE)
 
@@ -386,7 +386,7 @@ def scenario_station_info(scenario: Scenario) -> StationInfo:
     """What make_station's StationInfo holds, known from the scenario alone (no plant): the
     cropped map, the robot's parameters, the topology, the expected standing start."""
     heightmap = make_heightmap(scenario.terrain, scenario.random_seed)
-    heightmap = _crop_to(heightmap, scenario.terrain.region or default_region(scenario))
+    heightmap = crop_to_region(heightmap, scenario.terrain.region or default_region(scenario))
     params = dataclasses.replace(DEFAULT_PARAMS, payload_mass=scenario.robot.payload_kg)
     topology = get_topology(scenario.robot.topology, params)
     x0 = standing_state(heightmap, topology, scenario.robot.initial_xy, scenario.robot.initial_yaw, params)

@@ -125,7 +125,7 @@ def save_static_gait_scenario(scenario: StaticGaitScenario, path) -> None:
 
 def make_static_gait_heightmap(scenario: StaticGaitScenario):
     """The scenario's terrain as a HeightMap (cropped to terrain.region when that is set)."""
-    from qz_drake.station import make_heightmap
+    from qz_drake.scene import make_heightmap
 
     t = scenario.terrain
     if t.kind == "cuboids":

@@ -250,7 +250,7 @@ def simulate_static_gait(heightmap, result: GaitSearchResult, config: StaticGait
     from pydrake.trajectories import PiecewisePolynomial
 
     from qz_drake.robot.quadruped import DEFAULT_QUADRUPED, add_quadruped, joint_names
-    from qz_drake.station import _set_robot_contact
+    from qz_drake.sim_station import set_robot_contact
     from qz_drake.terrain import get_material
     from qz_drake.terrain.drake_geometry import add_heightmap_to_plant
 
@@ -276,7 +276,7 @@ def simulate_static_gait(heightmap, result: GaitSearchResult, config: StaticGait
                              contact_model="hydroelastic_with_fallback"), builder)
     representation = add_heightmap_to_plant(plant, heightmap, default_material=material.name)
     instance = add_quadruped(plant, params)
-    _set_robot_contact(plant, scene_graph, instance, hydroelastic=representation == "mesh", material=material)
+    set_robot_contact(plant, scene_graph, instance, hydroelastic=representation == "mesh", material=material)
     for index in plant.GetJointActuatorIndices():  # per-instance lists exist only after Finalize
         actuator = plant.get_mutable_joint_actuator(index)
         if actuator.model_instance() == instance:

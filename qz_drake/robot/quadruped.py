@@ -33,8 +33,8 @@ The gait search's footholds are sole points on the ground; the foot frame is the
 ``foot_radius`` above the sole.
 """
 
-from __future__ import annotations
-
+# No `from __future__ import annotations`: pydrake's typed YAML reads QuadrupedGeometry's field
+# types, which that would turn into strings (static-gait scenarios nest it).
 import dataclasses
 import math
 from pathlib import Path
