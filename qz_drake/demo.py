@@ -18,6 +18,7 @@ from pathlib import Path
 
 from qz_drake.config import ControllerConfig, Scenario, SimulationConfig, TerrainConfig, Waypoint
 from qz_drake.errors import bad_value
+from qz_drake.planning.capplanner_route import route_source_for
 from qz_drake.simulation import simulate
 
 # The demo's world and goal: long_range seed 0, from (0, 0) to the lane crossing at (14, 14),
@@ -85,7 +86,8 @@ def run_demo(out_dir: str | Path, duration: float | None = None, goal=DEMO_GOAL,
         scenario.simulation.duration = duration
     with ProgressReport("demo: building the world and planning the route", unit="s simulated", digits=1,
                         enabled=progress) as report:
-        result = simulate(scenario, out_dir=out, progress=simulation_progress(report, "demo: walking"))
+        result = simulate(scenario, out_dir=out, route_source=route_source_for(scenario),
+                          progress=simulation_progress(report, "demo: walking"))
     keys = ("success", "reason", "reasons", "final_xy_error_m", "missions", "topology_changes", "replans",
             "tlc_recoveries", "planning_time_s", "value_iterations", "blc_solves", "blc_failures",
             "blc_retries", "blc_solve_time_s",

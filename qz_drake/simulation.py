@@ -94,7 +94,7 @@ def add_tracking_controller(builder, station, info, plan=None, *, kp: float, kd:
 
 def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Meshcat | None = None,
              out_dir: str | Path | None = None, station_factory=make_station,
-             realtime_rate: float = 0.0, progress=None) -> SimulationResult:
+             realtime_rate: float = 0.0, progress=None, route_source=None) -> SimulationResult:
     """Simulates a scenario; writes recording.html, metrics.json and plots to out_dir if given.
 
     ``station_factory(scenario, meshcat, mesh_dir=...) -> (diagram, info)`` builds the station
@@ -102,10 +102,12 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
     (0: as fast as possible; 1 against a robot driver in another process). ``progress(sim_time,
     end_time, missions)`` hears how far the run is while it runs (a walk: every half second
     simulated; a standing run: at most every PROGRESS_PERIOD of wall time) and once when the
-    simulation has ended (end_time then its final time; missions None for a standing run)."""
+    simulation has ended (end_time then its final time; missions None for a standing run).
+    ``route_source``: a walk's, as in walk()."""
     if scenario.controller.kind == "walk":
         return walk(scenario, meshcat=meshcat, out_dir=out_dir, max_duration=duration,
-                    station_factory=station_factory, realtime_rate=realtime_rate, progress=progress)
+                    station_factory=station_factory, realtime_rate=realtime_rate, progress=progress,
+                    route_source=route_source)
     builder = DiagramBuilder()
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
@@ -262,75 +264,205 @@ def _tripod_planner(heightmap, params, control):
     return plan
 
 
+class FixedRoute:
+    """A walk's route source: the scenario's route split into missions, each local target handed
+    to the BLC system once the previous plan has ended (MissionTargetSequencer).
+
+    walk() receives its route source from whoever calls it, so that nothing here depends on the
+    planners above (CapPlanner's is qz_drake.planning.capplanner_route.CapPlannerRoute). A
+    route source says what the walk's BLC system needs of it:
+
+    * ``make(scenario, info, targets)``: the system that feeds the BLC, with a ``plan`` input,
+      ``target`` and ``topology`` outputs, a MissionLog ``log`` and ``done`` (and, to go round
+      missions the BLC could not plan, ``failed_missions`` and ``robot_topology`` inputs);
+    * ``unreachable(system)``: why it found no route (empty: it did; the walk then never starts);
+    * ``blc_parameters()``: the BLC's parameters when the caller gives none (None: the defaults);
+    * ``mission_retries``: how often the BLC solves a failed mission again when the caller does
+      not say;
+    * ``chooses_goal_heading``: whether the goal's heading is the route source's to choose (not
+      judged);
+    * ``add_visuals(builder, system, meshcat, info)`` and ``plots(system, scenario, info, states,
+      out) -> files``: what it adds to the recording and the walk's figures.
+    """
+
+    mission_retries = 0
+    chooses_goal_heading = False
+
+    def blc_parameters(self):
+        return None
+
+    def make(self, scenario, info, targets):
+        from qz_drake.systems.mission_sequencer import MissionTargetSequencer
+
+        return MissionTargetSequencer(targets=targets, plan_ahead=scenario.controller.plan_ahead)
+
+    def unreachable(self, source) -> str:
+        return ""
+
+    def add_visuals(self, builder, source, meshcat, info) -> None:
+        pass
+
+    def plots(self, source, scenario, info, states, out) -> dict:
+        return {}
+
+
+@dataclasses.dataclass
+class BuiltWalk:
+    """A walk's diagram, built and not yet run (build_walk)."""
+
+    diagram: object
+    station: object
+    info: object
+    # The local targets (x, y, yaw, topology) of the scenario's route.
+    targets: list
+    # _BlcMissions or _PlannerMissions: the missions' log, counts and ``done``.
+    missions: object
+    route_source: FixedRoute | None
+    # Loggers of the station's state, foot contacts, trunk contact, the tracker's desired
+    # state and, where the station observes them, leg-link and self-contact forces.
+    logs: dict
+    # perf_counter() when the first mission's planning began: the real-time factor includes it.
+    wall_start: float
+
+
+@dataclasses.dataclass
+class WalkNotStarted:
+    """A walk that never started: its first mission could not be planned, or the route source
+    found no route to the goal."""
+
+    reason: str
+    code: str
+    counts: dict
+
+
+@dataclasses.dataclass
+class WalkRun:
+    """What a walk's simulation ended with (run_walk)."""
+
+    # The simulator owns the context that holds the logs.
+    simulator: Simulator
+    fell: bool
+    # Ended early by ``stop_on_failure``.
+    stopped: bool
+    limit: float
+    # Wall time from the first mission's planning to the end. [s]
+    wall: float
+
+    @property
+    def context(self):
+        return self.simulator.get_context()
+
+
 def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | Path | None = None,
          max_duration: float | None = None, heightmap=None, stop_on_failure: bool = False,
          blc_params=None, station_factory=make_station, realtime_rate: float = 0.0,
-         mission_retries: int | None = None, progress=None) -> SimulationResult:
-    """Walks a scenario's route: missions planned from the measured state, IK + joint PD.
+         mission_retries: int | None = None, progress=None, route_source: FixedRoute | None = None
+         ) -> SimulationResult:
+    """Walks a scenario's route: missions planned from the measured state, IK + joint PD; builds
+    (build_walk), runs (run_walk), judges (judge_walk_run) and writes its files.
 
-    ``heightmap`` replaces the map of the scenario's terrain section (see make_station). With
-    ``stop_on_failure`` the run ends as soon as a contact or tracking check of the verdict has
-    failed (capability trials: the rest of the walk cannot change the label). ``blc_params``
-    are the BLC's BlcParameters (None: the defaults; for CapPlanner, the capability trials'
-    iteration budget). ``mission_retries``: how often the BLC system solves a mission that
-    failed to plan again, one tripod cycle longer each time (None: CAPPLANNER_MISSION_RETRIES
-    for CapPlanner, 0 otherwise). ``station_factory``, ``realtime_rate`` and ``progress`` as in
+    ``route_source`` feeds the BLC its local targets (planner "blc": FixedRoute when None;
+    "capplanner": qz_drake.planning.capplanner_route.CapPlannerRoute, which the caller must
+    pass). ``heightmap`` replaces the map of the scenario's terrain section (see make_station).
+    With ``stop_on_failure`` the run ends as soon as a contact or tracking check of the verdict
+    has failed (capability trials: the rest of the walk cannot change the label). ``blc_params``
+    are the BLC's BlcParameters (None: the route source's). ``mission_retries``: how often the
+    BLC system solves a mission that failed to plan again, one tripod cycle longer each time
+    (None: the route source's). ``station_factory``, ``realtime_rate`` and ``progress`` as in
     simulate(); ``progress`` hears the missions planned so far."""
-    from qz_drake.systems.mission_sequencer import split_route
-
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         meshcat = meshcat or recording_meshcat()
+    built = build_walk(scenario, route_source=route_source, meshcat=meshcat,
+                       mesh_dir=None if out is None else out / "terrain_mesh", heightmap=heightmap,
+                       blc_params=blc_params, station_factory=station_factory, mission_retries=mission_retries)
+    if isinstance(built, WalkNotStarted):
+        return _unplanned(scenario, out, built)
+    run = run_walk(built, scenario, max_duration=max_duration, stop_on_failure=stop_on_failure,
+                   realtime_rate=realtime_rate, meshcat=meshcat, progress=progress)
+    if isinstance(run, WalkNotStarted):
+        return _unplanned(scenario, out, run)
+    result = judge_walk_run(scenario, built, run)
+    if out is not None:
+        from qz_drake.viz.plots import plot_walk
+        from qz_drake.viz.recording import save_recording
+
+        files = result.files
+        files["recording"] = str(save_recording(meshcat, out / "recording.html", follow_robot=True))
+        desired = built.logs["desired"].FindLog(run.context).data().T
+        files.update(plot_walk(result.times, result.states, result.foot_contact, desired, built.missions.log,
+                               built.info, out))
+        if built.route_source is not None:
+            files.update(built.route_source.plots(built.missions.targets, scenario, built.info, result.states, out))
+        (out / "metrics.json").write_text(json.dumps(result.metrics, indent=2))
+        files["metrics"] = str(out / "metrics.json")
+    return result
+
+
+def build_walk(scenario: Scenario, *, route_source: FixedRoute | None = None, meshcat: Meshcat | None = None,
+               mesh_dir: Path | None = None, heightmap=None, blc_params=None, station_factory=make_station,
+               mission_retries: int | None = None) -> BuiltWalk | WalkNotStarted:
+    """The walk's diagram: station, missions (the tripod plan, or the BLC system fed by the
+    route source), IK tracker and joint PD, loggers. Arguments as in walk()."""
+    from qz_drake.errors import bad_value
+    from qz_drake.systems.mission_sequencer import split_route
+
     control = scenario.controller
+    if control.planner == "tripod" and route_source is not None:
+        raise bad_value("scenario.controller.planner", control.planner,
+                        "the kinematic tripod plan has no route source (a route source feeds the BLC)")
+    if control.planner == "capplanner" and route_source is None:
+        raise bad_value("scenario.controller.planner", control.planner,
+                        "needs CapPlanner's route source: walk(..., route_source=qz_drake.planning."
+                        "capplanner_route.route_source_for(scenario)), as `qz simulate` does")
+    if control.planner == "blc" and route_source is None:
+        route_source = FixedRoute()
     builder = DiagramBuilder()
     extra = {} if heightmap is None else {"heightmap": heightmap}
-    station_diagram, info = station_factory(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh",
-                                            **extra)
+    station_diagram, info = station_factory(scenario, meshcat, mesh_dir=mesh_dir, **extra)
     station = builder.AddSystem(station_diagram)
     x0 = info.initial_state
     targets = split_route(tuple(x0[4:6]), [(w.x, w.y, w.yaw, w.topology) for w in control.route],
                           control.mission_length)
     # Wall time counts from the first mission's planning, so the real-time factor includes it.
     wall_start = time.perf_counter()
-    if control.planner == "blc":
-        missions = _BlcMissions(builder, station, info, targets, control, blc_params,
-                                mission_retries=mission_retries or 0)
-    elif control.planner == "capplanner":
-        if blc_params is None:
-            # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt
-            # iterations, not 5 s of wall time, which a loaded machine spends in fewer), so that
-            # a walk plans what the model predicts, whatever else the machine runs.
-            from qz_drake.capability.trials import TrialConfig, trial_blc_parameters
-
-            blc_params = trial_blc_parameters(TrialConfig())
-        source = _capability_planner(scenario, info)
-        if source.log.unreachable:
-            return _unplanned(scenario, out, None, reason=f"goal unreachable: {source.log.unreachable}",
-                              code="unreachable", extra=source.counts())
-        missions = _BlcMissions(builder, station, info, targets, control, blc_params, route_source=source,
-                                mission_retries=CAPPLANNER_MISSION_RETRIES if mission_retries is None
-                                else mission_retries)
-        if meshcat is not None:  # the guidance path in the recording, replaced at each replan
-            from qz_drake.viz.guidance_path import add_guidance_visualizer
-
-            add_guidance_visualizer(builder, source.GetOutputPort("guidance"), meshcat, info.heightmap)
+    if route_source is not None:
+        blc_params = route_source.blc_parameters() if blc_params is None else blc_params
+        retries = route_source.mission_retries if mission_retries is None else mission_retries
+        source = route_source.make(scenario, info, targets)
+        unreachable = route_source.unreachable(source)
+        if unreachable:
+            return WalkNotStarted(f"goal unreachable: {unreachable}", "unreachable", source.counts())
+        missions = _BlcMissions(builder, station, info, source, control, blc_params, mission_retries=retries)
+        if meshcat is not None:
+            route_source.add_visuals(builder, source, meshcat, info)
     else:
         missions = _PlannerMissions(builder, station, info, targets, control, scenario.robot.initial_yaw)
         if missions.first_failure:
-            return _unplanned(scenario, out, missions)
+            return _not_started(missions)
     tracker, _ = add_tracking_controller(builder, station, info, kp=control.kp, kd=control.kd,
                                          plan_port=missions.plan_port,
                                          position_mode=scenario.station.control_mode == "position")
-    state_log, contact_log, trunk_log = _log_station(builder, station)
-    desired_log = LogVectorOutput(tracker.GetOutputPort("desired_state"), builder, 1.0 / LOG_RATE)
-    leg_log, self_log = (_optional_log(builder, station, name) for name in ("leg_link_force", "self_contact"))
-    diagram = builder.Build()
-    simulator = Simulator(diagram)
+    logs = dict(zip(("state", "contact", "trunk"), _log_station(builder, station)))
+    logs["desired"] = LogVectorOutput(tracker.GetOutputPort("desired_state"), builder, 1.0 / LOG_RATE)
+    logs["leg"], logs["self"] = (_optional_log(builder, station, name) for name in ("leg_link_force", "self_contact"))
+    return BuiltWalk(diagram=builder.Build(), station=station, info=info, targets=targets, missions=missions,
+                     route_source=route_source, logs=logs, wall_start=wall_start)
+
+
+def run_walk(built: BuiltWalk, scenario: Scenario, *, max_duration: float | None = None,
+             stop_on_failure: bool = False, realtime_rate: float = 0.0, meshcat: Meshcat | None = None,
+             progress=None) -> WalkRun | WalkNotStarted:
+    """Simulates a built walk until its missions are done (and the robot has stood half a
+    second after the last), it falls, ``stop_on_failure`` sees a failed check, or the time
+    limit (``max_duration``, None: the scenario's duration) is reached."""
+    missions, logs, station = built.missions, built.logs, built.station
+    simulator = Simulator(built.diagram)
     simulator.set_target_realtime_rate(realtime_rate)
     simulator.Initialize()
     if missions.first_failure:
-        return _unplanned(scenario, out, missions)
+        return _not_started(missions)
     limit = scenario.simulation.duration if max_duration is None else max_duration
     if meshcat is not None:
         meshcat.StartRecording(frames_per_second=RECORDING_FPS)
@@ -339,6 +471,10 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     fell = False
     stopped = False
     crit = scenario.success
+
+    def data(name):
+        return logs[name].FindLog(context).data()
+
     while context.get_time() < limit:
         simulator.AdvanceTo(min(limit, context.get_time() + 0.5))
         x = station.GetOutputPort("state").Eval(station_context)
@@ -346,11 +482,10 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
             fell = True
             break
         if stop_on_failure and (
-                np.any(trunk_log.FindLog(context).data() > 0.5)
-                or (leg_log is not None and np.any(leg_log.FindLog(context).data() > crit.leg_contact_force))
-                or (self_log is not None and np.any(self_log.FindLog(context).data() > crit.leg_contact_force))
-                or np.degrees(np.max(np.abs(state_log.FindLog(context).data()[JOINT_Q]
-                                            - desired_log.FindLog(context).data()[:18]), initial=0.0))
+                np.any(data("trunk") > 0.5)
+                or (logs["leg"] is not None and np.any(data("leg") > crit.leg_contact_force))
+                or (logs["self"] is not None and np.any(data("self") > crit.leg_contact_force))
+                or np.degrees(np.max(np.abs(data("state")[JOINT_Q] - data("desired")[:18]), initial=0.0))
                 > crit.max_joint_error_deg):
             stopped = True
             break
@@ -358,49 +493,45 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
                 context.get_time() >= missions.log.plans[-1].end_time + 0.5:
             break
         if progress is not None:
-            progress(context.get_time(), _expected_end(missions, targets, limit), len(missions.log.plans))
-    wall = time.perf_counter() - wall_start
+            progress(context.get_time(), _expected_end(missions, built.targets, limit), len(missions.log.plans))
+    wall = time.perf_counter() - built.wall_start
     if progress is not None:
         progress(context.get_time(), context.get_time(), len(missions.log.plans))
     if meshcat is not None:
         meshcat.StopRecording()
-    times = state_log.FindLog(context).sample_times()
-    states = state_log.FindLog(context).data().T
-    contacts = contact_log.FindLog(context).data().T
-    trunk = trunk_log.FindLog(context).data()[0]
-    desired = desired_log.FindLog(context).data().T
-    links = (None if leg_log is None else leg_log.FindLog(context).data().T,
-             None if self_log is None else self_log.FindLog(context).data()[0])
-    if control.planner == "capplanner":  # the goal's heading is the planner's to choose
+    return WalkRun(simulator=simulator, fell=fell, stopped=stopped, limit=limit, wall=wall)
+
+
+def judge_walk_run(scenario: Scenario, built: BuiltWalk, run: WalkRun) -> SimulationResult:
+    """The walk's logs, its metrics and its strict verdict (walking_metrics), the route
+    source's and the station's counts; no files."""
+    context, missions, info = run.context, built.missions, built.info
+    logs = {name: None if log is None else log.FindLog(context) for name, log in built.logs.items()}
+    times = logs["state"].sample_times()
+    states = logs["state"].data().T
+    contacts = logs["contact"].data().T
+    trunk = logs["trunk"].data()[0]
+    desired = logs["desired"].data().T
+    links = (None if logs["leg"] is None else logs["leg"].data().T,
+             None if logs["self"] is None else logs["self"].data()[0])
+    targets = built.targets
+    if built.route_source is not None and built.route_source.chooses_goal_heading:
         targets = targets[:-1] + [(targets[-1][0], targets[-1][1], None, targets[-1][3])]
     metrics = walking_metrics(scenario, info, missions.log, targets, times, states, contacts, trunk, desired,
-                              fell=fell, timed_out=not stopped and (not missions.done or context.get_time() >= limit),
+                              fell=run.fell,
+                              timed_out=not run.stopped and (not missions.done or context.get_time() >= run.limit),
                               leg_link_force=links[0], self_force=links[1])
     sim_time = float(context.get_time())
     counts = missions.counts()
+    wall = run.wall
     metrics.update(sim_time_s=sim_time, wall_time_s=wall, realtime_factor=sim_time / wall if wall > 0 else 0.0,
                    realtime_factor_excluding_planning=sim_time / max(wall - counts["blc_solve_time_s"], 1e-9),
-                   terrain_contact=info.contact_representation, planner=control.planner, **counts)
+                   terrain_contact=info.contact_representation, planner=scenario.controller.planner, **counts)
     if counts.get("unreachable"):
         _gave_up(metrics, counts["unreachable"], counts.get("tlc_recoveries", 0))
-    _add_station_metrics(metrics, station_diagram, context)
-    files = {}
-    if out is not None:
-        from qz_drake.viz.plots import plot_walk
-        from qz_drake.viz.recording import save_recording
-
-        files["recording"] = str(save_recording(meshcat, out / "recording.html", follow_robot=True))
-        files.update(plot_walk(times, states, contacts, desired, missions.log, info, out))
-        if control.planner == "capplanner" and missions.targets.first_plan is not None:
-            from qz_drake.capability.plots import plot_plan
-
-            files["plan"] = str(plot_plan(info.heightmap, missions.targets.first_plan, out / "plan.png",
-                                          title=f"{scenario.name}: CapPlanner's plan from the start and the walk",
-                                          walked_xy=states[:, 4:6]))
-        (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        files["metrics"] = str(out / "metrics.json")
+    _add_station_metrics(metrics, built.station, context)
     return SimulationResult(metrics=metrics, times=times, states=states, foot_contact=contacts,
-                            trunk_contact=trunk, files=files)
+                            trunk_contact=trunk, files={})
 
 
 def _expected_end(missions, targets, limit: float) -> float:
@@ -457,27 +588,22 @@ class _PlannerMissions:
 
 
 class _BlcMissions:
-    """Missions solved by the TrajectoryOptimizationBLC system in the diagram, fed by a route
-    source: the fixed route's MissionTargetSequencer (each local target once the previous plan
-    has ended) or CapPlanner's CapabilityVIPlanner (``route_source``). Both have a ``plan``
-    input, ``target`` and ``topology`` outputs, a MissionLog ``log`` and ``done``; the wiring
-    is the same."""
+    """Missions solved by the TrajectoryOptimizationBLC system in the diagram, fed by the system
+    a route source made (``source``: the fixed route's MissionTargetSequencer, CapPlanner's
+    CapabilityVIPlanner; see FixedRoute); the wiring is the same."""
 
-    def __init__(self, builder, station, info, targets, control, blc_params=None, route_source=None,
-                 mission_retries: int = 0):
+    def __init__(self, builder, station, info, source, control, blc_params=None, mission_retries: int = 0):
         from pydrake.common.value import AbstractValue
         from pydrake.systems.primitives import ConstantValueSource
 
         from qz_drake.systems.blc import MissionTiming, TrajectoryOptimizationBLC
-        from qz_drake.systems.mission_sequencer import MissionTargetSequencer
 
         self.blc = builder.AddSystem(TrajectoryOptimizationBLC(
             params=info.params, timing=MissionTiming(control.speed, control.phase_duration),
             settle_time=SETTLE_TIME, blc_params=blc_params, initial_topology=info.topology.name,
             mission_retries=mission_retries))
         self.blc.set_name("blc")
-        self.targets = builder.AddSystem(route_source or MissionTargetSequencer(targets=targets,
-                                                                                plan_ahead=control.plan_ahead))
+        self.targets = builder.AddSystem(source)
         heightmap = builder.AddSystem(ConstantValueSource(AbstractValue.Make(info.heightmap)))
         builder.Connect(station.GetOutputPort("state"), self.blc.GetInputPort("state"))
         builder.Connect(self.targets.GetOutputPort("target"), self.blc.GetInputPort("target"))
@@ -545,78 +671,23 @@ def _gave_up(metrics: dict, why: str, recoveries: int = 0) -> None:
     metrics["reason"] = f"{metrics['reason']}; CapPlanner gave up{after}: {why}"
 
 
-def _unplanned(scenario, out, missions, *, reason: str | None = None, code: str | None = None,
-               extra: dict | None = None) -> SimulationResult:
-    """The result of a walk that never started: its first mission could not be planned (or,
-    with CapPlanner, no route reaches the goal)."""
+def _not_started(missions) -> WalkNotStarted:
+    """A walk whose first mission could not be planned."""
     from qz_drake.verdict import blc_failure_code
 
-    reason = reason or f"mission 0 could not be planned: {missions.first_failure}"
-    metrics = {"scenario": scenario.name, "success": False, "reason": reason,
-               "reasons": [code or blc_failure_code(missions.first_failure)],
-               "missions": 0, "planner": scenario.controller.planner,
-               **(missions.counts() if missions is not None else {}), **(extra or {})}
+    return WalkNotStarted(f"mission 0 could not be planned: {missions.first_failure}",
+                          blc_failure_code(missions.first_failure), missions.counts())
+
+
+def _unplanned(scenario, out, not_started: WalkNotStarted) -> SimulationResult:
+    """The result of a walk that never started."""
+    metrics = {"scenario": scenario.name, "success": False, "reason": not_started.reason,
+               "reasons": [not_started.code], "missions": 0, "planner": scenario.controller.planner,
+               **not_started.counts}
     if out is not None:
         (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return SimulationResult(metrics=metrics, times=np.zeros(0), states=np.zeros((0, 49)),
                             foot_contact=np.zeros((0, 6)), trunk_contact=np.zeros(0), files={})
-
-
-# CapPlanner's walks solve a mission that failed to plan again, up to this often, each time one
-# tripod cycle longer (TrajectoryOptimizationBLC's mission_retries). A long_range walk ended at
-# its third mission on the BLC's dense check (a stance foot 2 mm outside its kinematic box at
-# one 100 Hz sample); 46 of the first 5800 capability trials failed the same way, by 2-6 mm or
-# a residual of 0.05-0.08 body weights. The robot stands while the BLC solves, so a retry costs
-# wall time only. The capability trials keep 0: their labels are the BLC's first solves, so
-# the learned success rates are, if anything, cautious for a walk that retries.
-CAPPLANNER_MISSION_RETRIES = 2
-
-
-def mdp_config(overrides: dict, topologies):
-    """CapPlanner's MDP settings: the defaults, ``overrides`` (controller.capability_mdp) by
-    name, the topologies the model knows."""
-    import dataclasses
-
-    from qz_drake.errors import bad_value
-    from qz_drake.planning.capability_mdp import CapabilityMdpConfig
-
-    numbers = [f.name for f in dataclasses.fields(CapabilityMdpConfig) if f.type in ("float", float)]
-    for key in overrides:
-        if key not in numbers:
-            raise bad_value(f"scenario.controller.capability_mdp.{key}", overrides[key],
-                            f"not a setting of the MDP (valid: {', '.join(numbers)})")
-    return CapabilityMdpConfig(topologies=list(topologies), **{k: float(v) for k, v in overrides.items()}).check()
-
-
-def _capability_planner(scenario, info):
-    """CapPlanner's top-level controller for a walking scenario: the capability model of
-    ``controller.capability_model`` (empty: the shipped one), the goal at the route's last
-    waypoint, planned over the station's heightmap from the robot's start."""
-    from qz_drake.capability.model import CapabilityModel
-    from qz_drake.planning.capability_planner import CapabilityVIPlanner
-    from qz_drake.systems.state_layout import base_rpy
-
-    from qz_drake.capability.patches import KINDS
-    from qz_drake.errors import bad_value
-    from qz_drake.robot.topology import TOPOLOGY_NAMES
-
-    from qz_drake.scene import check_standable
-
-    control = scenario.controller
-    model = CapabilityModel.load(control.capability_model or None)
-    # The topologies the model knows all three moves of.
-    topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
-    if info.topology.name not in topologies:
-        raise bad_value("scenario.robot.topology", info.topology.name,
-                        f"the capability model has no networks for it (it has {', '.join(topologies) or 'none'})")
-    x0 = info.initial_state
-    goal = control.route[-1]
-    check_standable(info.heightmap, (goal.x, goal.y), info.topology.name,
-                    f"scenario.controller.route[{len(control.route) - 1}]")
-    return CapabilityVIPlanner(model=model, heightmap=info.heightmap, goal=(goal.x, goal.y),
-                               start=(float(x0[4]), float(x0[5]), float(base_rpy(x0)[2])),
-                               initial_topology=info.topology.name, plan_ahead=control.plan_ahead,
-                               mdp_config=mdp_config(control.capability_mdp, topologies))
 
 
 def _planned_base(plans, times):

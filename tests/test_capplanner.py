@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from qz_drake.config import ControllerConfig, RobotConfig, Scenario, SimulationConfig, TerrainConfig, Waypoint
+from qz_drake.planning.capplanner_route import CapPlannerRoute
 from qz_drake.simulation import walk
 
 QZ = [sys.executable, "-m", "qz_drake.cli"]
@@ -20,7 +21,7 @@ QZ = [sys.executable, "-m", "qz_drake.cli"]
 
 @pytest.mark.slow
 def test_capplanner_walks_round_a_wall_to_the_goal(synthetic_model_dir, tmp_path):
-    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent / "systems"))
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent / "planning"))
     from test_capability_planner import GOAL, START, _world
 
     scenario = Scenario(name="capplanner_wall", robot=RobotConfig(initial_xy=list(START)),
@@ -31,7 +32,7 @@ def test_capplanner_walks_round_a_wall_to_the_goal(synthetic_model_dir, tmp_path
     from qz_drake.trajopt.parameters import BlcParameters
 
     result = walk(scenario, heightmap=_world(), blc_params=BlcParameters(max_iterations=60, time_limit=60),
-                  out_dir=tmp_path)
+                  out_dir=tmp_path, route_source=CapPlannerRoute())
     m = result.metrics
     assert m["success"], m
     assert m["missions"] >= 4 and m["replans"] >= 3
@@ -366,7 +367,7 @@ def test_one_planners_half_is_walked_before_the_other_is_tuned(synthetic_model_d
 
 def test_a_walking_scenario_sets_capplanners_mdp_by_name():
     from qz_drake.errors import QzError
-    from qz_drake.simulation import mdp_config
+    from qz_drake.planning.capplanner_route import mdp_config
 
     config = mdp_config({"failure_reward": -250, "topology_change_cost": 5}, ["nominal", "front_bend"])
     assert (config.failure_reward, config.topology_change_cost, config.topologies) == (-250.0, 5.0,
@@ -453,7 +454,7 @@ def test_qz_plan_writes_the_utility_map_and_names_bad_input(synthetic_model_dir,
 def test_a_capplanner_goal_inside_an_obstacle_or_off_the_map_names_the_field(synthetic_model_dir):
     from qz_drake.errors import QzError
 
-    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent / "systems"))
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent / "planning"))
     from test_capability_planner import START, _world
 
     world = _world()
@@ -465,7 +466,7 @@ def test_a_capplanner_goal_inside_an_obstacle_or_off_the_map_names_the_field(syn
                                                         capability_model=str(synthetic_model_dir),
                                                         route=[Waypoint(x=goal[0], y=goal[1])]))
         with pytest.raises(QzError, match=r"scenario.controller.route\[0\].*" + match):
-            walk(scenario, heightmap=world)
+            walk(scenario, heightmap=world, route_source=CapPlannerRoute())
 
 
 # The three crossings' (metrics, folder), walked once per test session.
@@ -501,3 +502,13 @@ def test_one_of_the_three_long_range_crossings_changes_topology(tmp_path_factory
     walks = [_crossing(seed, tmp_path_factory)[0] for seed in (0, 1, 2)]
     assert any(m["topology_changes"] >= 1 and m["final_xy_error_m"] < 0.15 for m in walks), \
         [(m["topology_changes"], m["reason"]) for m in walks]
+
+
+def test_a_capplanner_walk_without_its_route_source_names_the_field():
+    # walk() knows no planner above it: the caller passes CapPlanner's route source.
+    from qz_drake.errors import QzError
+
+    scenario = Scenario(name="no_source", controller=ControllerConfig(kind="walk", planner="capplanner",
+                                                                      route=[Waypoint(x=1.0, y=0.0)]))
+    with pytest.raises(QzError, match="scenario.controller.planner = 'capplanner'.*route source"):
+        walk(scenario)

@@ -33,25 +33,11 @@ FLOORS = (
 )
 
 # Arrows that may break the rules above, each with its reason. Aim: none.
-WALK_BUILDS_CAPPLANNER = ("walk() still builds CapPlanner's route source (and its plot) itself; the arrow goes "
-                          "when walk() takes its route source as an argument (issue 35's fourth part)")
 ALLOWED = {
     ("qz_drake.trajopt.commands", "qz_drake.cli"):
         "trajopt/commands.py is a command module; it moves into cli/ once the work on trajopt/ has landed",
     ("qz_drake.trajopt.commands", "qz_drake.station"):
         "trajopt/commands.py is a command module; it moves into cli/ once the work on trajopt/ has landed",
-    ("qz_drake.simulation", "qz_drake.capability.model"):
-        WALK_BUILDS_CAPPLANNER,
-    ("qz_drake.simulation", "qz_drake.capability.patches"):
-        WALK_BUILDS_CAPPLANNER,
-    ("qz_drake.simulation", "qz_drake.capability.plots"):
-        WALK_BUILDS_CAPPLANNER,
-    ("qz_drake.simulation", "qz_drake.capability.trials"):
-        WALK_BUILDS_CAPPLANNER,
-    ("qz_drake.simulation", "qz_drake.planning.capability_mdp"):
-        WALK_BUILDS_CAPPLANNER,
-    ("qz_drake.simulation", "qz_drake.planning.capability_planner"):
-        WALK_BUILDS_CAPPLANNER,
     ("qz_drake.viz.plots", "qz_drake.systems.state_layout"):
         "state_layout moves under the station (issue 35); verdict.py, another engineer's file now, imports it too",
 }

@@ -15,6 +15,7 @@ from qz_drake.config import TerrainConfig, load_scenario
 from qz_drake.demo import run_demo
 from qz_drake.errors import ConfigError
 from qz_drake.progress import ProgressReport, simulation_progress
+from qz_drake.planning.capplanner_route import route_source_for
 from qz_drake.simulation import simulate
 from qz_drake.scene import make_heightmap
 from qz_drake.station import make_station
@@ -41,7 +42,7 @@ def _cmd_simulate(args) -> int:
     output_folder(args.out)  # made once every input is checked, the hardware settings too
     with ProgressReport(f"simulate {scenario.name}: building", unit="s simulated", digits=1) as report:
         result = simulate(scenario, duration=args.duration, out_dir=args.out, station_factory=station_factory,
-                          realtime_rate=realtime_rate,
+                          realtime_rate=realtime_rate, route_source=route_source_for(scenario),
                           progress=simulation_progress(report, f"simulate {scenario.name}"))
     print(json.dumps(result.metrics))
     return 0 if result.metrics["success"] else 1

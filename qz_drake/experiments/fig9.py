@@ -110,6 +110,7 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
     """Plans and walks one task; returns its record (never raises for a failed walk)."""
     from qz_drake.config import (ControllerConfig, RobotConfig, Scenario, SimulationConfig,
                                  TerrainConfig, Waypoint)
+    from qz_drake.planning.capplanner_route import route_source_for
     from qz_drake.simulation import walk
     from qz_drake.trajopt.parameters import BlcParameters
 
@@ -142,7 +143,7 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
         # the one the A* settings were tuned with); what differs is the TLC, including
         # CapPlanner's going round a mission the BLC could not plan.
         result = walk(scenario, heightmap=task.heightmap, stop_on_failure=True,
-                      out_dir=spec.record_dir or None, mission_retries=0,
+                      out_dir=spec.record_dir or None, mission_retries=0, route_source=route_source_for(scenario),
                       blc_params=BlcParameters(max_iterations=config.blc_max_iterations,
                                                time_limit=config.blc_time_limit))
         m = result.metrics
@@ -284,7 +285,7 @@ def predict_route(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig(),
     from qz_drake.capability.patches import KINDS
     from qz_drake.planning.capability_mdp import plan
     from qz_drake.robot.topology import TOPOLOGY_NAMES
-    from qz_drake.simulation import mdp_config
+    from qz_drake.planning.capplanner_route import mdp_config
 
     model = model or CapabilityModel.load(config.capability_model or None)
     task = make_task(spec.terrain, spec.difficulty, spec.seed, scale=config.scale)

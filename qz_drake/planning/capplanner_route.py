@@ -1,0 +1,102 @@
+"""CapPlanner as a walk's route source (paper 000 II-E.2): the CapabilityVIPlanner that hands
+TrajectoryOptimizationBLC its local targets, built for a walking scenario.
+
+``qz_drake.simulation.walk`` builds, runs and judges a walk given its route source; it knows
+the fixed route (``FixedRoute``) and nothing above it. Callers that walk CapPlanner scenarios
+(the ``qz`` commands, the demo, the Fig. 9 experiment) pass ``route_source_for(scenario)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from qz_drake.capability.model import CapabilityModel
+from qz_drake.capability.patches import KINDS
+from qz_drake.capability.trials import TrialConfig, trial_blc_parameters
+from qz_drake.errors import bad_value
+from qz_drake.planning.capability_mdp import CapabilityMdpConfig
+from qz_drake.planning.capability_planner import CapabilityVIPlanner
+from qz_drake.robot.topology import TOPOLOGY_NAMES
+from qz_drake.scene import check_standable
+from qz_drake.simulation import FixedRoute
+from qz_drake.systems.state_layout import BASE_POS, base_rpy
+
+# CapPlanner's walks solve a mission that failed to plan again, up to this often, each time one
+# tripod cycle longer (TrajectoryOptimizationBLC's mission_retries). A long_range walk ended at
+# its third mission on the BLC's dense check (a stance foot 2 mm outside its kinematic box at
+# one 100 Hz sample); 46 of the first 5800 capability trials failed the same way, by 2-6 mm or
+# a residual of 0.05-0.08 body weights. The robot stands while the BLC solves, so a retry costs
+# wall time only. The capability trials keep 0: their labels are the BLC's first solves, so
+# the learned success rates are, if anything, cautious for a walk that retries.
+CAPPLANNER_MISSION_RETRIES = 2
+
+
+def mdp_config(overrides: dict, topologies) -> CapabilityMdpConfig:
+    """CapPlanner's MDP settings: the defaults, ``overrides`` (controller.capability_mdp) by
+    name, the topologies the model knows."""
+    numbers = [f.name for f in dataclasses.fields(CapabilityMdpConfig) if f.type in ("float", float)]
+    for key in overrides:
+        if key not in numbers:
+            raise bad_value(f"scenario.controller.capability_mdp.{key}", overrides[key],
+                            f"not a setting of the MDP (valid: {', '.join(numbers)})")
+    return CapabilityMdpConfig(topologies=list(topologies), **{k: float(v) for k, v in overrides.items()}).check()
+
+
+class CapPlannerRoute(FixedRoute):
+    """CapPlanner's top-level controller as a walk's route source: the capability model of
+    ``controller.capability_model`` (empty: the shipped one), the goal at the route's last
+    waypoint (its heading the planner's to choose), planned over the station's heightmap from
+    the robot's start. The BLC solves as the capability model learned it (the trials'
+    iteration budget) and retries a mission CAPPLANNER_MISSION_RETRIES times."""
+
+    mission_retries = CAPPLANNER_MISSION_RETRIES
+    chooses_goal_heading = True
+
+    def blc_parameters(self):
+        # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt
+        # iterations, not 5 s of wall time, which a loaded machine spends in fewer), so that
+        # a walk plans what the model predicts, whatever else the machine runs.
+        return trial_blc_parameters(TrialConfig())
+
+    def make(self, scenario, info, targets) -> CapabilityVIPlanner:
+        control = scenario.controller
+        model = CapabilityModel.load(control.capability_model or None)
+        # The topologies the model knows all three moves of.
+        topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
+        if info.topology.name not in topologies:
+            raise bad_value("scenario.robot.topology", info.topology.name,
+                            f"the capability model has no networks for it (it has {', '.join(topologies) or 'none'})")
+        x0 = info.initial_state
+        goal = control.route[-1]
+        check_standable(info.heightmap, (goal.x, goal.y), info.topology.name,
+                        f"scenario.controller.route[{len(control.route) - 1}]")
+        start_x, start_y, _ = x0[BASE_POS]
+        return CapabilityVIPlanner(model=model, heightmap=info.heightmap, goal=(goal.x, goal.y),
+                                   start=(float(start_x), float(start_y), float(base_rpy(x0)[2])),
+                                   initial_topology=info.topology.name, plan_ahead=control.plan_ahead,
+                                   mdp_config=mdp_config(control.capability_mdp, topologies))
+
+    def unreachable(self, source) -> str:
+        return source.log.unreachable
+
+    def add_visuals(self, builder, source, meshcat, info) -> None:
+        # The guidance path in the recording, replaced at each replan.
+        from qz_drake.viz.guidance_path import add_guidance_visualizer
+
+        add_guidance_visualizer(builder, source.GetOutputPort("guidance"), meshcat, info.heightmap)
+
+    def plots(self, source, scenario, info, states, out) -> dict:
+        if source.first_plan is None:
+            return {}
+        from qz_drake.capability.plots import plot_plan
+
+        return {"plan": str(plot_plan(info.heightmap, source.first_plan, out / "plan.png",
+                                      title=f"{scenario.name}: CapPlanner's plan from the start and the walk",
+                                      walked_xy=states[:, BASE_POS][:, :2]))}
+
+
+def route_source_for(scenario) -> FixedRoute | None:
+    """The route source of a scenario's ``controller.planner``: CapPlanner's for "capplanner",
+    the fixed route's for "blc", None for the kinematic tripod plan (it has none)."""
+    planner = scenario.controller.planner
+    return CapPlannerRoute() if planner == "capplanner" else FixedRoute() if planner == "blc" else None
