@@ -625,8 +625,8 @@ class _BlcMissions:
         if not solves:
             return ""
         # The first mission's solves (a retry repeats its target and topology).
-        first = [s for s in solves if s[1:3] == solves[0][1:3]]
-        return "" if any(s[3] for s in first) else first[-1][5]
+        first = [s for s in solves if (s.target, s.topology) == (solves[0].target, solves[0].topology)]
+        return "" if any(s.success for s in first) else first[-1].reason
 
     @property
     def log(self):
@@ -635,7 +635,7 @@ class _BlcMissions:
         if self.recovers:  # the ones the route source went round are not the walk's failures
             failures = failures[len(log.recoveries):]
         # Failures as (mission index, reason): the index of the target the BLC was given.
-        log.failures = [(len(log.plans), s[5]) for s in failures]
+        log.failures = [(len(log.plans), s.reason) for s in failures]
         return log
 
     @property
@@ -650,7 +650,7 @@ class _BlcMissions:
         return {**counts, "blc_solves": len(log.solves), "blc_failures": len(log.failures),
                 "blc_retries": len(log.retried),
                 "blc_solve_time_s": log.solve_time_s,
-                "blc_iterations": int(sum(s[6] for s in log.solves)),
+                "blc_iterations": int(sum(s.iterations for s in log.solves)),
                 "topology_changes": len(log.switches)}
 
 

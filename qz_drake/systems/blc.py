@@ -40,26 +40,53 @@ class MissionTiming:
     phase_duration: float = 0.4  # [s]
 
 
+@dataclasses.dataclass(frozen=True)
+class BlcSolveRecord:
+    """One solve of the BLC system (a topology switch that could not be planned counts as a
+    failed solve of its mission, with no solver time)."""
+
+    # When the plan was to start. [s]
+    start_time: float
+    # The mission's local target (x, y, yaw) of the base link. [m], [rad]
+    target: tuple[float, float, float]
+    topology: str
+    success: bool
+    # Wall time of the solve. [s]
+    solve_time: float
+    # Why it failed ("" for a success); a retry's reason says which retry it was.
+    reason: str
+    # Ipopt iterations.
+    iterations: int
+
+
+@dataclasses.dataclass(frozen=True)
+class TopologySwitchRecord:
+    """A topology switch the system made before a mission."""
+
+    # [s]
+    start_time: float
+    from_topology: str
+    to_topology: str
+
+
 @dataclasses.dataclass
 class BlcLog:
-    """Every solve the system made: (time, target, topology, success, solve time, reason,
-    Ipopt iterations)."""
+    """Every solve the system made and every topology switch, in order."""
 
-    solves: list = dataclasses.field(default_factory=list)
-    # Topology switches made before a mission: (start time, from, to).
-    switches: list = dataclasses.field(default_factory=list)
+    solves: list[BlcSolveRecord] = dataclasses.field(default_factory=list)
+    switches: list[TopologySwitchRecord] = dataclasses.field(default_factory=list)
     # Indices into ``solves`` of the failed solves that were followed by a retry of the mission.
-    retried: list = dataclasses.field(default_factory=list)
+    retried: list[int] = dataclasses.field(default_factory=list)
 
     @property
-    def failures(self) -> list:
+    def failures(self) -> list[BlcSolveRecord]:
         """The failed solves no retry followed: one per mission that could not be planned."""
         retried = set(self.retried)
-        return [s for i, s in enumerate(self.solves) if not s[3] and i not in retried]
+        return [s for i, s in enumerate(self.solves) if not s.success and i not in retried]
 
     @property
     def solve_time_s(self) -> float:
-        return float(sum(s[4] for s in self.solves))
+        return float(sum(s.solve_time for s in self.solves))
 
 
 def expected_end(plan) -> MissionStart:
@@ -235,10 +262,11 @@ class TrajectoryOptimizationBLC(LeafSystem):
             except ConfigError as e:
                 state.get_mutable_abstract_state(self._robot_topology).set_value(robot_topology)
                 self._count_failure(context, state)
-                self.log.solves.append((start.time, target, topology, False, 0.0,
-                                        f"topology switch {robot_topology} -> {topology}: {e}", 0))
+                self.log.solves.append(BlcSolveRecord(
+                    start_time=start.time, target=target, topology=topology, success=False, solve_time=0.0,
+                    reason=f"topology switch {robot_topology} -> {topology}: {e}", iterations=0))
                 return
-            self.log.switches.append((start.time, robot_topology, topology))
+            self.log.switches.append(TopologySwitchRecord(start.time, robot_topology, topology))
             state.get_mutable_abstract_state(self._plan).set_value(switch)
             state.get_mutable_abstract_state(self._next).set_value(None)
             current, ahead = switch, True
@@ -248,10 +276,11 @@ class TrajectoryOptimizationBLC(LeafSystem):
         while True:
             plan, reason = planner(start, target, topology, start.time, extra_cycles=attempt)
             solution = planner.last_solution
-            self.log.solves.append((start.time, target, topology, plan is not None, solution.solve_time,
-                                    (f"retry {attempt} (+{attempt} tripod cycles): {reason}"
-                                     if attempt and reason else reason),
-                                    int(solution.iterations)))
+            self.log.solves.append(BlcSolveRecord(
+                start_time=start.time, target=target, topology=topology, success=plan is not None,
+                solve_time=solution.solve_time,
+                reason=f"retry {attempt} (+{attempt} tripod cycles): {reason}" if attempt and reason else reason,
+                iterations=int(solution.iterations)))
             if plan is not None or attempt >= self._retries:
                 break
             self.log.retried.append(len(self.log.solves) - 1)

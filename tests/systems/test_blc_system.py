@@ -69,7 +69,7 @@ def test_a_failed_solve_is_logged_and_the_previous_plan_kept():
     assert first is not None
     blc.GetInputPort("target").FixValue(context, np.array([2.0, 0.0, 0.0]))
     simulator.AdvanceTo(0.1)
-    assert len(blc.log.failures) == 1 and blc.log.failures[0][5]
+    assert len(blc.log.failures) == 1 and blc.log.failures[0].reason
     assert blc.GetOutputPort("plan").Eval(context) is first
     assert not blc.GetOutputPort("solution").Eval(context).success
 
@@ -124,7 +124,7 @@ def test_a_mission_asked_ahead_starts_where_the_current_plan_ends():
     blc.GetInputPort("target").FixValue(context, np.array([1.2, 0.0, 0.0]))
     simulator.AdvanceTo(0.6)
     assert len(blc.log.solves) == 2 and not blc.log.failures
-    assert blc.log.solves[1][0] == pytest.approx(first.end_time)
+    assert blc.log.solves[1].start_time == pytest.approx(first.end_time)
     # The current plan stays on the output until it ends; then the one solved ahead takes over.
     assert blc.GetOutputPort("plan").Eval(context) is first
     simulator.AdvanceTo(first.end_time + 0.01)
@@ -172,7 +172,7 @@ def test_a_mission_that_failed_to_plan_is_retried_one_tripod_cycle_longer():
     blc.GetInputPort("target").FixValue(context, np.array([1.0, 0.0, 0.0]))
     simulator.AdvanceTo(first.end_time + 0.1)
     # The failed attempt and its retry are both logged; the mission is planned, no failure.
-    assert [s[3] for s in blc.log.solves] == [True, False, True]
+    assert [s.success for s in blc.log.solves] == [True, False, True]
     assert blc.log.retried == [1] and not blc.log.failures
     assert durations[2] == pytest.approx(durations[1] + 2 * MissionTiming().phase_duration)
     second = blc.GetOutputPort("plan").Eval(context)
@@ -191,8 +191,8 @@ def test_a_mission_no_retry_can_plan_is_one_failure_and_the_plan_is_kept():
     first = blc.GetOutputPort("plan").Eval(context)
     blc.GetInputPort("target").FixValue(context, np.array([2.0, 0.0, 0.0]))
     simulator.AdvanceTo(0.1)
-    assert [s[3] for s in blc.log.solves] == [True, False, False]
-    assert len(blc.log.failures) == 1 and blc.log.failures[0][5].startswith("retry 1 (+1 tripod cycles): BLC")
+    assert [s.success for s in blc.log.solves] == [True, False, False]
+    assert len(blc.log.failures) == 1 and blc.log.failures[0].reason.startswith("retry 1 (+1 tripod cycles): BLC")
     assert blc.GetOutputPort("plan").Eval(context) is first
     with pytest.raises(QzError, match="mission_retries"):
         TrajectoryOptimizationBLC(mission_retries=-1)
