@@ -29,7 +29,7 @@ from qz_drake.trajopt.constraints import (AngularDynamicsConstraint, ForceConstr
                                           KinematicsConstraint, PhaseContinuityConstraint,
                                           SampledConstraint, ScaledLinearDynamicsConstraint,
                                           TerrainConstraint, acceleration_continuity_matrix,
-                                          linear_dynamics_matrix)
+                                          linear_dynamics_matrix, rotation_from_rpy)
 from qz_drake.trajopt.ipopt_mumps import VectorisedRows
 from qz_drake.trajopt.leg_clearance import (LegClearanceConstraint, LinkClearance, clearance_field,
                                             constraint_points)
@@ -42,6 +42,9 @@ from qz_drake.trajopt.variables import BlcVariables
 # How far below its start a link point may go until its leg's second stance (see
 # BlcFormulation._start_relaxed_lower and the dense verdict). [m]
 START_LINK_ALLOWANCE = 0.005
+# How far beyond its start offset a foot that starts outside its kinematic box may be, along
+# the axes it exceeds, until its second stance (see BlcFormulation.box_bounds). [m]
+START_BOX_ALLOWANCE = 0.01
 # Height range below which the ground in reach counts as level (no swing/lift rows). [m]
 LEVEL_TOLERANCE = 1e-3
 
@@ -228,6 +231,47 @@ class BlcFormulation:
                              constraint_points(self.robot, p.leg_clearance_spacing),
                              self.clearance, self.robot.link_radius + p.leg_clearance_margin)
 
+    def start_box_offsets(self) -> np.ndarray:
+        """Each start foot's offset from its nominal foothold in the start body frame, (L, 3)
+        (what the kinematics constraint bounds). [m]"""
+        R = rotation_from_rpy(np.asarray(self.start_rpy, dtype=float)[None])[0]
+        return (self.start_feet - self.start_position) @ R - self.robot.nominal_footholds
+
+    def _start_outside_boxes(self) -> np.ndarray:
+        """(L, 3) True where a start foot lies outside its box along that axis and
+        ``params.relax_start_boxes`` keeps the room it stands in."""
+        if not self.params.relax_start_boxes:
+            return np.zeros((self.variables.num_legs, 3), dtype=bool)
+        return np.abs(self.start_box_offsets()) > self.robot.box_half_sizes
+
+    def box_bounds(self, times, inset: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper), each (n, L, 3): the bounds of each foot's offset from its nominal
+        foothold in the body frame at ``times`` (Eq. 1's box, ``inset`` shorter along z).
+
+        A foot that starts outside its box (a robot put down on a stair or a box, a trial's
+        start on uneven ground: the box is a conservative part of what the leg reaches) keeps
+        the room it stands in, START_BOX_ALLOWANCE beyond its start offset along each axis it
+        exceeds, until its leg's second stance begins; then the box holds. Without this such a
+        start is infeasible at t = 0 and Ipopt spends its whole budget on it (31 of 40
+        capability trials that had run out of their 30 iterations started so; none of 30 that
+        planned did)."""
+        times = np.asarray(times, dtype=float)
+        v, box = self.variables, self.robot.box_half_sizes
+        upper = np.broadcast_to(box, (len(times), v.num_legs, 3)).copy()
+        lower = -upper
+        upper[..., 2] -= inset
+        lower[..., 2] += inset
+        outside = self._start_outside_boxes()
+        if outside.any():
+            q0 = self.start_box_offsets()
+            for leg in np.flatnonzero(outside.any(axis=1)):
+                early = times <= first_step_end(v.schedule, leg) + 1e-9
+                below = outside[leg] & (q0[leg] < 0)
+                above = outside[leg] & (q0[leg] > 0)
+                lower[np.ix_(early, [leg], below)] = (q0[leg] - START_BOX_ALLOWANCE)[below]
+                upper[np.ix_(early, [leg], above)] = (q0[leg] + START_BOX_ALLOWANCE)[above]
+        return lower, upper
+
     def _start_relaxed_lower(self, c) -> np.ndarray:
         """The leg clearance's lower bounds for this task: until each leg's second stance
         begins (its foot still where the task found it, or leaving it) a point may stay as low
@@ -309,13 +353,12 @@ class BlcFormulation:
         if p.enabled("kinematics"):
             kin = parts.get("kinematics", lambda: KinematicsConstraint(
                 v, self.kinematics_times, robot.nominal_footholds, robot.box_half_sizes))
-            if self.clearance is not None and p.kinematics_box_inset > 0:
+            inset = p.kinematics_box_inset if self.clearance is not None else 0.0
+            if inset > 0 or self._start_outside_boxes().any():
                 # Legs kept clear press stance feet to the top or bottom of their boxes (see
-                # BlcParameters.kinematics_box_inset): the boxes a little shorter along z.
-                upper = kin.upper.reshape(-1, 3).copy()
-                lower = kin.lower.reshape(-1, 3).copy()
-                upper[:, 2] -= p.kinematics_box_inset
-                lower[:, 2] += p.kinematics_box_inset
+                # BlcParameters.kinematics_box_inset): the boxes a little shorter along z. A
+                # foot that starts outside its box keeps the room it stands in (box_bounds).
+                lower, upper = self.box_bounds(self.kinematics_times, inset=inset)
                 kin = kin.on(upper=upper.reshape(-1), lower=lower.reshape(-1))
             self.nonlinear.append(kin)
         stance = parts.get("stance footholds", self._free_stance_footholds)

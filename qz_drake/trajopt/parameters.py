@@ -98,6 +98,10 @@ class BlcParameters:
     # (the terrain under the apex is low) and drags along the edge it leaves (a walk's foot
     # slid 6 cm on a trench's edge, session 34). [m]
     swing_lift_height: float | None = 0.06
+    # A foot that starts outside its kinematic box keeps the room it stands in until its
+    # second stance (formulation.BlcFormulation.box_bounds); False: the box from t = 0, so
+    # that such a start cannot be planned.
+    relax_start_boxes: bool = True
     # Free x, y offset and rate of each swing's mid node (variables.py): a foot can rise
     # before it moves forward. Without it the horizontal motion is a fixed smooth cubic and,
     # with clearance checked densely (issue 11), TOWR's HyQ block takes 5-20x the iterations.

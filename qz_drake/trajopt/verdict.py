@@ -148,7 +148,10 @@ def dense_check(formulation, x: np.ndarray, rate: float | None = None) -> DenseC
     kin = parts.get(("dense", rate, "kinematics"),
                     lambda: KinematicsConstraint(v, times, robot.nominal_footholds, box))
     offset = kin.evaluate(x).reshape(len(times), v.num_legs, 3)
-    excess = np.maximum(np.abs(offset) - box[None], 0.0)
+    # The boxes the program holds (a foot that starts outside its box keeps its room until
+    # its second stance), without the solver's inset.
+    lower, upper = f.box_bounds(times)
+    excess = np.maximum(np.maximum(lower - offset, offset - upper), 0.0)
     max_swing_box = float((excess * ~contact[..., None]).max())
     excess = excess * contact[..., None]
     max_box = float(excess.max())
