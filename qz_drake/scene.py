@@ -17,7 +17,7 @@ from qz_drake.errors import ConfigError, KinematicsError, QzError, bad_value
 from qz_drake.robot import kinematics
 from qz_drake.robot.params import DEFAULT_PARAMS, LEG_NAMES, NUM_LEGS, QingzhuiParams
 from qz_drake.robot.topology import Topology, get_topology
-from qz_drake.systems.state_layout import make_state
+from qz_drake.state_layout import BASE_Z, make_state
 from qz_drake.terrain import HeightMap, grid_map_terrain, make_terrain
 
 GRAVITY = 9.81
@@ -110,7 +110,7 @@ def check_standable(heightmap, xy, topology: str, field: str) -> None:
     gx, gy = np.meshgrid(g, g)
     inside = np.hypot(gx, gy) <= radius
     ground = heightmap.height(xy[0] + gx[inside], xy[1] + gy[inside])
-    if float(ground.max()) > float(x0[6]) - 0.5 * lz - 0.02:
+    if float(ground.max()) > float(x0[BASE_Z]) - 0.5 * lz - 0.02:
         raise bad_value(field, f"{xy[0]:g},{xy[1]:g}",
                         f"the robot cannot stand there in {topology}: ground {ground.max():.2f} m under "
                         f"the trunk (inside an obstacle?)")

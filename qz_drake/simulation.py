@@ -21,7 +21,7 @@ from qz_drake.config import Scenario
 from qz_drake.scene import GRAVITY
 from qz_drake.station import make_station
 from qz_drake.systems.joint_pd import JointPdController
-from qz_drake.systems.state_layout import BASE_POS, JOINT_Q, base_rpy, tilt_deg
+from qz_drake.state_layout import BASE_POS, BASE_XY, BASE_Z, JOINT_Q, base_pose, base_rpy, tilt_deg
 from qz_drake.viz.recording import RECORDING_FPS, recording_meshcat
 
 # Samples per second of the logged signals. [Hz]
@@ -206,9 +206,9 @@ def standing_metrics(scenario: Scenario, info, times, states, trunk, leg_link_fo
     contact, small tilt. The first 0.5 s (settling into the ground) is not judged for height."""
     z0 = info.initial_state[BASE_POS][2]
     settled = times >= min(0.5, times[-1])
-    height_error = np.abs(states[settled, 6] - z0)
+    height_error = np.abs(states[settled, BASE_Z] - z0)
     tilts = np.array([tilt_deg(x) for x in states])
-    xy_drift = np.linalg.norm(states[-1, 4:6] - info.initial_state[4:6])
+    xy_drift = np.linalg.norm(states[-1, BASE_XY] - info.initial_state[BASE_XY])
     crit = scenario.success
     max_height_error = float(height_error.max())
     trunk_contacts = int(np.count_nonzero(trunk > 0.5))
@@ -227,7 +227,7 @@ def standing_metrics(scenario: Scenario, info, times, states, trunk, leg_link_fo
         "reason": reason,
         "topology": scenario.robot.topology,
         "max_base_height_error_m": max_height_error,
-        "final_base_height_m": float(states[-1, 6]),
+        "final_base_height_m": float(states[-1, BASE_Z]),
         "nominal_base_height_m": float(z0),
         "max_tilt_deg": float(tilts.max()),
         "final_rpy_rad": base_rpy(states[-1]).tolist(),
@@ -423,7 +423,7 @@ def build_walk(scenario: Scenario, *, route_source: FixedRoute | None = None, me
     station_diagram, info = station_factory(scenario, meshcat, mesh_dir=mesh_dir, **extra)
     station = builder.AddSystem(station_diagram)
     x0 = info.initial_state
-    targets = split_route(tuple(x0[4:6]), [(w.x, w.y, w.yaw, w.topology) for w in control.route],
+    targets = split_route(tuple(x0[BASE_XY]), [(w.x, w.y, w.yaw, w.topology) for w in control.route],
                           control.mission_length)
     # Wall time counts from the first mission's planning, so the real-time factor includes it.
     wall_start = time.perf_counter()
@@ -562,9 +562,10 @@ class _PlannerMissions:
 
         self.planner = _tripod_planner(info.heightmap, info.params, control)
         x0 = info.initial_state
-        feet0 = all_foot_positions(x0[7:25], info.params) + x0[4:7]
+        feet0 = all_foot_positions(x0[JOINT_Q], info.params) + x0[BASE_POS]
+        x_start, y_start, z_start = x0[BASE_POS]
         # The first mission starts after 0.5 s of standing (the robot settles on the ground).
-        first, reason = self.planner(MissionStart(SETTLE_TIME, (x0[4], x0[5], initial_yaw), feet0, float(x0[6])),
+        first, reason = self.planner(MissionStart(SETTLE_TIME, (x_start, y_start, initial_yaw), feet0, float(z_start)),
                                      targets[0][:3], targets[0][3], SETTLE_TIME)
         self.first_failure = "" if first is not None else reason
         if first is None:
@@ -703,10 +704,9 @@ def _planned_base(plans, times):
 def feet_in_world(states, params) -> np.ndarray:
     """Foot-sphere centres (N, 6, 3) in the world from logged station states."""
     from qz_drake.robot.kinematics import all_foot_positions
-    from qz_drake.systems.state_layout import base_pose
 
-    return np.array([all_foot_positions(x[7:25], params) @ base_pose(x).rotation().matrix().T
-                     + x[4:7] for x in states]).reshape(len(states), 6, 3)
+    return np.array([all_foot_positions(x[JOINT_Q], params) @ base_pose(x).rotation().matrix().T
+                     + x[BASE_POS] for x in states]).reshape(len(states), 6, 3)
 
 
 def walking_metrics(scenario, info, log, targets, times, states, contacts, trunk, desired, *, fell: bool,
@@ -717,7 +717,7 @@ def walking_metrics(scenario, info, log, targets, times, states, contacts, trunk
 
     planned = _planned_base(log.plans, times)
     valid = ~np.isnan(planned[:, 0])
-    tracking = float(np.sqrt(np.mean(np.sum((states[valid, 4:7] - planned[valid]) ** 2, axis=1)))) \
+    tracking = float(np.sqrt(np.mean(np.sum((states[valid, BASE_POS] - planned[valid]) ** 2, axis=1)))) \
         if valid.any() else 0.0
     joint_rms = float(np.sqrt(np.mean((states[:, JOINT_Q] - desired[:, :18]) ** 2)))
     n = len(times)

@@ -1,4 +1,5 @@
-"""Layout of the station's ``state`` vector, shared by every controller.
+"""Layout of the station's ``state`` vector, shared by every controller: the robot's
+floating-base state, below every module that reads it.
 
 Drake's floating-base convention: positions [quaternion w x y z of the base in world (4),
 base position in world (3), 18 joint angles], velocities [base angular velocity in world (3),
@@ -15,6 +16,9 @@ NUM_V = 24
 STATE_SIZE = NUM_Q + NUM_V
 BASE_QUAT = slice(0, 4)
 BASE_POS = slice(4, 7)
+# The base position's horizontal part and its height, by themselves.
+BASE_XY = slice(4, 6)
+BASE_Z = 6
 JOINT_Q = slice(7, 25)
 BASE_ANGVEL = slice(25, 28)
 BASE_VEL = slice(28, 31)

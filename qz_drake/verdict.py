@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from qz_drake.systems.state_layout import JOINT_Q, base_rpy, tilt_deg
+from qz_drake.state_layout import JOINT_Q, base_rpy, tilt_deg
 
 REASON_CODES: tuple[str, ...] = ("blc_infeasible", "blc_time_limit", "fell", "trunk_contact",
                                  "leg_contact", "tracking", "slip", "missed_target")

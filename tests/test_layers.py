@@ -38,8 +38,6 @@ ALLOWED = {
         "trajopt/commands.py is a command module; it moves into cli/ once the work on trajopt/ has landed",
     ("qz_drake.trajopt.commands", "qz_drake.station"):
         "trajopt/commands.py is a command module; it moves into cli/ once the work on trajopt/ has landed",
-    ("qz_drake.viz.plots", "qz_drake.systems.state_layout"):
-        "state_layout moves under the station (issue 35); verdict.py, another engineer's file now, imports it too",
 }
 
 

@@ -9,7 +9,7 @@ from qz_drake.config import Scenario, SimulationConfig, TerrainConfig
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 from qz_drake.simulation import _standing_controller, simulate
 from qz_drake.station import make_station
-from qz_drake.systems.state_layout import IMU_SIZE, STATE_SIZE
+from qz_drake.state_layout import IMU_SIZE, STATE_SIZE
 from qz_drake.viz.recording import recording_summary
 
 

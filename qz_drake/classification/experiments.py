@@ -25,6 +25,7 @@ import numpy as np
 
 from qz_drake.progress import ProgressReport
 from qz_drake.robot.params import LEG_NAMES, NUM_LEGS
+from qz_drake.state_layout import BASE_POS, BASE_Z
 from qz_drake.classification.terrain_classifier import CONFIRMATIONS
 
 
@@ -79,7 +80,7 @@ def preset_sweep(materials, config: ExperimentConfig, speed: float = 0.6) -> dic
             judged = run.times >= config.sweep_judge_from
             rows.append({"stiffness_N_per_m": k, "fell": run.fell,
                          "vertical_acceleration_m_per_s2": spread(run.vertical_acceleration()[judged]),
-                         "height_m": spread(run.states[judged, 6])})
+                         "height_m": spread(run.states[judged, BASE_Z])})
         table[material] = rows
         best = min((r for r in rows if not r["fell"]), key=lambda r: r["vertical_acceleration_m_per_s2"]["iqr"])
         presets[material] = best["stiffness_N_per_m"]
@@ -103,7 +104,7 @@ def vibration_case(models, material: str, speed: float, config: ExperimentConfig
                             stiffness_by_material=presets)
         judged = run.times >= config.judge_from
         acceleration = run.vertical_acceleration()
-        height = run.states[:, 6]
+        height = run.states[:, BASE_Z]
         runs[label] = {"times": run.times, "vertical_acceleration": acceleration, "height": height,
                        "judged": judged}
         summary[key] = {
@@ -186,7 +187,7 @@ def mixed_floor(models, config: ExperimentConfig, *, meshcat=None) -> dict:
     confirmed = labels[at_end, run.stance_leg]
     return {"summary": {
         "speed_m_per_s": config.mixed_speed, "patch_length_m": config.mixed_patch_length,
-        "distance_m": float(run.states[-1, 4] - run.states[0, 4]), "fell": run.fell,
+        "distance_m": float(run.states[-1, BASE_POS][0] - run.states[0, BASE_POS][0]), "fell": run.fell,
         "label_accuracy_per_leg": per_leg,
         "mean_label_accuracy": float(np.mean(scored)) if scored else None,
         "stance_prediction_accuracy": float(np.mean(run.stance_prediction[known] == run.stance_truth[known]))

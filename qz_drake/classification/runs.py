@@ -22,7 +22,7 @@ from qz_drake.errors import bad_value
 from qz_drake.robot.kinematics import all_foot_positions
 from qz_drake.robot.params import NUM_LEGS
 from qz_drake.station import make_station
-from qz_drake.systems.state_layout import BASE_POS, JOINT_Q, base_pose, tilt_deg
+from qz_drake.state_layout import BASE_POS, JOINT_Q, base_pose, tilt_deg
 from qz_drake.classification.terrain_classifier import DEFAULT_STIFFNESS, TerrainClassifier
 from qz_drake.systems.trotting import TrotConfig, add_trotting_controller
 

@@ -20,7 +20,7 @@ from pydrake.systems.framework import LeafSystem
 from qz_drake.classification import features as feat
 from qz_drake.errors import bad_value
 from qz_drake.robot.params import DEFAULT_PARAMS, NUM_LEGS, QingzhuiParams
-from qz_drake.systems.state_layout import IMU_SIZE, JOINT_Q, JOINT_V, STATE_SIZE
+from qz_drake.state_layout import IMU_SIZE, JOINT_Q, JOINT_V, STATE_SIZE
 from qz_drake.systems.trotting import THS, WAS
 
 # Paper 002, section 5: default stance stiffness and the two presets. [N/m]

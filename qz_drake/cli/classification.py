@@ -24,6 +24,7 @@ import math
 from pathlib import Path
 
 from qz_drake.errors import bad_value
+from qz_drake.state_layout import BASE_POS
 
 
 def _positive_list(text: str, field: str) -> list[float]:
@@ -95,8 +96,8 @@ def run_trot(args) -> int:
     T = 1.0 if run.times[-1] > 2.0 else run.times[-1] / 2
     late = run.times >= run.times[-1] - T
     metrics = {"scenario": scenario.name, "fell": run.fell, "success": not run.fell,
-               "distance_m": float(run.states[-1, 4] - run.states[0, 4]),
-               "final_speed_m_per_s": float((run.states[late][-1, 4] - run.states[late][0, 4]) / T),
+               "distance_m": float(run.states[-1, BASE_POS][0] - run.states[0, BASE_POS][0]),
+               "final_speed_m_per_s": float((run.states[late][-1, BASE_POS][0] - run.states[late][0, BASE_POS][0]) / T),
                "stances": int(len(run.stance_leg)), "wall_time_s": run.wall_time_s,
                "sim_time_s": float(run.times[-1]), "speed_m_per_s": float(speed)}
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))

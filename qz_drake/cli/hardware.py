@@ -17,6 +17,7 @@ import signal
 from qz_drake.errors import bad_value
 from qz_drake.hardware.relay import DEFAULT_PORT as DEFAULT_RELAY_PORT
 from qz_drake.hardware.relay import connect_lcm, tcpq_url
+from qz_drake.state_layout import BASE_POS
 
 
 def load_hardware_file(path: str | None):
@@ -74,7 +75,7 @@ def run_robot_sim(args) -> int:
     x = driver.GetOutputPort("true_state").Eval(context)
     print(json.dumps({"sim_time_s": float(context.get_time()), "lcm_url": args.lcm_url,
                       "realtime_factor": simulator.get_actual_realtime_rate(),
-                      "base_position_m": x[4:7].tolist(), **driver.counters(context)}))
+                      "base_position_m": x[BASE_POS].tolist(), **driver.counters(context)}))
     return 0
 
 

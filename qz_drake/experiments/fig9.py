@@ -20,6 +20,7 @@ import numpy as np
 
 from qz_drake.errors import bad_value
 from qz_drake.progress import ProgressReport
+from qz_drake.state_layout import BASE_XY
 from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS, TASKS_PER_CELL, make_task
 
 RESULTS = "results.jsonl"
@@ -147,7 +148,7 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
                       blc_params=BlcParameters(max_iterations=config.blc_max_iterations,
                                                time_limit=config.blc_time_limit))
         m = result.metrics
-        walked = float(np.sum(np.linalg.norm(np.diff(result.states[:, 4:6], axis=0), axis=1))) \
+        walked = float(np.sum(np.linalg.norm(np.diff(result.states[:, BASE_XY], axis=0), axis=1))) \
             if len(result.states) > 1 else 0.0
         record.update(success=bool(m["success"]), reason=(m.get("reasons") or [""])[0],
                       message=str(m.get("reason", ""))[:300], walked_m=walked,

@@ -28,7 +28,7 @@ from pydrake.systems.framework import LeafSystem
 from qz_drake.capability.patches import HEADING_STEP
 from qz_drake.planning.guidance import MissionSplitConfig, split_missions
 from qz_drake.systems.mission_sequencer import MissionLog
-from qz_drake.systems.state_layout import STATE_SIZE, base_rpy
+from qz_drake.state_layout import BASE_XY, STATE_SIZE, base_rpy
 
 
 @dataclasses.dataclass
@@ -243,7 +243,8 @@ class CapabilityVIPlanner(LeafSystem):
             state.get_mutable_abstract_state(self._missions).set_value(([], 0))
             return
         x = self._state.Eval(context)
-        x0, y0, yaw = float(x[4]), float(x[5]), float(base_rpy(x)[2])
+        x0, y0 = (float(v) for v in x[BASE_XY])
+        yaw = float(base_rpy(x)[2])
         robot = self._robot_topology.Eval(context) if self._robot_topology.HasValue(context) else ""
         topology = robot if robot in self.mdp.topologies else failed.steps[0].topology
         if len(failed.steps) > 1:
@@ -288,7 +289,7 @@ class CapabilityVIPlanner(LeafSystem):
                 output.SetFromVector(np.asarray(held[0], dtype=float))
                 return
             x = self._state.Eval(context)  # unreachable from the start: hold the start
-            output.SetFromVector([x[4], x[5], base_rpy(x)[2]])
+            output.SetFromVector([*x[BASE_XY], base_rpy(x)[2]])
             return
         output.SetFromVector(np.asarray(m.target, dtype=float))
 

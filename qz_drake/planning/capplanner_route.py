@@ -19,7 +19,7 @@ from qz_drake.planning.capability_planner import CapabilityVIPlanner
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 from qz_drake.scene import check_standable
 from qz_drake.simulation import FixedRoute
-from qz_drake.systems.state_layout import BASE_POS, base_rpy
+from qz_drake.state_layout import BASE_XY, base_rpy
 
 # CapPlanner's walks solve a mission that failed to plan again, up to this often, each time one
 # tripod cycle longer (TrajectoryOptimizationBLC's mission_retries). A long_range walk ended at
@@ -70,7 +70,7 @@ class CapPlannerRoute(FixedRoute):
         goal = control.route[-1]
         check_standable(info.heightmap, (goal.x, goal.y), info.topology.name,
                         f"scenario.controller.route[{len(control.route) - 1}]")
-        start_x, start_y, _ = x0[BASE_POS]
+        start_x, start_y = x0[BASE_XY]
         return CapabilityVIPlanner(model=model, heightmap=info.heightmap, goal=(goal.x, goal.y),
                                    start=(float(start_x), float(start_y), float(base_rpy(x0)[2])),
                                    initial_topology=info.topology.name, plan_ahead=control.plan_ahead,
@@ -92,7 +92,7 @@ class CapPlannerRoute(FixedRoute):
 
         return {"plan": str(plot_plan(info.heightmap, source.first_plan, out / "plan.png",
                                       title=f"{scenario.name}: CapPlanner's plan from the start and the walk",
-                                      walked_xy=states[:, BASE_POS][:, :2]))}
+                                      walked_xy=states[:, BASE_XY]))}
 
 
 def route_source_for(scenario) -> FixedRoute | None:

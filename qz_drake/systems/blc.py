@@ -28,7 +28,7 @@ from qz_drake.errors import ConfigError, bad_value
 from qz_drake.robot.params import DEFAULT_PARAMS, NUM_LEGS
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 from qz_drake.systems.mission_sequencer import MissionStart, measured_start
-from qz_drake.systems.state_layout import STATE_SIZE
+from qz_drake.state_layout import STATE_SIZE
 
 
 @dataclasses.dataclass

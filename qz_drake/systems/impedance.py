@@ -28,7 +28,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 
 from qz_drake.robot import kinematics
 from qz_drake.robot.params import DEFAULT_PARAMS, NUM_JOINTS, NUM_LEGS, QingzhuiParams
-from qz_drake.systems.state_layout import JOINT_Q, JOINT_V, STATE_SIZE
+from qz_drake.state_layout import JOINT_Q, JOINT_V, STATE_SIZE
 
 SWING, STANCE = 0, 1
 

@@ -22,7 +22,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
 from qz_drake.robot.kinematics import all_foot_positions
-from qz_drake.systems.state_layout import STATE_SIZE, base_pose, base_rpy
+from qz_drake.state_layout import BASE_XY, BASE_Z, JOINT_Q, STATE_SIZE, base_pose, base_rpy
 
 
 @dataclasses.dataclass
@@ -40,11 +40,12 @@ def measured_start(x: np.ndarray, t: float, params) -> MissionStart:
     """The mission start seen in a station state: base xy, yaw and height, and the six feet in
     the world from leg kinematics."""
     X_WB = base_pose(x)
-    feet_B = all_foot_positions(x[7:25], params)
+    feet_B = all_foot_positions(x[JOINT_Q], params)
     feet_W = feet_B @ X_WB.rotation().matrix().T + X_WB.translation()
     rpy = base_rpy(x)
-    return MissionStart(time=t, xy_yaw=(float(x[4]), float(x[5]), float(rpy[2])),
-                        feet_W=feet_W, base_z=float(x[6]), roll_pitch=(float(rpy[0]), float(rpy[1])))
+    x_B, y_B = x[BASE_XY]
+    return MissionStart(time=t, xy_yaw=(float(x_B), float(y_B), float(rpy[2])),
+                        feet_W=feet_W, base_z=float(x[BASE_Z]), roll_pitch=(float(rpy[0]), float(rpy[1])))
 
 
 @dataclasses.dataclass

@@ -8,7 +8,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
 
 from qz_drake.robot.params import LEG_NAMES
-from qz_drake.systems.state_layout import IMU_SIZE
+from qz_drake.state_layout import IMU_SIZE
 
 
 class FootContactSensor(LeafSystem):

@@ -30,7 +30,7 @@ from pydrake.systems.framework import LeafSystem
 from qz_drake.errors import bad_value
 from qz_drake.robot import kinematics
 from qz_drake.robot.params import DEFAULT_PARAMS, NUM_LEGS, TRIPOD_A, QingzhuiParams
-from qz_drake.systems.state_layout import BASE_ANGVEL, BASE_QUAT, BASE_VEL, JOINT_Q, STATE_SIZE
+from qz_drake.state_layout import BASE_ANGVEL, BASE_QUAT, BASE_VEL, JOINT_Q, STATE_SIZE
 
 # Gait states of Fig. 10(b).
 LDS, WAS, THS, LTS = 0, 1, 2, 3

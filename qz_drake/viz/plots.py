@@ -10,7 +10,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from qz_drake.robot.kinematics import all_foot_positions  # noqa: E402
 from qz_drake.robot.params import LEG_NAMES  # noqa: E402
+from qz_drake.state_layout import BASE_POS, BASE_XY, BASE_Z, JOINT_Q, base_pose, tilt_deg  # noqa: E402
 
 
 def plot_heightmap(heightmap, path: str | Path, *, title: str = "", path_xy: np.ndarray | None = None,
@@ -42,11 +44,9 @@ def plot_heightmap(heightmap, path: str | Path, *, title: str = "", path_xy: np.
 
 def plot_standing(times, states, contacts, info, path: str | Path) -> Path:
     """Base height against nominal, tilt, and feet in contact over time."""
-    from qz_drake.systems.state_layout import tilt_deg
-
-    z0 = info.initial_state[6]
+    z0 = info.initial_state[BASE_Z]
     fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
-    axes[0].plot(times, states[:, 6], label="base z")
+    axes[0].plot(times, states[:, BASE_Z], label="base z")
     axes[0].axhline(z0, color="k", ls="--", lw=1, label="nominal")
     axes[0].fill_between(times, z0 - 0.02, z0 + 0.02, color="g", alpha=0.15, label="+-2 cm")
     axes[0].set_ylabel("height [m]")
@@ -68,9 +68,6 @@ def plot_standing(times, states, contacts, info, path: str | Path) -> Path:
 def plot_walk(times, states, contacts, desired, log, info, out_dir: str | Path) -> dict:
     """Planned vs tracked base path and height, foot heights with contact phases, joint
     tracking error. Returns {name: path}."""
-    from qz_drake.robot.kinematics import all_foot_positions
-    from qz_drake.systems.state_layout import base_pose
-
     out = Path(out_dir)
     files = {}
     planned = np.full((len(times), 3), np.nan)
@@ -80,7 +77,7 @@ def plot_walk(times, states, contacts, desired, log, info, out_dir: str | Path) 
                 planned[k] = plan.base_position(min(t, plan.end_time))
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
     axes[0].plot(planned[:, 0], planned[:, 1], "k--", label="planned")
-    axes[0].plot(states[:, 4], states[:, 5], "C0", label="tracked")
+    axes[0].plot(*states[:, BASE_XY].T, "C0", label="tracked")
     targets = np.array([t[:2] for t in log.targets])
     axes[0].plot(targets[:, 0], targets[:, 1], "r^", label="mission targets")
     axes[0].set_xlabel("x [m]")
@@ -88,7 +85,7 @@ def plot_walk(times, states, contacts, desired, log, info, out_dir: str | Path) 
     axes[0].set_aspect("equal", adjustable="datalim")
     axes[0].legend()
     axes[1].plot(times, planned[:, 2], "k--", label="planned")
-    axes[1].plot(times, states[:, 6], "C0", label="tracked")
+    axes[1].plot(times, states[:, BASE_Z], "C0", label="tracked")
     axes[1].set_xlabel("time [s]")
     axes[1].set_ylabel("base height [m]")
     axes[1].legend()
@@ -98,7 +95,7 @@ def plot_walk(times, states, contacts, desired, log, info, out_dir: str | Path) 
     fig.savefig(files["base_plot"], dpi=100)
     plt.close(fig)
 
-    feet = np.array([all_foot_positions(x[7:25], info.params) @ base_pose(x).rotation().matrix().T + x[4:7]
+    feet = np.array([all_foot_positions(x[JOINT_Q], info.params) @ base_pose(x).rotation().matrix().T + x[BASE_POS]
                      for x in states])
     fig, axes = plt.subplots(6, 1, figsize=(10, 9), sharex=True)
     for i, leg in enumerate(LEG_NAMES):
@@ -114,7 +111,7 @@ def plot_walk(times, states, contacts, desired, log, info, out_dir: str | Path) 
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(10, 3.5))
-    error = np.degrees(np.abs(states[:, 7:25] - desired[:, :18]))
+    error = np.degrees(np.abs(states[:, JOINT_Q] - desired[:, :18]))
     ax.plot(times, error.max(axis=1), label="max over joints")
     ax.plot(times, np.sqrt(np.mean(error**2, axis=1)), label="RMS over joints")
     ax.set_xlabel("time [s]")

@@ -5,7 +5,7 @@ import pytest
 
 from qz_drake.config import SuccessCriteria
 from qz_drake.robot.topology import get_topology
-from qz_drake.systems.state_layout import make_state
+from qz_drake.state_layout import make_state
 from qz_drake.verdict import REASON_CODES, blc_failure_code, foot_slip, judge_walk
 
 N = 200

@@ -6,7 +6,7 @@ import pytest
 from qz_drake.classification.runs import simulate_trot, trot_scenario
 from qz_drake.errors import ConfigError, TerrainError
 from qz_drake.robot.params import TRIPOD_A, TRIPOD_B
-from qz_drake.systems.state_layout import tilt_deg
+from qz_drake.state_layout import tilt_deg
 from qz_drake.systems.trotting import LDS, LTS, THS, WAS, TrotConfig, TrottingController
 
 

@@ -18,7 +18,7 @@ from qz_drake.hardware.config import HardwareConfig, load_hardware_config
 from qz_drake.hardware.loopback import make_lcm_loopback_station
 from qz_drake.simulation import _standing_controller
 from qz_drake.station import make_station
-from qz_drake.systems.state_layout import IMU_SIZE, STATE_SIZE, tilt_deg
+from qz_drake.state_layout import IMU_SIZE, STATE_SIZE, tilt_deg
 
 H = HardwareConfig().control_period
 CONTROLLER_PORTS = {"state": STATE_SIZE, "joint_torque_measured": 18, "imu": IMU_SIZE, "foot_contact": 6}

@@ -17,7 +17,7 @@ from qz_drake.config import ControllerConfig, Scenario, Waypoint, load_scenario
 from qz_drake.hardware.config import HardwareConfig
 from qz_drake.hardware.loopback import make_lcm_loopback_station
 from qz_drake.simulation import simulate
-from qz_drake.systems.state_layout import tilt_deg
+from qz_drake.state_layout import tilt_deg
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
 H = HardwareConfig().control_period

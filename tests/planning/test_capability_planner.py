@@ -11,7 +11,7 @@ from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
 
 from qz_drake.planning.capability_mdp import CapabilityMdpConfig
 from qz_drake.planning.capability_planner import CapabilityVIPlanner
-from qz_drake.systems.state_layout import make_state
+from qz_drake.state_layout import make_state
 from qz_drake.terrain import HeightMap
 
 START, GOAL = (-3.0, 0.0), (3.0, 0.0)

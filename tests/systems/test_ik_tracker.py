@@ -13,7 +13,7 @@ from qz_drake.simulation import add_tracking_controller
 from qz_drake.station import make_station
 from qz_drake.systems.ik_tracker import joint_reference
 from qz_drake.systems.reference_gait import TripodGaitPlan
-from qz_drake.systems.state_layout import tilt_deg
+from qz_drake.state_layout import tilt_deg
 from qz_drake.terrain import make_terrain
 
 
