@@ -90,6 +90,20 @@ class Waypoint:
     topology: str = "nominal"
 
 
+@dataclasses.dataclass(frozen=True)
+class MissionTiming:
+    """How a BLC or tripod mission is timed: distance / speed, rounded to whole tripod cycles
+    (two phases). The one place of these defaults: the walking scenario's controller, the
+    capability trials (part of the dataset's fingerprint) and the Fig. 9 experiment keep the two
+    numbers as flat fields of their own settings (their YAML and JSON keys) defaulting to these,
+    and hand the BLC system and the tripod plan a MissionTiming (their ``timing``)."""
+
+    # Average walking speed of a mission. [m/s]
+    speed: float = 0.25
+    # One tripod swing (= stance) phase. [s]
+    phase_duration: float = 0.4
+
+
 @dataclasses.dataclass
 class ControllerConfig:
     # "stand": joint PD (paper 000 Eq. 7) holding the topology's standing pose;
@@ -110,10 +124,10 @@ class ControllerConfig:
     route: list[Waypoint] = dataclasses.field(default_factory=list)
     # Longest local mission along the route. [m]
     mission_length: float = 1.0
-    # Average walking speed of a mission. [m/s]
-    speed: float = 0.25
+    # Average walking speed of a mission (and of a trot). [m/s]
+    speed: float = MissionTiming.speed
     # One tripod swing (= stance) phase. [s]
-    phase_duration: float = 0.4
+    phase_duration: float = MissionTiming.phase_duration
     # BLC planner only: ask for the next mission this long before the current plan ends, so
     # that the BLC solves it from the plan's expected end state while the robot walks (paper
     # 000); 0: at the end, from the measured state. [s]
@@ -122,6 +136,10 @@ class ControllerConfig:
     kp: float = 1500.0
     # Joint damping. [N*m*s/rad]
     kd: float = 30.0
+
+    @property
+    def timing(self) -> MissionTiming:
+        return MissionTiming(self.speed, self.phase_duration)
 
 
 @dataclasses.dataclass

@@ -259,7 +259,7 @@ def _tripod_planner(heightmap, params, control):
         duration = max(dist / control.speed, dyaw / _TURN_RATE, _MIN_MISSION_DURATION)
         return TripodGaitPlan(heightmap=heightmap, topology=get_topology(topology, params),
                               start_xy_yaw=start.xy_yaw, goal_xy_yaw=tuple(target), start_time=start_time,
-                              duration=duration, phase_duration=control.phase_duration, params=params,
+                              duration=duration, phase_duration=control.timing.phase_duration, params=params,
                               start_feet_W=start.feet_W), ""
     return plan
 
@@ -597,10 +597,10 @@ class _BlcMissions:
         from pydrake.common.value import AbstractValue
         from pydrake.systems.primitives import ConstantValueSource
 
-        from qz_drake.systems.blc import MissionTiming, TrajectoryOptimizationBLC
+        from qz_drake.systems.blc import TrajectoryOptimizationBLC
 
         self.blc = builder.AddSystem(TrajectoryOptimizationBLC(
-            params=info.params, timing=MissionTiming(control.speed, control.phase_duration),
+            params=info.params, timing=control.timing,
             settle_time=SETTLE_TIME, blc_params=blc_params, initial_topology=info.topology.name,
             mission_retries=mission_retries))
         self.blc.set_name("blc")

@@ -28,6 +28,7 @@ import numpy as np
 
 from qz_drake.capability.patches import (HEADING_STEP, KINDS, feet_in_heading_frame,
                                          ground_reference, move_distance, sample_patches)
+from qz_drake.config import MissionTiming
 from qz_drake.errors import QzError
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 
@@ -49,8 +50,8 @@ class TrialConfig:
     # kinematic box's 0.12-0.15 m). [m]
     foot_offset: float = 0.06
     # Mission speed and tripod phase, as the walking scenarios' defaults. [m/s], [s]
-    speed: float = 0.25
-    phase_duration: float = 0.4
+    speed: float = MissionTiming.speed
+    phase_duration: float = MissionTiming.phase_duration
     # Joint PD gains (paper 000 Eq. 7). [N*m/rad], [N*m*s/rad]
     kp: float = 1500.0
     kd: float = 30.0

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from qz_drake.config import MissionTiming
 from qz_drake.errors import bad_value
 from qz_drake.progress import ProgressReport
 from qz_drake.state_layout import BASE_XY
@@ -34,8 +35,8 @@ class ExperimentConfig:
 
     # Mission length, speed and tripod phase of the BLC missions. [m], [m/s], [s]
     mission_length: float = 1.0
-    speed: float = 0.25
-    phase_duration: float = 0.4
+    speed: float = MissionTiming.speed
+    phase_duration: float = MissionTiming.phase_duration
     # Simulated-time budget: this many times the straight-line walking time, plus a margin. [-], [s]
     time_factor: float = 2.5
     time_margin: float = 20.0

@@ -24,20 +24,12 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, LeafSystem
 
+from qz_drake.config import MissionTiming
 from qz_drake.errors import ConfigError, bad_value
 from qz_drake.robot.params import DEFAULT_PARAMS, NUM_LEGS
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 from qz_drake.systems.mission_sequencer import MissionStart, measured_start
 from qz_drake.state_layout import STATE_SIZE
-
-
-@dataclasses.dataclass
-class MissionTiming:
-    """How long a mission takes: distance / speed, at least ``min_duration``, rounded to whole
-    tripod cycles (two phases). Same fields as the walking scenario's controller section."""
-
-    speed: float = 0.25  # [m/s]
-    phase_duration: float = 0.4  # [s]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from qz_drake.config import MissionTiming
 from qz_drake.errors import ConfigError, bad_value
 from qz_drake.robot.params import DEFAULT_PARAMS, NUM_LEGS, TRIPOD_A, TRIPOD_B, QingzhuiParams
 from qz_drake.robot.topology import Topology
@@ -69,7 +70,7 @@ class TripodGaitPlan:
     start_time: float
     duration: float
     # Duration of one swing (= one stance) phase. [s]
-    phase_duration: float = 0.4
+    phase_duration: float = MissionTiming.phase_duration
     # Swing apex above the higher of lift-off, landing and the ground in between. [m]
     swing_clearance: float = 0.08
     params: QingzhuiParams = DEFAULT_PARAMS

@@ -15,7 +15,8 @@ from qz_drake.errors import QzError
 from qz_drake.robot.topology import get_topology
 from qz_drake.simulation import add_tracking_controller
 from qz_drake.station import make_station, standing_state
-from qz_drake.systems.blc import MissionTiming, TrajectoryOptimizationBLC
+from qz_drake.config import MissionTiming
+from qz_drake.systems.blc import TrajectoryOptimizationBLC
 from qz_drake.state_layout import tilt_deg
 from qz_drake.terrain import make_terrain
 
