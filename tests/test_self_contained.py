@@ -18,7 +18,8 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 # What a user runs or reads; data/ holds results whose provenance fields may name the machine
 # that produced them, and benchmarks/ its measurements.
-SCOPE = ("scenarios", "tests", "notebooks", "scripts", "qz_drake", "README.md", "Makefile", "pyproject.toml")
+SCOPE = ("scenarios", "tests", "notebooks", "scripts", "qz_drake", "docs", "README.md", "CHANGELOG.md",
+         "Makefile", "pyproject.toml")
 _SKIPPED_FOLDERS = {"__pycache__", ".ipynb_checkpoints", "out"}
 
 # Absolute paths of a particular machine (a home, a work or scratch folder).
