@@ -219,7 +219,7 @@ def test_yaml_numbers_in_either_exponent_form(text, duration):
 
 
 def test_blc_param_reads_exponents():
-    from qz_drake.trajopt.commands import blc_parameters
+    from qz_drake.cli.blc import blc_parameters
 
     assert blc_parameters(["tolerance=1e-5"]).tolerance == 1e-5
 

@@ -12,16 +12,12 @@ from __future__ import annotations
 import os
 import sys
 
-from qz_drake.cli import capability, classification, core, experiments, hardware, plan, planning
+from qz_drake.cli import blc, capability, classification, core, experiments, hardware, plan, planning
 from qz_drake.cli.arguments import OneLineParser, check_output_argument, package_version
-# trajopt/commands.py imports these from here; it moves into this package once the work on
-# trajopt/ has landed.
-from qz_drake.cli.arguments import one_of, parse_key_values, terrain_kinds_text, terrain_names  # noqa: F401
 from qz_drake.errors import QzError
-from qz_drake.trajopt import commands as trajopt_commands
 
 # In the order of `qz --help`.
-COMMAND_GROUPS = (core, trajopt_commands, planning, plan, classification, capability, hardware, experiments)
+COMMAND_GROUPS = (core, blc, planning, plan, classification, capability, hardware, experiments)
 
 
 def build_parser():

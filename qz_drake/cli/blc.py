@@ -18,6 +18,7 @@ import dataclasses
 import json
 import math
 
+from qz_drake.cli.arguments import one_of, parse_key_values, terrain_kinds_text, terrain_names
 from qz_drake.errors import ConfigError, bad_value
 
 # Longest task the command solves. The program grows with T: measured peak memory 0.28 GB at
@@ -84,10 +85,9 @@ def blc_parameters(items: list[str] | None):
 
 
 def run(args) -> int:
-    from qz_drake.cli import parse_key_values
     from qz_drake.config import TerrainConfig, check_feet_on_map
     from qz_drake.robot.topology import TOPOLOGY_NAMES
-    from qz_drake.station import make_heightmap
+    from qz_drake.scene import make_heightmap
     from qz_drake.trajopt.robot_model import make_robot
     from qz_drake.trajopt.solver import BlcTask, solve_blc
 
@@ -124,7 +124,6 @@ def run(args) -> int:
 def register(subparsers) -> None:
     import argparse
 
-    from qz_drake.cli import one_of, terrain_kinds_text, terrain_names
     from qz_drake.robot.topology import TOPOLOGY_NAMES
     from qz_drake.trajopt.gait import GAIT_NAMES
     from qz_drake.trajopt.robot_model import ROBOT_NAMES
