@@ -74,6 +74,15 @@ class CapabilityVIPlanner(LeafSystem):
     TrajectoryOptimizationBLC; ``guidance`` is the current list of GuidedMissions and
     ``utility`` the (ny, nx) utility map with its cell centres (xs, ys), for drawing.
 
+    State: the missions of the latest plan with the index of the current one, and the mission
+    held after the last failure, are Context state. What the updates also read back stays on
+    ``self``, so one planner serves one run and a cloned or reset Context does not rewind it
+    (walk() makes a new planner per walk, through its route source): the capability ``mdp``
+    and its ``solution`` (the whole map's transitions and values; going round a failed action
+    forbids it in the MDP and solves value iteration again, and these arrays would be copied
+    with the state at every update), and ``log``, ``done`` and the failures already answered,
+    which the walk's loop and metrics read between steps without a Context.
+
     Args:
         model: a CapabilityModel (anything with its ``success``).
         heightmap: the map planned over.

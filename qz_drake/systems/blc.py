@@ -118,6 +118,15 @@ class TrajectoryOptimizationBLC(LeafSystem):
     no solve (nor retry) could plan and ``robot_topology`` (abstract str) is the topology the
     robot is in or is switching to: a route source that reacts to failures reads them.
 
+    Everything the updates and outputs read is Context state (the mission asked for, the plan,
+    the plan solved ahead, the solution, the robot's topology, the failed missions), so a cloned
+    or reset Context replays the same plans. Two things stay on ``self``, neither read by an
+    update: ``log`` (BlcLog), a record the system writes and never reads back, kept on the
+    system so that a caller reads it after the run without the Context (a second run of the
+    same diagram appends to it: walk() builds a new diagram per run); and ``_planners``, the
+    mission planner built for a heightmap, a cache that depends on the heightmap and the
+    constructor's arguments only.
+
     Args:
         params: QingzhuiParams of the robot.
         timing: MissionTiming (duration of a mission from its length).
