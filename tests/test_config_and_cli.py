@@ -1,5 +1,6 @@
 """Scenario files and the qz command: good input runs, bad input names the field, exit 2."""
 
+import dataclasses
 import json
 import re
 from pathlib import Path
@@ -112,3 +113,20 @@ def test_cli_usage_error_is_one_line(capsys):
 
 def test_qz_error_is_the_base_of_config_errors():
     assert issubclass(ConfigError, QzError)
+
+
+def test_the_mission_timing_defaults_are_one_dataclasss():
+    # Speed and tripod phase are written once (MissionTiming); the scenario's controller, the
+    # capability trials, Fig. 9 and the tripod plan all start from it.
+    from qz_drake.capability.trials import TrialConfig
+    from qz_drake.config import ControllerConfig, MissionTiming
+    from qz_drake.experiments.fig9 import ExperimentConfig
+    from qz_drake.systems.reference_gait import TripodGaitPlan
+
+    timing = MissionTiming()
+    assert ControllerConfig().timing == timing
+    for config in (TrialConfig(), ExperimentConfig()):
+        assert MissionTiming(config.speed, config.phase_duration) == timing
+    phase = next(f for f in dataclasses.fields(TripodGaitPlan) if f.name == "phase_duration")
+    assert phase.default == timing.phase_duration
+    assert ControllerConfig(speed=0.3, phase_duration=0.5).timing == MissionTiming(0.3, 0.5)
