@@ -17,7 +17,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "qz_drake"
 # The floors from the bottom up. A room is a folder of qz_drake or one of its top-level
 # modules; an arrow may stay on its floor or go down, never up.
 FLOORS = (
-    ("qz_drake", "qz_drake.errors", "qz_drake.progress"),
+    ("qz_drake", "qz_drake.errors", "qz_drake.progress", "qz_drake.threads"),
     ("qz_drake.robot", "qz_drake.terrain", "qz_drake.state_layout"),
     ("qz_drake.config", "qz_drake.trajopt", "qz_drake.viz"),
     ("qz_drake.scene", "qz_drake.systems", "qz_drake.verdict"),

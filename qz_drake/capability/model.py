@@ -23,6 +23,7 @@ import numpy as np
 from qz_drake.capability import patches as P
 from qz_drake.capability.dataset import robot_fingerprint
 from qz_drake.errors import QzError, bad_value
+from qz_drake.threads import set_torch_threads
 
 MODEL_FORMAT = "qz_drake.capability_model"
 NETWORK_FORMAT = "qz_drake.capability_network"
@@ -227,6 +228,9 @@ class CapabilityModel:
         # (topology, kind) -> CapabilityNet, in eval mode.
         self._networks = dict(networks)
         self.card = card
+        # Inference on the cores that are free now (qz_drake/threads.py): torch's default of
+        # one thread per core made a plan 3x slower with the other core busy.
+        set_torch_threads()
 
     # -- construction -------------------------------------------------------------------------
     @classmethod
