@@ -61,14 +61,22 @@ _COMPONENT_PREFIXES = (
 )
 
 
-def _module_file(name: str) -> Path | None:
-    from importlib.util import find_spec
+_PACKAGE_ROOT = Path(__file__).resolve().parents[1]  # the qz_drake folder
 
-    try:
-        spec = find_spec(name)
-    except (ImportError, ValueError):
+
+@functools.cache
+def _module_file(name: str) -> Path | None:
+    """The source file of a qz_drake module, found in the package's folder (not by importing
+    it: importlib's find_spec imports every parent package, which made a model's robot check
+    take a second); None for a name that is no module (a class or function imported by name)."""
+    parts = name.split(".")
+    if parts[0] != "qz_drake":
         return None
-    return Path(spec.origin) if spec is not None and spec.origin and spec.origin.endswith(".py") else None
+    base = _PACKAGE_ROOT.joinpath(*parts[1:])
+    for file in (base.with_suffix(".py"), base / "__init__.py"):
+        if file.is_file():
+            return file
+    return None
 
 
 def _imported_modules(name: str, tree: ast.AST, is_package: bool = False) -> set[str]:
