@@ -5,7 +5,7 @@
 * input ``joint_torque`` (18, leg-major URDF joint order, [N*m]); in position mode
   (``scenario.station.control_mode``) also ``joint_position_command`` (18, [rad]), held by the
   drives' PD (the plant's implicit PD actuators), with ``joint_torque`` as feedforward;
-* outputs ``state`` (49, see qz_drake.systems.state_layout), ``joint_torque_measured`` (18),
+* outputs ``state`` (49, see qz_drake.state_layout), ``joint_torque_measured`` (18),
   ``imu`` (10: orientation quaternion, gyro, accelerometer), ``foot_contact`` (6, 1.0 = in
   contact);
 * simulation-only outputs for monitors and metrics (never for controllers):

@@ -16,7 +16,7 @@ from pydrake.systems.framework import Diagram
 from qz_drake.config import Scenario
 from qz_drake.errors import bad_value
 from qz_drake.hardware.interface import make_hardware_interface
-# The scene's pieces, also imported from here (notebooks, benchmarks, trajopt/commands.py).
+# The scene's pieces, also imported from here (notebooks, benchmarks, cli/blc.py).
 from qz_drake.scene import GRAVITY, StationInfo, make_heightmap, standing_state  # noqa: F401
 from qz_drake.sim_station import make_sim_station
 

@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from qz_drake.state_layout import JOINT_Q, base_rpy, tilt_deg
+from qz_drake.state_layout import BASE_XY, JOINT_Q, base_rpy, tilt_deg
 
 REASON_CODES: tuple[str, ...] = ("blc_infeasible", "blc_time_limit", "fell", "trunk_contact",
                                  "leg_contact", "tracking", "slip", "missed_target")
@@ -137,7 +137,7 @@ def judge_walk(criteria, *, goal_xy_yaw, times, states, desired_q, feet_W, conta
     final_xy_error = math.inf
     final_yaw_error = math.inf
     if len(states):
-        final_xy_error = float(np.hypot(*(states[-1, 4:6] - np.asarray(goal_xy_yaw[:2], dtype=float))))
+        final_xy_error = float(np.hypot(*(states[-1, BASE_XY] - np.asarray(goal_xy_yaw[:2], dtype=float))))
         if goal_xy_yaw[2] is None:
             final_yaw_error = 0.0
         else:

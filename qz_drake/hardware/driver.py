@@ -33,7 +33,7 @@ from qz_drake.hardware.watchdog import (LinkState, WatchdogLimits, declare_messa
                                        step_watchdog)
 from qz_drake.robot.params import NUM_JOINTS, NUM_LEGS, QingzhuiParams
 from qz_drake.sim_station import make_sim_station
-from qz_drake.systems.state_layout import BASE_POS, BASE_QUAT, BASE_VEL, IMU_SIZE, JOINT_Q, JOINT_V, STATE_SIZE
+from qz_drake.state_layout import BASE_POS, BASE_QUAT, BASE_VEL, IMU_SIZE, JOINT_Q, JOINT_V, STATE_SIZE
 
 # The driver publishes its status a quarter period after its tick, and takes the newest command
 # an eighth of a period before the tick (see qz_drake.hardware.config): a Drake plant's step

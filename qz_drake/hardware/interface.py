@@ -42,7 +42,7 @@ from qz_drake.hardware.watchdog import (LinkState, WatchdogLimits, declare_messa
 from qz_drake.robot.params import DEFAULT_PARAMS, NUM_JOINTS, NUM_LEGS, QingzhuiParams
 from qz_drake.robot.topology import get_topology
 from qz_drake.scene import StationInfo, crop_to_region, default_region, make_heightmap, standing_state
-from qz_drake.systems.state_layout import (BASE_ANGVEL, BASE_POS, BASE_QUAT, BASE_VEL, IMU_SIZE,
+from qz_drake.state_layout import (BASE_ANGVEL, BASE_POS, BASE_QUAT, BASE_VEL, IMU_SIZE,
                                            JOINT_Q, JOINT_V, STATE_SIZE)
 
 # Offsets within a control period (see qz_drake.hardware.config): the interface decodes at

@@ -19,7 +19,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 
 from qz_drake.robot.model import JointOrder, add_qingzhui
 from qz_drake.robot.params import DEFAULT_PARAMS, LEG_NAMES, NUM_JOINTS, QingzhuiParams
-from qz_drake.systems.state_layout import JOINT_Q, JOINT_V, STATE_SIZE
+from qz_drake.state_layout import JOINT_Q, JOINT_V, STATE_SIZE
 
 
 class RobotControlModel:
