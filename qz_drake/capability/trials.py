@@ -179,15 +179,21 @@ def _error_record(base: dict, message: str, status: str = "error") -> dict:
     return base
 
 
+def blank_record() -> dict:
+    """A record with every field of the shards, each zero (or empty) of its dtype."""
+    record = {name: np.zeros((), dtype=dt).item() for name, dt in RECORD_FIELDS.items()}
+    record.update({name: np.zeros(shape, dtype=dt) for name, (shape, dt) in ARRAY_FIELDS.items()})
+    record.update({name: 0.0 for name in TIME_FIELDS})
+    return record
+
+
 def base_record(spec: TrialSpec, config: TrialConfig, scene=None) -> dict:
     """A trial's record before it runs: its identity, scene and start, outcome fields zero."""
     from qz_drake.capability.scenes import scene_for
 
     scene = scene or scene_for(spec.seed, spec.scene)
     heading, offsets, direction = start_of(spec, config)
-    record = {name: np.zeros((), dtype=dt).item() for name, dt in RECORD_FIELDS.items()}
-    record.update({name: np.zeros(shape, dtype=dt) for name, (shape, dt) in ARRAY_FIELDS.items()})
-    record.update({name: 0.0 for name in TIME_FIELDS})
+    record = blank_record()
     record.update(index=spec.index, scene=spec.scene, heading_sample=spec.heading_sample,
                   scene_kind=scene.kind, difficulty=scene.difficulty, scene_seed=scene.seed,
                   topology=spec.topology, kind=spec.kind, heading=heading,

@@ -1,0 +1,302 @@
+"""Capability trials that look like walks (issue 37): episodes of chained missions.
+
+A one-move trial starts from a standing pose and labels one mission. A walk's mission starts
+where the last one ended (often on a step or between boxes), is commanded by CapPlanner's
+guidance (forward one cell along the current heading, or a 45 deg turn) and fails on what ends
+walks. An episode is such a walk on one capability scene: from the scene's start, standing in
+one topology with perturbed feet, a chain of EPISODE_MISSIONS commands drawn like the
+planner's actions (forward: orthogonal or diagonal as the heading is, turns left and right),
+walked in Drake by the walk's own BLC system, tracker and verdict (qz_drake.simulation with a
+FixedRoute). Every mission the robot set out on is a labelled sample, with its own height
+patch and start feet (where the BLC planned it from), judged on its own stretch of the walk
+by the strict verdict; the first failure ends the episode, as it ends a walk.
+
+Commands never leave the scene's area (a forward move that would is drawn again as a turn),
+so that a mission's patch and the simulated terrain cover where it goes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+import traceback
+
+import numpy as np
+
+from qz_drake.capability.patches import (HEADING_STEP, feet_in_heading_frame, ground_reference,
+                                         move_distance, sample_patches)
+from qz_drake.capability.trials import TrialConfig, blank_record, trial_blc_parameters
+from qz_drake.errors import QzError, bad_value
+from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+# Missions in an episode (the first failure ends it earlier).
+EPISODE_MISSIONS = 4
+# How likely each command is: forward, turn left, turn right (CapPlanner's routes are mostly
+# forward moves with a turn every few cells).
+COMMAND_WEIGHTS = {"forward": 0.6, "left": 0.2, "right": 0.2}
+# A mission's end stays this far inside the scene's edge (the robot's feet reach about 0.9 m
+# from its centre). [m]
+SCENE_EDGE_MARGIN = 1.0
+# Simulated time after an episode's last planned mission, before its verdict. [s]
+SETTLE_AFTER = 0.5
+
+
+@dataclasses.dataclass(frozen=True)
+class EpisodeSpec:
+    """Everything an episode depends on (small: it travels to worker processes)."""
+
+    seed: int
+    index: int
+    scene: int
+    topology: str
+
+    @property
+    def episode_id(self) -> str:
+        return f"{self.seed}-e{self.index}"
+
+
+def episode_specs(seed: int, scenes: int, *, topologies=TOPOLOGY_NAMES) -> list[EpisodeSpec]:
+    """One episode per scene and topology, in index order."""
+    for t in topologies:
+        if t not in TOPOLOGY_NAMES:
+            raise bad_value("topologies", t, f"expected some of {', '.join(TOPOLOGY_NAMES)}")
+    return [EpisodeSpec(seed, scene * len(TOPOLOGY_NAMES) + TOPOLOGY_NAMES.index(t), scene, t)
+            for scene in range(scenes) for t in TOPOLOGY_NAMES if t in topologies]
+
+
+@dataclasses.dataclass(frozen=True)
+class Mission:
+    """One command of an episode: its kind (orthogonal, diagonal or turn), the turn's
+    direction (0 left, 1 right; -1 for a move) and the pose it ends in (x, y, yaw)."""
+
+    kind: str
+    direction: int
+    target: tuple[float, float, float]
+
+
+def episode_commands(spec: EpisodeSpec, half_size: float, config: TrialConfig = TrialConfig()
+                     ) -> tuple[float, np.ndarray, list[Mission]]:
+    """(start heading [rad], start foot offsets (6, 2) [m], missions) of an episode: the
+    heading one of the planner's eight, the feet perturbed like a one-move trial's, the
+    commands drawn with COMMAND_WEIGHTS from the episode's seed."""
+    rng = np.random.default_rng([spec.seed, spec.scene, spec.index, 0xE915])
+    heading_index = int(rng.integers(0, 8))
+    offsets = rng.uniform(-config.foot_offset, config.foot_offset, (6, 2))
+    names = list(COMMAND_WEIGHTS)
+    weights = np.array([COMMAND_WEIGHTS[n] for n in names])
+    limit = half_size - SCENE_EDGE_MARGIN
+    x = y = 0.0
+    h = heading_index
+    missions = []
+    for _ in range(EPISODE_MISSIONS):
+        command = names[int(rng.choice(len(names), p=weights / weights.sum()))]
+        kind = "diagonal" if h % 2 else "orthogonal"
+        yaw = h * HEADING_STEP
+        if command == "forward":
+            d = move_distance(kind)
+            nx, ny = x + d * math.cos(yaw), y + d * math.sin(yaw)
+            if max(abs(nx), abs(ny)) <= limit:
+                x, y = nx, ny
+                missions.append(Mission(kind, -1, (x, y, yaw)))
+                continue
+            command = "left" if rng.random() < 0.5 else "right"
+        h = (h + (1 if command == "left" else -1)) % 8
+        missions.append(Mission("turn", 0 if command == "left" else 1, (x, y, h * HEADING_STEP)))
+    return heading_index * HEADING_STEP, offsets, missions
+
+
+def episode_scenario(spec: EpisodeSpec, missions: list[Mission], heading: float, offsets: np.ndarray,
+                     config: TrialConfig, half_size: float, criteria=None):
+    """The walking scenario of an episode: its missions as a route of waypoints, one mission
+    each (the scene's map is passed to the station apart)."""
+    from qz_drake.config import (ControllerConfig, RobotConfig, Scenario, SimulationConfig,
+                                 SuccessCriteria, TerrainConfig, Waypoint)
+
+    # Every mission's duration rounds up to whole tripod cycles, at most two more than its
+    # distance at the mission speed, and the BLC may retry none: 3 s a mission is ample.
+    duration = sum(move_distance(m.kind) / config.speed + 3.0 for m in missions) + 1.0
+    return Scenario(
+        name=f"episode_{spec.episode_id}",
+        description="capability episode",
+        terrain=TerrainConfig(kind="flat", region=[-half_size, half_size, -half_size, half_size]),
+        robot=RobotConfig(topology=spec.topology, initial_xy=[0.0, 0.0], initial_yaw=heading,
+                          initial_foot_offsets=offsets.tolist()),
+        simulation=SimulationConfig(duration=duration),
+        controller=ControllerConfig(kind="walk", planner="blc",
+                                    route=[Waypoint(x=m.target[0], y=m.target[1], yaw=m.target[2],
+                                                    topology=spec.topology) for m in missions],
+                                    # One route leg, one mission (the longest is a diagonal cell).
+                                    mission_length=move_distance("diagonal") + 0.01,
+                                    speed=config.speed, phase_duration=config.phase_duration,
+                                    kp=config.kp, kd=config.kd),
+        success=criteria or SuccessCriteria(),
+    )
+
+
+def _record(spec: EpisodeSpec, scene, position: int, mission: Mission) -> dict:
+    record = blank_record()
+    record.update(index=spec.index, scene=spec.scene, heading_sample=position, scene_kind=scene.kind,
+                  difficulty=scene.difficulty, scene_seed=scene.seed, topology=spec.topology,
+                  kind=mission.kind, direction=mission.direction, status="executed")
+    return record
+
+
+def _mission_inputs(record: dict, heightmap, start_xy_yaw, feet_W) -> None:
+    """The network's inputs of a mission that starts at (x, y, yaw) with its feet feet_W."""
+    x, y, yaw = start_xy_yaw
+    ground = float(ground_reference(heightmap, x, y))
+    record["heading"] = float(yaw)
+    record["patch"] = sample_patches(heightmap, x, y, yaw, record["kind"], ground=ground)
+    record["feet"] = feet_in_heading_frame(np.asarray(feet_W, dtype=float), x, y, yaw, ground)
+
+
+def run_episode(spec: EpisodeSpec, config: TrialConfig = TrialConfig(), criteria=None) -> list[dict]:
+    """Walks an episode; returns one record per mission the robot set out on (the trials'
+    record fields; ``heading_sample`` holds the mission's place in the chain). The first
+    failed mission is the last record; a start the topology cannot stand on gives one
+    ``invalid`` record, a crash one ``error`` record (never raised)."""
+    from qz_drake.capability.scenes import SCENE_HALF_SIZE, scene_for
+    from qz_drake.scene import standing_state
+    from qz_drake.robot.topology import get_topology
+    from qz_drake.simulation import SETTLE_TIME, build_walk, feet_in_world, judge_walk_run, run_walk
+
+    clock = time.perf_counter()
+    scene = scene_for(spec.seed, spec.scene)
+    heading, offsets, missions = episode_commands(spec, SCENE_HALF_SIZE, config)
+    hm = scene.heightmap
+    first = _record(spec, scene, 0, missions[0])
+    try:
+        scenario = episode_scenario(spec, missions, heading, offsets, config, SCENE_HALF_SIZE, criteria)
+        params = dataclasses.replace(_default_params(), payload_mass=scenario.robot.payload_kg)
+        try:
+            x0 = standing_state(hm, get_topology(spec.topology, params), (0.0, 0.0), heading, params,
+                                foot_offsets=offsets)
+        except QzError as e:
+            first.update(status="invalid", error=f"start not standable: {e}"[:400],
+                         time_total_s=time.perf_counter() - clock)
+            return [first]
+        built = build_walk(scenario, heightmap=hm, blc_params=trial_blc_parameters(config))
+        run = None if not hasattr(built, "diagram") else run_walk(built, scenario, stop_on_failure=True)
+    except Exception as e:  # a crash of the episode, not a label
+        first.update(status="error", error=f"{type(e).__name__}: {e}\n{traceback.format_exc(limit=3)}"[:400],
+                     time_total_s=time.perf_counter() - clock)
+        return [first]
+    start_feet = feet_in_world(x0[None], params)[0]
+    if run is None or not hasattr(run, "simulator"):  # the first mission was not planned
+        not_started = run if run is not None else built
+        _mission_inputs(first, hm, (0.0, 0.0, heading), start_feet)
+        first.update(success=False, reason=_blc_code(not_started.reason), blc_success=False,
+                     message=not_started.reason[:200], blc_reason=not_started.reason[:200],
+                     blc_iterations=_iterations(built, 0) if hasattr(built, "missions") else 0,
+                     time_total_s=time.perf_counter() - clock)
+        return [first]
+    result = judge_walk_run(scenario, built, run)
+    records = _label_missions(spec, scene, missions, built, run, result, scenario.success)
+    first_contact = result.metrics.get("first_body_contact_s")
+    if first_contact is not None and first_contact < SETTLE_TIME:
+        # Touching before the first mission began: the start is invalid, not a label.
+        records = [dict(records[0], status="invalid", success=False,
+                        error=f"start not standable: {result.metrics.get('reason', '')}"[:400])]
+    total = time.perf_counter() - clock
+    for r in records:
+        r["time_total_s"] = total / len(records)
+    return records
+
+
+def _default_params():
+    from qz_drake.robot.params import DEFAULT_PARAMS
+
+    return DEFAULT_PARAMS
+
+
+def _blc_code(reason: str) -> str:
+    from qz_drake.verdict import blc_failure_code
+
+    return blc_failure_code(reason)
+
+
+def _label_missions(spec, scene, missions, built, run, result, criteria) -> list[dict]:
+    """One record per mission the robot set out on, each judged on its own stretch of the walk:
+    from its plan's start to the next plan's start (the last: to the end of the run)."""
+    from qz_drake.simulation import feet_in_world
+    from qz_drake.state_layout import BASE_XY, base_rpy
+    from qz_drake.verdict import judge_walk
+
+    log = built.missions.log
+    plans = log.plans
+    failures = dict(log.failures)
+    times, states = result.times, result.states
+    desired = built.logs["desired"].FindLog(run.context).data().T
+    links = built.logs["leg"].FindLog(run.context).data().T if built.logs["leg"] is not None else None
+    selfc = built.logs["self"].FindLog(run.context).data()[0] if built.logs["self"] is not None else None
+    feet_W = feet_in_world(states, built.info.params)
+    records = []
+    for k, mission in enumerate(missions):
+        record = _record(spec, scene, k, mission)
+        if k < len(plans):
+            plan = plans[k]
+            t0 = plan.start_time
+            # Where the BLC planned it from (a walk's mission: the state measured there).
+            base, rpy = plan.base_position(t0), plan.base_rpy(t0)
+            _mission_inputs(record, scene.heightmap, (float(base[0]), float(base[1]), float(rpy[2])),
+                            plan.foot_positions(t0))
+            t1 = plans[k + 1].start_time if k + 1 < len(plans) else times[-1] + 1e-9
+            window = (times >= t0 - 1e-9) & (times < t1)
+            last = k + 1 >= len(plans)
+            n = int(window.sum())
+            verdict = judge_walk(
+                criteria, goal_xy_yaw=mission.target, times=times[window], states=states[window],
+                desired_q=desired[window], feet_W=feet_W[window], contacts=result.foot_contact[window],
+                trunk=result.trunk_contact[window],
+                leg_link_force=np.zeros((n, 6)) if links is None else links[window],
+                self_force=np.zeros(n) if selfc is None else selfc[window],
+                fell=run.fell and last, timed_out=last and not run.stopped and not run.fell
+                and not built.missions.done)
+            m = verdict.measures
+            record.update(
+                success=bool(verdict.success), reason=verdict.reasons[0] if verdict.reasons else "",
+                message="; ".join(verdict.messages)[:200], blc_success=True,
+                blc_iterations=_iterations(built, k),
+                final_xy_error_m=float(m["final_xy_error_m"]), final_yaw_error_deg=float(m["final_yaw_error_deg"]),
+                max_tilt_deg=float(m["max_tilt_deg"]), max_joint_error_deg=float(m["max_joint_error_deg"]),
+                max_foot_slip_m=float(m["max_foot_slip_m"]), max_leg_link_force_n=float(m["max_leg_link_force_n"]),
+                sim_time_s=float(times[window][-1] - times[window][0]) if n else 0.0)
+            records.append(record)
+            if not verdict.success:
+                break
+        elif k in failures:  # the BLC could not plan it: from the state it was given
+            i = int(np.searchsorted(times, _solve_time(built, k)))
+            i = min(i, len(times) - 1)
+            _mission_inputs(record, scene.heightmap,
+                            (float(states[i, BASE_XY][0]), float(states[i, BASE_XY][1]),
+                             float(base_rpy(states[i])[2])), feet_W[i])
+            reason = failures[k]
+            record.update(success=False, reason=_blc_code(reason), message=reason[:200], blc_success=False,
+                          blc_reason=reason[:200], blc_iterations=_iterations(built, k))
+            records.append(record)
+            break
+        else:  # the run ended before this mission was given (a fall or a stop in the last)
+            break
+    return records
+
+
+def _mission_solves(built, k: int) -> list:
+    """The BLC's solves of mission k (a retry repeats its target)."""
+    missions = []
+    for s in built.missions.blc.log.solves:
+        if not missions or s.target != missions[-1][0].target:
+            missions.append([])
+        missions[-1].append(s)
+    return missions[k] if k < len(missions) else []
+
+
+def _iterations(built, k: int) -> int:
+    """Ipopt iterations of the solves of mission k."""
+    return int(sum(s.iterations for s in _mission_solves(built, k)))
+
+
+def _solve_time(built, k: int) -> float:
+    """When mission k was to start (its first solve's start time; 0 if it had none). [s]"""
+    solves = _mission_solves(built, k)
+    return float(solves[0].start_time) if solves else 0.0

@@ -1,0 +1,71 @@
+"""Capability episodes (issue 37): chained missions walked like a walk, one label each."""
+
+import math
+
+import numpy as np
+import pytest
+
+from qz_drake.capability.episodes import (EPISODE_MISSIONS, SCENE_EDGE_MARGIN, EpisodeSpec,
+                                          episode_commands, episode_specs, run_episode)
+from qz_drake.capability.patches import HEADING_STEP, move_distance
+from qz_drake.capability.scenes import SCENE_HALF_SIZE, scene_recipe
+from qz_drake.config import SuccessCriteria
+
+
+def _flat_episode(seed: int = 0) -> EpisodeSpec:
+    scene = next(i for i in range(200) if scene_recipe(seed, i)[0] == "flat")
+    return EpisodeSpec(seed, scene * 6, scene, "nominal")
+
+
+def test_commands_chain_like_the_planners_actions_and_stay_on_the_scene():
+    for spec in episode_specs(3, 40):
+        heading, offsets, missions = episode_commands(spec, SCENE_HALF_SIZE)
+        assert len(missions) == EPISODE_MISSIONS and offsets.shape == (6, 2)
+        assert episode_commands(spec, SCENE_HALF_SIZE)[2] == missions  # deterministic
+        x, y, yaw = 0.0, 0.0, heading
+        for m in missions:
+            h = round(yaw / HEADING_STEP) % 8
+            if m.kind == "turn":
+                # 45 deg left (0) or right (1) in place.
+                step = 1 if m.direction == 0 else -1
+                assert m.target[:2] == pytest.approx((x, y))
+                assert math.remainder(m.target[2] - yaw - step * HEADING_STEP, 2 * math.pi) == pytest.approx(0)
+            else:
+                # Forward one cell along the heading: orthogonal on an axis, diagonal between.
+                assert m.kind == ("diagonal" if h % 2 else "orthogonal") and m.direction == -1
+                d = move_distance(m.kind)
+                assert m.target[:2] == pytest.approx((x + d * math.cos(yaw), y + d * math.sin(yaw)))
+                assert m.target[2] == pytest.approx(yaw)
+            assert max(abs(m.target[0]), abs(m.target[1])) <= SCENE_HALF_SIZE - SCENE_EDGE_MARGIN + 1e-9
+            x, y, yaw = m.target
+    with pytest.raises(Exception, match="topologies"):
+        episode_specs(0, 1, topologies=["upside_down"])
+
+
+def test_an_episode_on_flat_ground_labels_every_mission_from_where_it_starts():
+    spec = _flat_episode()
+    heading, _, missions = episode_commands(spec, SCENE_HALF_SIZE)
+    records = run_episode(spec)
+    assert [r["status"] for r in records] == ["executed"] * EPISODE_MISSIONS
+    assert all(r["success"] for r in records), [(r["reason"], r["message"]) for r in records]
+    assert [r["heading_sample"] for r in records] == list(range(EPISODE_MISSIONS))
+    assert [r["kind"] for r in records] == [m.kind for m in missions]
+    for k, r in enumerate(records):
+        assert r["patch"].shape == (20, 20) and np.abs(r["patch"]).max() < 1e-6  # flat
+        assert r["blc_success"] and r["blc_iterations"] > 0 and r["sim_time_s"] > 1.0
+        assert r["final_xy_error_m"] < 0.15
+        # Each mission starts where the last one took the robot: its heading is the last
+        # target's, and its feet are where the last mission put them (no standing pose).
+        start_yaw = heading if k == 0 else missions[k - 1].target[2]
+        assert math.remainder(r["heading"] - start_yaw, 2 * math.pi) == pytest.approx(0, abs=0.05)
+    feet = [r["feet"] for r in records]
+    assert any(np.abs(a - b).max() > 0.02 for a, b in zip(feet, feet[1:]))
+
+
+def test_the_first_failed_mission_ends_the_episode_with_its_reason():
+    # A verdict that allows no slip at all: the first mission's feet roll a few millimetres.
+    strict = SuccessCriteria(max_foot_slip_m=1e-4)
+    records = run_episode(_flat_episode(), criteria=strict)
+    assert len(records) == 1
+    assert not records[0]["success"] and records[0]["reason"] == "slip"
+    assert "slid" in records[0]["message"]
