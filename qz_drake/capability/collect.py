@@ -174,6 +174,24 @@ def check_ray_address(address: str, timeout: float = 5.0) -> None:
         raise bad_value("--ray-address", address, f"no Ray cluster reachable ({e.strerror or e})") from None
 
 
+def execute_episode(spec, config: TrialConfig) -> list[dict]:
+    """What a worker runs for an episode (protocol "episodes"): its records, one per mission."""
+    import logging
+
+    from qz_drake.capability.episodes import run_episode
+
+    logging.getLogger("drake").setLevel(logging.ERROR)
+    _maybe_crash(spec)
+    return run_episode(spec, config)
+
+
+def _crashed_episode(spec, message: str, config: TrialConfig) -> list[dict]:
+    """The error record of an episode whose worker died every time."""
+    from qz_drake.capability.episodes import episode_error_record
+
+    return [episode_error_record(spec, message)]
+
+
 def _crashed(spec: TrialSpec, message: str, config: TrialConfig) -> dict:
     """The error record of a trial whose worker died every time."""
     from qz_drake.capability.trials import base_record
@@ -229,14 +247,22 @@ class RayPool:
         self._ray.shutdown()
 
 
+PROTOCOLS = ("moves", "episodes")
+
+
 def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=None,
             config: TrialConfig = TrialConfig(), workers: int = 1, ray_address: str | None = None,
             shard_size: int = 100, max_retries: int = 2, progress: bool = True,
-            command: str = "", limit: int | None = None, log_every: float = 0.0) -> CollectionSummary:
+            command: str = "", limit: int | None = None, log_every: float = 0.0,
+            protocol: str = "moves") -> CollectionSummary:
     """Collects (or resumes) the trials of ``scenes`` scenes into the dataset folder ``out``.
 
-    ``limit`` stops after that many new trials (the rest is left for a later resume);
-    ``log_every`` > 0 prints a plain progress line on stderr at most that often (seconds).
+    ``protocol`` "moves": one-move trials from a standing start (paper 000 III-B), every topology
+    and kind per scene; "episodes": one episode of chained missions per scene and topology
+    (capability/episodes.py, issue 37), a record per mission it set out on (its kinds are the
+    commands drawn, so ``kinds`` must be left out). ``limit`` stops after that many new trials
+    or episodes (the rest is left for a later resume); ``log_every`` > 0 prints a plain progress
+    line on stderr at most that often (seconds).
     """
     from qz_drake.capability.patches import KINDS
     from qz_drake.robot.topology import TOPOLOGY_NAMES
@@ -253,14 +279,28 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
             raise bad_value("--kinds", k, f"unknown kind (valid: {', '.join(KINDS)})")
     if workers < 1:
         raise bad_value("--workers", workers, "must be at least 1")
+    if protocol not in PROTOCOLS:
+        raise bad_value("--protocol", protocol, f"expected one of {', '.join(PROTOCOLS)}")
+    episodes = protocol == "episodes"
+    if episodes and kinds != tuple(KINDS):
+        raise bad_value("--kinds", ",".join(kinds), "an episode's kinds are the commands it draws: leave "
+                                                    "--kinds out with --protocol episodes")
     if ray_address:
         check_ray_address(ray_address)
     clock = time.perf_counter()
     parts = fingerprints(config)
-    store = TrialStore(out, seed=seed, settings=settings_dict(config), parts=parts, command=command)
+    settings = settings_dict(config)
+    if episodes:  # a moves dataset's settings stay as they were before episodes existed
+        settings["protocol"] = protocol
+    store = TrialStore(out, seed=seed, settings=settings, parts=parts, command=command)
     try:
-        specs = trial_specs(seed, scenes, topologies=topologies, kinds=kinds,
-                            headings_per_scene=config.headings_per_scene)
+        if episodes:
+            from qz_drake.capability.episodes import episode_specs
+
+            specs = episode_specs(seed, scenes, topologies=topologies)
+        else:
+            specs = trial_specs(seed, scenes, topologies=topologies, kinds=kinds,
+                                headings_per_scene=config.headings_per_scene)
         done = store.done_indices()
         todo = [s for s in specs if s.index not in done]
         if limit is not None:
@@ -269,22 +309,28 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
         counts = {"ran": 0, "errors": 0, "invalid": 0}
         monitor = _Progress(len(todo), enabled=progress, log_every=log_every)
 
-        def on_record(record):
-            buffer.append(record)
+        def on_record(result):
+            # A trial's record, or an episode's records (its first tells how it started).
+            records = result if isinstance(result, list) else [result]
+            buffer.extend(records)
             counts["ran"] += 1
-            counts["errors"] += record["status"] == "error"
-            counts["invalid"] += record["status"] == "invalid"
-            monitor.update(record)
+            counts["errors"] += records[0]["status"] == "error"
+            counts["invalid"] += records[0]["status"] == "invalid"
+            for record in records[1:]:
+                monitor.count(record)
+            monitor.update(records[0])
             if len(buffer) >= shard_size:
                 store.append(buffer)
                 buffer.clear()
 
         pool = None
         previous = _raise_on_sigterm()
+        function, crashed = (execute_episode, _crashed_episode) if episodes else (execute, _crashed)
         try:
             if todo:
-                pool = RayPool(ray_address, config, max_retries) if ray_address else \
-                    LocalPool(min(workers, len(todo)), config, max_retries)
+                pool = RayPool(ray_address, config, max_retries, function=function, crashed=crashed) \
+                    if ray_address else LocalPool(min(workers, len(todo)), config, max_retries,
+                                                  function=function, crashed=crashed)
                 pool.run(todo, on_record)
         finally:
             # Whatever finished is kept, also when the run is interrupted.
@@ -366,11 +412,15 @@ class _Progress:
             table.add_row(*row)
         return self._group(self._progress, table)
 
-    def update(self, record: dict) -> None:
+    def count(self, record: dict) -> None:
+        """Counts an executed record's outcome in the success rates (no step of the bar)."""
         if record["status"] == "executed":
             entry = self.rates.setdefault((record["topology"], record["kind"]), [0, 0])
             entry[0] += bool(record["success"])
             entry[1] += 1
+
+    def update(self, record: dict) -> None:
+        self.count(record)
         if self.log is not None:
             self.log.update()
         if not self.enabled:

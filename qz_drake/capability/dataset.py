@@ -43,8 +43,8 @@ MANIFEST = "manifest.json"
 # stack (the learned model and the planners that use it, reachable from qz_drake.simulation's
 # capplanner controller only). A new module is fingerprinted unless it falls under one of
 # these. Each module belongs to the first component whose prefix it matches.
-FINGERPRINT_ROOTS = ("qz_drake.capability.trials", "qz_drake.simulation", "qz_drake.systems.blc",
-                     "qz_drake.systems.blc_plan")
+FINGERPRINT_ROOTS = ("qz_drake.capability.trials", "qz_drake.capability.episodes", "qz_drake.simulation",
+                     "qz_drake.systems.blc", "qz_drake.systems.blc_plan")
 UNFINGERPRINTED = ("qz_drake.viz", "qz_drake.cli", "qz_drake.bench", "qz_drake.hardware",
                    "qz_drake.planning",
                    "qz_drake.capability.collect", "qz_drake.capability.stats",

@@ -142,6 +142,16 @@ def _record(spec: EpisodeSpec, scene, position: int, mission: Mission) -> dict:
     return record
 
 
+def episode_error_record(spec: EpisodeSpec, message: str) -> dict:
+    """The record of an episode that crashed (status "error", kept and excluded from training)."""
+    from qz_drake.capability.scenes import SCENE_HALF_SIZE, scene_for
+
+    _, _, missions = episode_commands(spec, SCENE_HALF_SIZE)
+    record = _record(spec, scene_for(spec.seed, spec.scene), 0, missions[0])
+    record.update(status="error", error=message[:400])
+    return record
+
+
 def _mission_inputs(record: dict, heightmap, start_xy_yaw, feet_W) -> None:
     """The network's inputs of a mission that starts at (x, y, yaw) with its feet feet_W."""
     x, y, yaw = start_xy_yaw

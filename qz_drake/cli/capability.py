@@ -33,7 +33,7 @@ from rich.console import Console
 from rich.table import Table
 
 from qz_drake.capability import model_commands, stats, training
-from qz_drake.capability.collect import collect, recertify
+from qz_drake.capability.collect import PROTOCOLS, collect, recertify
 from qz_drake.capability.evaluation import evaluate_model
 from qz_drake.capability.model import CapabilityModel
 from qz_drake.capability.patches import KINDS
@@ -62,7 +62,7 @@ def run_collect(args) -> int:
                       workers=args.workers, ray_address=args.ray_address, shard_size=args.shard_size,
                       progress=not args.json and sys.stderr.isatty() or args.progress,
                       command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
-                      limit=args.limit, log_every=args.log_every)
+                      limit=args.limit, log_every=args.log_every, protocol=args.protocol)
     print(json.dumps(dataclasses.asdict(summary), indent=None if args.json else 2))
     return 0
 
@@ -138,6 +138,10 @@ def register(subparsers) -> None:
     p.add_argument("--topologies", default=None,
                    help=f"comma-separated topologies, each {one_of(TOPOLOGY_NAMES)} (default: all)")
     p.add_argument("--kinds", default=None, help=f"comma-separated kinds, each {one_of(KINDS)} (default: all)")
+    p.add_argument("--protocol", default="moves", choices=PROTOCOLS,
+                   help="moves: one-move trials from a standing start (paper 000), every topology and "
+                        "kind per scene; episodes: per scene and topology a chain of the planner's "
+                        "actions walked like a walk, a record per mission (issue 37)")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--ray-address", default=None, help="run the trials on this Ray cluster (host:port)")
     p.add_argument("--seed", type=int, default=0)
