@@ -390,11 +390,19 @@ def load_records(path) -> tuple[dict[str, np.ndarray], dict]:
         empty.update({k: np.zeros(0) for k in TIME_FIELDS})
         return empty, manifest
     arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    order = np.argsort(arrays["index"], kind="stable")
+    # An episode (protocol "episodes") stores a record per mission: index, then the mission's
+    # place in the chain (heading_sample), identify a record.
+    episodes = manifest.get("settings", {}).get("protocol") == "episodes"
+    second = arrays["heading_sample"] if episodes else np.zeros_like(arrays["index"])
+    order = np.lexsort((second, arrays["index"]))
     arrays = {k: v[order] for k, v in arrays.items()}
-    duplicated = np.flatnonzero(np.diff(arrays["index"]) == 0)
+    second = second[order]
+    duplicated = np.flatnonzero((np.diff(arrays["index"]) == 0) & (np.diff(second) == 0))
     if duplicated.size:
-        raise bad_value("dataset", str(path), f"trial {int(arrays['index'][duplicated[0]])} is stored twice")
+        k = duplicated[0]
+        what = (f"mission {int(second[k])} of episode {int(arrays['index'][k])}" if episodes
+                else f"trial {int(arrays['index'][k])}")
+        raise bad_value("dataset", str(path), f"{what} is stored twice")
     return arrays, manifest
 
 
