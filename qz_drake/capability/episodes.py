@@ -11,8 +11,13 @@ FixedRoute). Every mission the robot set out on is a labelled sample, with its o
 patch and start feet (where the BLC planned it from), judged on its own stretch of the walk
 by the strict verdict; the first failure ends the episode, as it ends a walk.
 
-Commands never leave the scene's area (a forward move that would is drawn again as a turn),
-so that a mission's patch and the simulated terrain cover where it goes.
+A capability scene reaches 2.5 m from the start: room for one forward move in most
+directions, so that a first probe's chains were 71 % turns (BENCHMARKS "capability", session
+34). An episode walks the scene extended to EPISODE_HALF_SIZE by continuing its border (a stair
+flight's levels, a slope's plane, a box field's ground run on; padded_scene_map), and its
+commands never take the robot beyond SCENE_EDGE_MARGIN inside that (a forward move that would is
+drawn again as a turn), so that a mission's patch and the simulated terrain cover where it goes.
+The simulation holds the route's surroundings only (TRIAL_REGION_MARGIN around it).
 """
 
 from __future__ import annotations
@@ -35,7 +40,9 @@ EPISODE_MISSIONS = 4
 # How likely each command is: forward, turn left, turn right (CapPlanner's routes are mostly
 # forward moves with a turn every few cells).
 COMMAND_WEIGHTS = {"forward": 0.6, "left": 0.2, "right": 0.2}
-# A mission's end stays this far inside the scene's edge (the robot's feet reach about 0.9 m
+# An episode's map reaches this far from the start: the scene, its border continued. [m]
+EPISODE_HALF_SIZE = 4.0
+# A mission's end stays this far inside the map's edge (the robot's feet reach about 0.9 m
 # from its centre). [m]
 SCENE_EDGE_MARGIN = 1.0
 # Simulated time after an episode's last planned mission, before its verdict. [s]
@@ -106,20 +113,46 @@ def episode_commands(spec: EpisodeSpec, half_size: float, config: TrialConfig = 
     return heading_index * HEADING_STEP, offsets, missions
 
 
+def padded_scene_map(heightmap, half_size: float):
+    """The scene's map extended to ``half_size`` around the start by continuing its border
+    cells outwards (the same resolution; its own cells unchanged)."""
+    from qz_drake.terrain.heightmap import HeightMap
+
+    res = heightmap.resolution
+    H, W = heightmap.heights.shape
+    x0, y0 = heightmap.origin
+    left = max(0, int(math.ceil((x0 + half_size) / res - 1e-9)))
+    right = max(0, int(math.ceil((half_size - (x0 + (W - 1) * res)) / res - 1e-9)))
+    below = max(0, int(math.ceil((y0 + half_size) / res - 1e-9)))
+    above = max(0, int(math.ceil((half_size - (y0 + (H - 1) * res)) / res - 1e-9)))
+    pad = ((below, above), (left, right))
+    materials = None if heightmap.materials is None else np.pad(heightmap.materials, pad, mode="edge")
+    return HeightMap(heights=np.pad(heightmap.heights, pad, mode="edge"), resolution=res,
+                     origin=(x0 - left * res, y0 - below * res), materials=materials,
+                     material_names=heightmap.material_names)
+
+
 def episode_scenario(spec: EpisodeSpec, missions: list[Mission], heading: float, offsets: np.ndarray,
                      config: TrialConfig, half_size: float, criteria=None):
     """The walking scenario of an episode: its missions as a route of waypoints, one mission
-    each (the scene's map is passed to the station apart)."""
+    each (the map is passed to the station apart); the simulated region the route's
+    surroundings."""
+    from qz_drake.capability.trials import TRIAL_REGION_MARGIN
     from qz_drake.config import (ControllerConfig, RobotConfig, Scenario, SimulationConfig,
                                  SuccessCriteria, TerrainConfig, Waypoint)
 
     # Every mission's duration rounds up to whole tripod cycles, at most two more than its
     # distance at the mission speed, and the BLC may retry none: 3 s a mission is ample.
     duration = sum(move_distance(m.kind) / config.speed + 3.0 for m in missions) + 1.0
+    xs = [0.0] + [m.target[0] for m in missions]
+    ys = [0.0] + [m.target[1] for m in missions]
+    r = TRIAL_REGION_MARGIN
+    region = [max(min(xs) - r, -half_size), min(max(xs) + r, half_size),
+              max(min(ys) - r, -half_size), min(max(ys) + r, half_size)]
     return Scenario(
         name=f"episode_{spec.episode_id}",
         description="capability episode",
-        terrain=TerrainConfig(kind="flat", region=[-half_size, half_size, -half_size, half_size]),
+        terrain=TerrainConfig(kind="flat", region=region),
         robot=RobotConfig(topology=spec.topology, initial_xy=[0.0, 0.0], initial_yaw=heading,
                           initial_foot_offsets=offsets.tolist()),
         simulation=SimulationConfig(duration=duration),
@@ -144,9 +177,9 @@ def _record(spec: EpisodeSpec, scene, position: int, mission: Mission) -> dict:
 
 def episode_error_record(spec: EpisodeSpec, message: str) -> dict:
     """The record of an episode that crashed (status "error", kept and excluded from training)."""
-    from qz_drake.capability.scenes import SCENE_HALF_SIZE, scene_for
+    from qz_drake.capability.scenes import scene_for
 
-    _, _, missions = episode_commands(spec, SCENE_HALF_SIZE)
+    _, _, missions = episode_commands(spec, EPISODE_HALF_SIZE)
     record = _record(spec, scene_for(spec.seed, spec.scene), 0, missions[0])
     record.update(status="error", error=message[:400])
     return record
@@ -166,18 +199,19 @@ def run_episode(spec: EpisodeSpec, config: TrialConfig = TrialConfig(), criteria
     record fields; ``heading_sample`` holds the mission's place in the chain). The first
     failed mission is the last record; a start the topology cannot stand on gives one
     ``invalid`` record, a crash one ``error`` record (never raised)."""
-    from qz_drake.capability.scenes import SCENE_HALF_SIZE, scene_for
+    from qz_drake.capability.scenes import scene_for
     from qz_drake.scene import standing_state
     from qz_drake.robot.topology import get_topology
     from qz_drake.simulation import SETTLE_TIME, build_walk, feet_in_world, judge_walk_run, run_walk
 
     clock = time.perf_counter()
     scene = scene_for(spec.seed, spec.scene)
-    heading, offsets, missions = episode_commands(spec, SCENE_HALF_SIZE, config)
-    hm = scene.heightmap
+    heading, offsets, missions = episode_commands(spec, EPISODE_HALF_SIZE, config)
+    hm = padded_scene_map(scene.heightmap, EPISODE_HALF_SIZE)
+    scene = dataclasses.replace(scene, heightmap=hm)
     first = _record(spec, scene, 0, missions[0])
     try:
-        scenario = episode_scenario(spec, missions, heading, offsets, config, SCENE_HALF_SIZE, criteria)
+        scenario = episode_scenario(spec, missions, heading, offsets, config, EPISODE_HALF_SIZE, criteria)
         params = dataclasses.replace(_default_params(), payload_mass=scenario.robot.payload_kg)
         try:
             x0 = standing_state(hm, get_topology(spec.topology, params), (0.0, 0.0), heading, params,

@@ -5,10 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from qz_drake.capability.episodes import (EPISODE_MISSIONS, SCENE_EDGE_MARGIN, EpisodeSpec,
-                                          episode_commands, episode_specs, run_episode)
+from qz_drake.capability.episodes import (EPISODE_HALF_SIZE, EPISODE_MISSIONS, SCENE_EDGE_MARGIN,
+                                          EpisodeSpec, episode_commands, episode_specs,
+                                          padded_scene_map, run_episode)
 from qz_drake.capability.patches import HEADING_STEP, move_distance
-from qz_drake.capability.scenes import SCENE_HALF_SIZE, scene_recipe
+from qz_drake.capability.scenes import SCENE_HALF_SIZE, scene_for, scene_recipe
 from qz_drake.config import SuccessCriteria
 
 
@@ -19,9 +20,9 @@ def _flat_episode(seed: int = 0) -> EpisodeSpec:
 
 def test_commands_chain_like_the_planners_actions_and_stay_on_the_scene():
     for spec in episode_specs(3, 40):
-        heading, offsets, missions = episode_commands(spec, SCENE_HALF_SIZE)
+        heading, offsets, missions = episode_commands(spec, EPISODE_HALF_SIZE)
         assert len(missions) == EPISODE_MISSIONS and offsets.shape == (6, 2)
-        assert episode_commands(spec, SCENE_HALF_SIZE)[2] == missions  # deterministic
+        assert episode_commands(spec, EPISODE_HALF_SIZE)[2] == missions  # deterministic
         x, y, yaw = 0.0, 0.0, heading
         for m in missions:
             h = round(yaw / HEADING_STEP) % 8
@@ -36,15 +37,39 @@ def test_commands_chain_like_the_planners_actions_and_stay_on_the_scene():
                 d = move_distance(m.kind)
                 assert m.target[:2] == pytest.approx((x + d * math.cos(yaw), y + d * math.sin(yaw)))
                 assert m.target[2] == pytest.approx(yaw)
-            assert max(abs(m.target[0]), abs(m.target[1])) <= SCENE_HALF_SIZE - SCENE_EDGE_MARGIN + 1e-9
+            assert max(abs(m.target[0]), abs(m.target[1])) <= EPISODE_HALF_SIZE - SCENE_EDGE_MARGIN + 1e-9
             x, y, yaw = m.target
     with pytest.raises(Exception, match="topologies"):
         episode_specs(0, 1, topologies=["upside_down"])
 
 
+def test_most_commands_are_forward_moves_as_in_the_planners_routes():
+    kinds = [m.kind for spec in episode_specs(1, 50) for m in episode_commands(spec, EPISODE_HALF_SIZE)[2]]
+    turns = kinds.count("turn") / len(kinds)
+    assert 0.3 < turns < 0.5, turns  # 40 % drawn, a few more where a move would leave the map
+
+
+def test_the_scene_map_is_extended_by_continuing_its_border():
+    scene = scene_for(2, 3)
+    hm = scene.heightmap
+    padded = padded_scene_map(hm, EPISODE_HALF_SIZE)
+    assert padded.resolution == hm.resolution
+    (xmin, xmax), (ymin, ymax) = (padded.x_coords[[0, -1]], padded.y_coords[[0, -1]])
+    assert xmin <= -EPISODE_HALF_SIZE + 1e-9 and xmax >= EPISODE_HALF_SIZE - 1e-9
+    assert ymin <= -EPISODE_HALF_SIZE + 1e-9 and ymax >= EPISODE_HALF_SIZE - 1e-9
+    # The scene's own cells are unchanged; beyond them each row and column runs on.
+    i0 = int(round((hm.origin[0] - padded.origin[0]) / hm.resolution))
+    j0 = int(round((hm.origin[1] - padded.origin[1]) / hm.resolution))
+    H, W = hm.heights.shape
+    np.testing.assert_array_equal(padded.heights[j0:j0 + H, i0:i0 + W], hm.heights)
+    np.testing.assert_array_equal(padded.heights[j0:j0 + H, 0], hm.heights[:, 0])
+    np.testing.assert_array_equal(padded.heights[-1, i0:i0 + W], hm.heights[-1])
+    assert SCENE_HALF_SIZE < EPISODE_HALF_SIZE
+
+
 def test_an_episode_on_flat_ground_labels_every_mission_from_where_it_starts():
     spec = _flat_episode()
-    heading, _, missions = episode_commands(spec, SCENE_HALF_SIZE)
+    heading, _, missions = episode_commands(spec, EPISODE_HALF_SIZE)
     records = run_episode(spec)
     assert [r["status"] for r in records] == ["executed"] * EPISODE_MISSIONS
     assert all(r["success"] for r in records), [(r["reason"], r["message"]) for r in records]
