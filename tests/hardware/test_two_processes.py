@@ -8,6 +8,7 @@ group. The driver is stopped with SIGTERM and prints its report.
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -44,6 +45,11 @@ def run_two_processes(scenario: Path, out: Path) -> tuple[int, dict, dict, dict]
                                            "--out", out / "run"),
                                         capture_output=True, text=True, timeout=1200)
         finally:
+            # The driver latches its safe stop once commands have been stale for its
+            # command_timeout (50 ms of its simulated time, 0.5 s of wall time at RATE): give it
+            # three times that after the controller has gone, or a controller that exits fast
+            # races the termination (seen once in a fresh clone's `make test`).
+            time.sleep(3 * 0.05 / float(RATE))
             driver.terminate()
             driver_report = json.loads(driver.communicate(timeout=60)[0].splitlines()[-1])
     finally:
