@@ -536,6 +536,11 @@ def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "",
     if workers < 1:
         raise bad_value("--workers", workers, "must be at least 1")
     manifest = read_manifest(path)
+    if manifest.get("settings", {}).get("protocol") == "episodes":
+        # An episode's records are one walk: re-running a sample of them means re-running whole
+        # episodes and comparing record lists, which this does not do yet.
+        raise bad_value("dataset", str(path), "is an episode dataset (--protocol episodes): recertifying "
+                                              "one is not supported; collect it again")
     lock = DatasetLock(path, field="dataset")  # no collection may write it meanwhile
     try:
         return _recertify(path, manifest, sample, workers, command, clock, reference_code)

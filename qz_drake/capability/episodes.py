@@ -33,7 +33,9 @@ from qz_drake.capability.patches import (HEADING_STEP, feet_in_heading_frame, gr
                                          move_distance, sample_patches)
 from qz_drake.capability.trials import TrialConfig, blank_record, trial_blc_parameters
 from qz_drake.errors import QzError, bad_value
+from qz_drake.robot.params import DEFAULT_PARAMS
 from qz_drake.robot.topology import TOPOLOGY_NAMES
+from qz_drake.verdict import blc_failure_code
 
 # Missions in an episode (the first failure ends it earlier).
 EPISODE_MISSIONS = 4
@@ -196,9 +198,10 @@ def _mission_inputs(record: dict, heightmap, start_xy_yaw, feet_W) -> None:
 
 def run_episode(spec: EpisodeSpec, config: TrialConfig = TrialConfig(), criteria=None) -> list[dict]:
     """Walks an episode; returns one record per mission the robot set out on (the trials'
-    record fields; ``heading_sample`` holds the mission's place in the chain). The first
-    failed mission is the last record; a start the topology cannot stand on gives one
-    ``invalid`` record, a crash one ``error`` record (never raised)."""
+    record fields; ``heading_sample`` holds the mission's place in the chain, ``time_total_s``
+    the episode's wall time shared evenly). The first failed mission is the last record; a
+    start the topology cannot stand on gives one ``invalid`` record, a crash one ``error``
+    record (never raised)."""
     from qz_drake.capability.scenes import scene_for
     from qz_drake.scene import standing_state
     from qz_drake.robot.topology import get_topology
@@ -212,7 +215,7 @@ def run_episode(spec: EpisodeSpec, config: TrialConfig = TrialConfig(), criteria
     first = _record(spec, scene, 0, missions[0])
     try:
         scenario = episode_scenario(spec, missions, heading, offsets, config, EPISODE_HALF_SIZE, criteria)
-        params = dataclasses.replace(_default_params(), payload_mass=scenario.robot.payload_kg)
+        params = dataclasses.replace(DEFAULT_PARAMS, payload_mass=scenario.robot.payload_kg)
         try:
             x0 = standing_state(hm, get_topology(spec.topology, params), (0.0, 0.0), heading, params,
                                 foot_offsets=offsets)
@@ -230,7 +233,7 @@ def run_episode(spec: EpisodeSpec, config: TrialConfig = TrialConfig(), criteria
     if run is None or not hasattr(run, "simulator"):  # the first mission was not planned
         not_started = run if run is not None else built
         _mission_inputs(first, hm, (0.0, 0.0, heading), start_feet)
-        first.update(success=False, reason=_blc_code(not_started.reason), blc_success=False,
+        first.update(success=False, reason=blc_failure_code(not_started.reason), blc_success=False,
                      message=not_started.reason[:200], blc_reason=not_started.reason[:200],
                      blc_iterations=_iterations(built, 0) if hasattr(built, "missions") else 0,
                      time_total_s=time.perf_counter() - clock)
@@ -246,18 +249,6 @@ def run_episode(spec: EpisodeSpec, config: TrialConfig = TrialConfig(), criteria
     for r in records:
         r["time_total_s"] = total / len(records)
     return records
-
-
-def _default_params():
-    from qz_drake.robot.params import DEFAULT_PARAMS
-
-    return DEFAULT_PARAMS
-
-
-def _blc_code(reason: str) -> str:
-    from qz_drake.verdict import blc_failure_code
-
-    return blc_failure_code(reason)
 
 
 def _label_missions(spec, scene, missions, built, run, result, criteria) -> list[dict]:
@@ -316,7 +307,7 @@ def _label_missions(spec, scene, missions, built, run, result, criteria) -> list
                             (float(states[i, BASE_XY][0]), float(states[i, BASE_XY][1]),
                              float(base_rpy(states[i])[2])), feet_W[i])
             reason = failures[k]
-            record.update(success=False, reason=_blc_code(reason), message=reason[:200], blc_success=False,
+            record.update(success=False, reason=blc_failure_code(reason), message=reason[:200], blc_success=False,
                           blc_reason=reason[:200], blc_iterations=_iterations(built, k))
             records.append(record)
             break

@@ -114,6 +114,10 @@ def test_an_episode_collection_stores_a_record_per_mission_and_resumes(tmp_path)
     assert list(arrays["reason"]) == [r["reason"] for r in expected]
     again = collect(out, seed=5, scenes=1, topologies=["nominal"], protocol="episodes", progress=False)
     assert again.already_done == 1 and again.ran == 0
+    from qz_drake.capability.collect import recertify
+
+    with pytest.raises(Exception, match="episode dataset"):
+        recertify(out)
     with pytest.raises(Exception, match="--kinds"):
         collect(tmp_path / "other", scenes=1, kinds=["turn"], protocol="episodes", progress=False)
     with pytest.raises(Exception, match="--protocol"):
