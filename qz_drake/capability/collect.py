@@ -307,7 +307,8 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
             todo = todo[:limit]
         buffer: list[dict] = []
         counts = {"ran": 0, "errors": 0, "invalid": 0}
-        monitor = _Progress(len(todo), enabled=progress, log_every=log_every)
+        monitor = _Progress(len(todo), enabled=progress, log_every=log_every,
+                            unit="episodes" if episodes else "trials")
 
         def on_record(result):
             # A trial's record, or an episode's records (its first tells how it started).
@@ -373,10 +374,10 @@ class _Progress:
     """A rich progress bar with trials per second, ETA and the success rate so far per
     topology and kind."""
 
-    def __init__(self, total: int, enabled: bool, log_every: float = 0.0):
+    def __init__(self, total: int, enabled: bool, log_every: float = 0.0, unit: str = "trials"):
         self.enabled = enabled and total > 0
         self.rates: dict[tuple[str, str], list[int]] = {}
-        self.log = _ProgressLog(total, log_every, self.rates) if log_every > 0 and total > 0 else None
+        self.log = _ProgressLog(total, log_every, self.rates, unit) if log_every > 0 and total > 0 else None
         if not self.enabled:
             return
         from rich.console import Group
@@ -386,10 +387,10 @@ class _Progress:
 
         from qz_drake.progress import SPEED_PERIOD, stderr_console
 
-        self._progress = Progress(TextColumn("trials"), BarColumn(), MofNCompleteColumn(),
+        self._progress = Progress(TextColumn(unit), BarColumn(), MofNCompleteColumn(),
                                   TextColumn("{task.fields[rate]:.2f}/s"), TimeElapsedColumn(),
                                   TextColumn("ETA"), TimeRemainingColumn(), speed_estimate_period=SPEED_PERIOD)
-        self._task = self._progress.add_task("trials", total=total, rate=0.0)
+        self._task = self._progress.add_task(unit, total=total, rate=0.0)
         self._start = time.perf_counter()
         self._group = Group
         # On stderr, as every progress display (qz_drake.progress): the summary on stdout stays JSON.
@@ -439,8 +440,8 @@ class _ProgressLog:
     """One plain line on stderr at most every ``every`` seconds (a background run's log): trials
     done, rate, ETA and the success rate so far."""
 
-    def __init__(self, total: int, every: float, rates: dict):
-        self.total, self.every, self.rates = total, float(every), rates
+    def __init__(self, total: int, every: float, rates: dict, unit: str = "trials"):
+        self.total, self.every, self.rates, self.unit = total, float(every), rates, unit
         self.start = self.last = time.perf_counter()
         self.done = 0
 
@@ -457,7 +458,7 @@ class _ProgressLog:
         executed = sum(v[1] for v in self.rates.values())
         eta = (self.total - self.done) / rate if rate > 0 else float("inf")
         success = f"{100 * ok / executed:.0f} % of {executed} executed" if executed else "none executed"
-        print(f"trials {self.done}/{self.total} ({100 * self.done / self.total:.1f} %), "
+        print(f"{self.unit} {self.done}/{self.total} ({100 * self.done / self.total:.1f} %), "
               f"{3600 * rate:.0f}/h, ETA {eta / 3600:.1f} h, success {success}",
               file=sys.stderr, flush=True)
 

@@ -41,7 +41,7 @@ def test_fig5_stairs_are_solved(stairs_maps, rise, distance, tmp_path):
     # iterations); a test asserts no wall time, so the limit here is generous and the
     # iterations (deterministic) are bounded instead.
     # A case not reached is bounded by iterations (the solved ones take 5-14), not 60 s of wall.
-    params = BlcParameters(time_limit=60.0, max_iterations=100 if (rise, distance) in NOT_REACHED else 3000)
+    params = BlcParameters(time_limit=60.0, max_iterations=50 if (rise, distance) in NOT_REACHED else 3000)
     solution = solve_blc(BlcTask(target=(distance, 0.0, 0.0), duration=1.0 + distance / 0.5),
                          terrain=stairs_maps[rise], params=params)
     if (rise, distance) in NOT_REACHED:
