@@ -50,14 +50,19 @@ def _maybe_crash(spec: TrialSpec) -> None:
         os._exit(17)
 
 
-def execute(spec: TrialSpec, config: TrialConfig) -> dict:
-    """What a worker runs: the trial, behind the fault-injection hook."""
+def _start_work(spec) -> None:
+    """What every worker does before a trial or an episode: Drake's warnings quiet (Ipopt's
+    "maximum iteration limit" is the trials' budget doing its job; the record says so, reason
+    blc_time_limit), then the fault-injection hook."""
     import logging
 
-    # Ipopt's "maximum iteration limit" warning is the trials' budget doing its job; the
-    # record says so (reason blc_time_limit).
     logging.getLogger("drake").setLevel(logging.ERROR)
     _maybe_crash(spec)
+
+
+def execute(spec: TrialSpec, config: TrialConfig) -> dict:
+    """What a worker runs: the trial, behind the fault-injection hook."""
+    _start_work(spec)
     return run_trial(spec, config)
 
 
@@ -176,12 +181,9 @@ def check_ray_address(address: str, timeout: float = 5.0) -> None:
 
 def execute_episode(spec, config: TrialConfig) -> list[dict]:
     """What a worker runs for an episode (protocol "episodes"): its records, one per mission."""
-    import logging
-
     from qz_drake.capability.episodes import run_episode
 
-    logging.getLogger("drake").setLevel(logging.ERROR)
-    _maybe_crash(spec)
+    _start_work(spec)
     return run_episode(spec, config)
 
 

@@ -35,7 +35,8 @@ from qz_drake.capability.trials import TrialConfig, blank_record, trial_blc_para
 from qz_drake.errors import QzError, bad_value
 from qz_drake.robot.params import DEFAULT_PARAMS
 from qz_drake.robot.topology import TOPOLOGY_NAMES
-from qz_drake.verdict import blc_failure_code
+from qz_drake.state_layout import BASE_XY, base_rpy
+from qz_drake.verdict import blc_failure_code, judge_walk
 
 # Missions in an episode (the first failure ends it earlier).
 EPISODE_MISSIONS = 4
@@ -255,8 +256,6 @@ def _label_missions(spec, scene, missions, built, run, result, criteria) -> list
     """One record per mission the robot set out on, each judged on its own stretch of the walk:
     from its plan's start to the next plan's start (the last: to the end of the run)."""
     from qz_drake.simulation import feet_in_world
-    from qz_drake.state_layout import BASE_XY, base_rpy
-    from qz_drake.verdict import judge_walk
 
     log = built.missions.log
     plans = log.plans
