@@ -18,6 +18,15 @@ flight's levels, a slope's plane, a box field's ground run on; padded_scene_map)
 commands never take the robot beyond SCENE_EDGE_MARGIN inside that (a forward move that would is
 drawn again as a turn), so that a mission's patch and the simulated terrain cover where it goes.
 The simulation holds the route's surroundings only (TRIAL_REGION_MARGIN around it).
+
+Topology switches are samples of their own (kind "switch"): before each move or turn, with
+SWITCH_PROBABILITY, the episode changes to another topology drawn uniformly, as CapPlanner's
+routes do at a cell where the next action is in another topology. The BLC system switches the
+standing robot (qz_drake.systems.topology_switch) and then plans the move in the new topology.
+A switch's record has the new topology in ``topology`` and the one it switched from as its
+index in TOPOLOGY_NAMES in ``direction``; its patch is a turn's (around the body), its window
+the switch (from its start to the next mission's plan); "no plan" is a switch refused before it
+started (a leg would pass the terrain, or the robot cannot stand in the new topology there).
 """
 
 from __future__ import annotations
@@ -48,6 +57,8 @@ EPISODE_HALF_SIZE = 4.0
 # A mission's end stays this far inside the map's edge (the robot's feet reach about 0.9 m
 # from its centre). [m]
 SCENE_EDGE_MARGIN = 1.0
+# How likely a switch to another topology precedes each move or turn.
+SWITCH_PROBABILITY = 0.15
 # Simulated time after an episode's last planned mission, before its verdict. [s]
 SETTLE_AFTER = 0.5
 
@@ -77,19 +88,22 @@ def episode_specs(seed: int, scenes: int, *, topologies=TOPOLOGY_NAMES) -> list[
 
 @dataclasses.dataclass(frozen=True)
 class Mission:
-    """One command of an episode: its kind (orthogonal, diagonal or turn), the turn's
-    direction (0 left, 1 right; -1 for a move) and the pose it ends in (x, y, yaw)."""
+    """One command of an episode: its kind (orthogonal, diagonal, turn or switch), the turn's
+    direction (0 left, 1 right; -1 for a move; for a switch the index in TOPOLOGY_NAMES of the
+    topology it switches from), the pose it ends in (x, y, yaw) and the topology it is in."""
 
     kind: str
     direction: int
     target: tuple[float, float, float]
+    topology: str
 
 
 def episode_commands(spec: EpisodeSpec, half_size: float, config: TrialConfig = TrialConfig()
                      ) -> tuple[float, np.ndarray, list[Mission]]:
     """(start heading [rad], start foot offsets (6, 2) [m], missions) of an episode: the
     heading one of the planner's eight, the feet perturbed like a one-move trial's, the
-    commands drawn with COMMAND_WEIGHTS from the episode's seed."""
+    commands drawn with COMMAND_WEIGHTS from the episode's seed, EPISODE_MISSIONS moves and
+    turns, each preceded by a switch with SWITCH_PROBABILITY."""
     rng = np.random.default_rng([spec.seed, spec.scene, spec.index, 0xE915])
     heading_index = int(rng.integers(0, 8))
     offsets = rng.uniform(-config.foot_offset, config.foot_offset, (6, 2))
@@ -98,8 +112,16 @@ def episode_commands(spec: EpisodeSpec, half_size: float, config: TrialConfig = 
     limit = half_size - SCENE_EDGE_MARGIN
     x = y = 0.0
     h = heading_index
+    topology = spec.topology
     missions = []
     for _ in range(EPISODE_MISSIONS):
+        # Never before the first mission: the episode's topology is drawn already (and a walk
+        # whose first mission is not planned is not simulated, so the switch would not run).
+        if missions and rng.random() < SWITCH_PROBABILITY:
+            others = [t for t in TOPOLOGY_NAMES if t != topology]
+            new = others[int(rng.integers(0, len(others)))]
+            missions.append(Mission("switch", TOPOLOGY_NAMES.index(topology), (x, y, h * HEADING_STEP), new))
+            topology = new
         command = names[int(rng.choice(len(names), p=weights / weights.sum()))]
         kind = "diagonal" if h % 2 else "orthogonal"
         yaw = h * HEADING_STEP
@@ -108,11 +130,11 @@ def episode_commands(spec: EpisodeSpec, half_size: float, config: TrialConfig = 
             nx, ny = x + d * math.cos(yaw), y + d * math.sin(yaw)
             if max(abs(nx), abs(ny)) <= limit:
                 x, y = nx, ny
-                missions.append(Mission(kind, -1, (x, y, yaw)))
+                missions.append(Mission(kind, -1, (x, y, yaw), topology))
                 continue
             command = "left" if rng.random() < 0.5 else "right"
         h = (h + (1 if command == "left" else -1)) % 8
-        missions.append(Mission("turn", 0 if command == "left" else 1, (x, y, h * HEADING_STEP)))
+        missions.append(Mission("turn", 0 if command == "left" else 1, (x, y, h * HEADING_STEP), topology))
     return heading_index * HEADING_STEP, offsets, missions
 
 
@@ -146,7 +168,10 @@ def episode_scenario(spec: EpisodeSpec, missions: list[Mission], heading: float,
 
     # Every mission's duration rounds up to whole tripod cycles, at most two more than its
     # distance at the mission speed, and the BLC may retry none: 3 s a mission is ample.
-    duration = sum(move_distance(m.kind) / config.speed + 3.0 for m in missions) + 1.0
+    # A switch takes about 4.9 s (SwitchTiming: six legs in turn): 6 s.
+    moves = [m for m in missions if m.kind != "switch"]
+    duration = sum(move_distance(m.kind) / config.speed + 3.0 for m in moves) \
+        + 6.0 * (len(missions) - len(moves)) + 1.0
     xs = [0.0] + [m.target[0] for m in missions]
     ys = [0.0] + [m.target[1] for m in missions]
     r = TRIAL_REGION_MARGIN
@@ -160,8 +185,10 @@ def episode_scenario(spec: EpisodeSpec, missions: list[Mission], heading: float,
                           initial_foot_offsets=offsets.tolist()),
         simulation=SimulationConfig(duration=duration),
         controller=ControllerConfig(kind="walk", planner="blc",
+                                    # A switch is the next move's topology (the BLC system switches
+                                    # the standing robot before it plans that move).
                                     route=[Waypoint(x=m.target[0], y=m.target[1], yaw=m.target[2],
-                                                    topology=spec.topology) for m in missions],
+                                                    topology=m.topology) for m in moves],
                                     # One route leg, one mission (the longest is a diagonal cell).
                                     mission_length=move_distance("diagonal") + 0.01,
                                     speed=config.speed, phase_duration=config.phase_duration,
@@ -173,7 +200,7 @@ def episode_scenario(spec: EpisodeSpec, missions: list[Mission], heading: float,
 def _record(spec: EpisodeSpec, scene, position: int, mission: Mission) -> dict:
     record = blank_record()
     record.update(index=spec.index, scene=spec.scene, heading_sample=position, scene_kind=scene.kind,
-                  difficulty=scene.difficulty, scene_seed=scene.seed, topology=spec.topology,
+                  difficulty=scene.difficulty, scene_seed=scene.seed, topology=mission.topology,
                   kind=mission.kind, direction=mission.direction, status="executed")
     return record
 
@@ -193,7 +220,9 @@ def _mission_inputs(record: dict, heightmap, start_xy_yaw, feet_W) -> None:
     x, y, yaw = start_xy_yaw
     ground = float(ground_reference(heightmap, x, y))
     record["heading"] = float(yaw)
-    record["patch"] = sample_patches(heightmap, x, y, yaw, record["kind"], ground=ground)
+    # A switch's patch is a turn's: the ground around the body.
+    kind = "turn" if record["kind"] == "switch" else record["kind"]
+    record["patch"] = sample_patches(heightmap, x, y, yaw, kind, ground=ground)
     record["feet"] = feet_in_heading_frame(np.asarray(feet_W, dtype=float), x, y, yaw, ground)
 
 
@@ -254,60 +283,103 @@ def run_episode(spec: EpisodeSpec, config: TrialConfig = TrialConfig(), criteria
 
 def _label_missions(spec, scene, missions, built, run, result, criteria) -> list[dict]:
     """One record per mission the robot set out on, each judged on its own stretch of the walk:
-    from its plan's start to the next plan's start (the last: to the end of the run)."""
+    a move or turn from its plan's start to the next switch's or plan's start (the last: to the
+    end of the run), a switch from its start to the next plan's."""
     from qz_drake.simulation import feet_in_world
 
     log = built.missions.log
     plans = log.plans
     failures = dict(log.failures)
+    switches = list(built.missions.blc.log.switches)
     times, states = result.times, result.states
     desired = built.logs["desired"].FindLog(run.context).data().T
     links = built.logs["leg"].FindLog(run.context).data().T if built.logs["leg"] is not None else None
     selfc = built.logs["self"].FindLog(run.context).data()[0] if built.logs["self"] is not None else None
     feet_W = feet_in_world(states, built.info.params)
+    end = times[-1] + 1e-9
+
+    def judge(record, t0, t1, goal, last):
+        window = (times >= t0 - 1e-9) & (times < t1)
+        n = int(window.sum())
+        verdict = judge_walk(
+            criteria, goal_xy_yaw=goal, times=times[window], states=states[window],
+            desired_q=desired[window], feet_W=feet_W[window], contacts=result.foot_contact[window],
+            trunk=result.trunk_contact[window],
+            leg_link_force=np.zeros((n, 6)) if links is None else links[window],
+            self_force=np.zeros(n) if selfc is None else selfc[window],
+            fell=run.fell and last, timed_out=last and not run.stopped and not run.fell
+            and not built.missions.done)
+        m = verdict.measures
+        record.update(
+            success=bool(verdict.success), reason=verdict.reasons[0] if verdict.reasons else "",
+            message="; ".join(verdict.messages)[:200], blc_success=True,
+            final_xy_error_m=float(m["final_xy_error_m"]), final_yaw_error_deg=float(m["final_yaw_error_deg"]),
+            max_tilt_deg=float(m["max_tilt_deg"]), max_joint_error_deg=float(m["max_joint_error_deg"]),
+            max_foot_slip_m=float(m["max_foot_slip_m"]), max_leg_link_force_n=float(m["max_leg_link_force_n"]),
+            sim_time_s=float(times[window][-1] - times[window][0]) if n else 0.0)
+        return verdict.success
+
+    def measured_at(t):
+        i = min(int(np.searchsorted(times, t)), len(times) - 1)
+        return (float(states[i, BASE_XY][0]), float(states[i, BASE_XY][1]), float(base_rpy(states[i])[2])), feet_W[i]
+
+    def no_plan(record, reason, k):
+        record.update(success=False, reason=blc_failure_code(reason), message=reason[:200], blc_success=False,
+                      blc_reason=reason[:200], blc_iterations=_iterations(built, k))
+
     records = []
+    j = 0  # the next move's (or turn's) plan
+    s = 0  # the next switch the BLC system made
     for k, mission in enumerate(missions):
         record = _record(spec, scene, k, mission)
-        if k < len(plans):
-            plan = plans[k]
+        if mission.kind == "switch":
+            refused = failures.get(j, "")
+            if refused.startswith("topology switch"):
+                pose, feet = measured_at(_solve_time(built, j))
+                _mission_inputs(record, scene.heightmap, pose, feet)
+                no_plan(record, refused, j)
+                records.append(record)
+                break
+            if s >= len(switches):  # the run ended before it
+                break
+            switch = switches[s]
+            s += 1
+            if j >= len(plans):  # the move after it was refused: the switch never ran
+                continue
+            pose, feet = measured_at(switch.start_time)
+            _mission_inputs(record, scene.heightmap, pose, feet)
+            t1 = plans[j].start_time
+            records.append(record)
+            if not judge(record, switch.start_time, t1, pose, last=times[-1] < t1):
+                break
+        elif j < len(plans):
+            plan = plans[j]
             t0 = plan.start_time
             # Where the BLC planned it from (a walk's mission: the state measured there).
             base, rpy = plan.base_position(t0), plan.base_rpy(t0)
             _mission_inputs(record, scene.heightmap, (float(base[0]), float(base[1]), float(rpy[2])),
                             plan.foot_positions(t0))
-            t1 = plans[k + 1].start_time if k + 1 < len(plans) else times[-1] + 1e-9
-            window = (times >= t0 - 1e-9) & (times < t1)
-            last = k + 1 >= len(plans)
-            n = int(window.sum())
-            verdict = judge_walk(
-                criteria, goal_xy_yaw=mission.target, times=times[window], states=states[window],
-                desired_q=desired[window], feet_W=feet_W[window], contacts=result.foot_contact[window],
-                trunk=result.trunk_contact[window],
-                leg_link_force=np.zeros((n, 6)) if links is None else links[window],
-                self_force=np.zeros(n) if selfc is None else selfc[window],
-                fell=run.fell and last, timed_out=last and not run.stopped and not run.fell
-                and not built.missions.done)
-            m = verdict.measures
-            record.update(
-                success=bool(verdict.success), reason=verdict.reasons[0] if verdict.reasons else "",
-                message="; ".join(verdict.messages)[:200], blc_success=True,
-                blc_iterations=_iterations(built, k),
-                final_xy_error_m=float(m["final_xy_error_m"]), final_yaw_error_deg=float(m["final_yaw_error_deg"]),
-                max_tilt_deg=float(m["max_tilt_deg"]), max_joint_error_deg=float(m["max_joint_error_deg"]),
-                max_foot_slip_m=float(m["max_foot_slip_m"]), max_leg_link_force_n=float(m["max_leg_link_force_n"]),
-                sim_time_s=float(times[window][-1] - times[window][0]) if n else 0.0)
+            nxt = missions[k + 1] if k + 1 < len(missions) else None
+            if nxt is not None and nxt.kind == "switch" and s < len(switches):
+                t1 = switches[s].start_time
+            else:
+                t1 = plans[j + 1].start_time if j + 1 < len(plans) else end
+            last = times[-1] < t1
+            record["blc_iterations"] = _iterations(built, j)
+            j += 1
             records.append(record)
-            if not verdict.success:
+            if not judge(record, t0, t1, mission.target, last):
                 break
-        elif k in failures:  # the BLC could not plan it: from the state it was given
-            i = int(np.searchsorted(times, _solve_time(built, k)))
-            i = min(i, len(times) - 1)
-            _mission_inputs(record, scene.heightmap,
-                            (float(states[i, BASE_XY][0]), float(states[i, BASE_XY][1]),
-                             float(base_rpy(states[i])[2])), feet_W[i])
-            reason = failures[k]
-            record.update(success=False, reason=blc_failure_code(reason), message=reason[:200], blc_success=False,
-                          blc_reason=reason[:200], blc_iterations=_iterations(built, k))
+        elif j in failures:  # the BLC could not plan it: from the state it was given
+            after_switch = k > 0 and missions[k - 1].kind == "switch" and s > 0
+            if after_switch:  # planned from where the switch would have put the feet
+                switch = switches[s - 1]
+                pose, _ = measured_at(switch.start_time)
+                feet = np.asarray(switch.end_feet, dtype=float)
+            else:
+                pose, feet = measured_at(_solve_time(built, j))
+            _mission_inputs(record, scene.heightmap, pose, feet)
+            no_plan(record, failures[j], j)
             records.append(record)
             break
         else:  # the run ended before this mission was given (a fall or a stop in the last)

@@ -59,6 +59,10 @@ class TopologySwitchRecord:
     start_time: float
     from_topology: str
     to_topology: str
+    # When the switch ends (the next mission's plan starts then). [s]
+    end_time: float = math.nan
+    # Where it puts the feet (foot-sphere centres in the world), (6, 3) as nested tuples. [m]
+    end_feet: tuple = ()
 
 
 @dataclasses.dataclass
@@ -267,11 +271,13 @@ class TrajectoryOptimizationBLC(LeafSystem):
                     start_time=start.time, target=target, topology=topology, success=False, solve_time=0.0,
                     reason=f"topology switch {robot_topology} -> {topology}: {e}", iterations=0))
                 return
-            self.log.switches.append(TopologySwitchRecord(start.time, robot_topology, topology))
             state.get_mutable_abstract_state(self._plan).set_value(switch)
             state.get_mutable_abstract_state(self._next).set_value(None)
             current, ahead = switch, True
             start = expected_end(switch)
+            self.log.switches.append(TopologySwitchRecord(
+                switch.start_time, robot_topology, topology, end_time=float(switch.end_time),
+                end_feet=tuple(map(tuple, np.asarray(start.feet_W, dtype=float).tolist()))))
         planner = self._planner(heightmap)
         attempt = 0
         while True:

@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from qz_drake.capability.episodes import (EPISODE_HALF_SIZE, EPISODE_MISSIONS, SCENE_EDGE_MARGIN,
-                                          EpisodeSpec, episode_commands, episode_specs,
-                                          padded_scene_map, run_episode)
+                                          SWITCH_PROBABILITY, EpisodeSpec, episode_commands,
+                                          episode_specs, padded_scene_map, run_episode)
 from qz_drake.capability.patches import HEADING_STEP, move_distance
 from qz_drake.capability.scenes import SCENE_HALF_SIZE, scene_for, scene_recipe
 from qz_drake.config import SuccessCriteria
+from qz_drake.robot.topology import TOPOLOGY_NAMES
 
 
 def _flat_episode(seed: int = 0) -> EpisodeSpec:
@@ -18,14 +19,30 @@ def _flat_episode(seed: int = 0) -> EpisodeSpec:
     return EpisodeSpec(seed, scene * 6, scene, "nominal")
 
 
+def _flat_episode_with_switch() -> EpisodeSpec:
+    # Seed 2's flat scene 115: forward, forward, turn, switch to hind_bend, turn.
+    assert scene_recipe(2, 115)[0] == "flat"
+    return EpisodeSpec(2, 115 * 6, 115, "nominal")
+
+
 def test_commands_chain_like_the_planners_actions_and_stay_on_the_scene():
     for spec in episode_specs(3, 40):
         heading, offsets, missions = episode_commands(spec, EPISODE_HALF_SIZE)
-        assert len(missions) == EPISODE_MISSIONS and offsets.shape == (6, 2)
+        moves = [m for m in missions if m.kind != "switch"]
+        assert len(moves) == EPISODE_MISSIONS and offsets.shape == (6, 2)
         assert episode_commands(spec, EPISODE_HALF_SIZE)[2] == missions  # deterministic
+        assert missions[0].kind != "switch" and missions[-1].kind != "switch"
         x, y, yaw = 0.0, 0.0, heading
+        topology = spec.topology
         for m in missions:
             h = round(yaw / HEADING_STEP) % 8
+            if m.kind == "switch":
+                # In place, to another topology; direction: the one it leaves.
+                assert m.target == pytest.approx((x, y, yaw))
+                assert m.direction == TOPOLOGY_NAMES.index(topology) and m.topology != topology
+                topology = m.topology
+                continue
+            assert m.topology == topology
             if m.kind == "turn":
                 # 45 deg left (0) or right (1) in place.
                 step = 1 if m.direction == 0 else -1
@@ -45,8 +62,12 @@ def test_commands_chain_like_the_planners_actions_and_stay_on_the_scene():
 
 def test_most_commands_are_forward_moves_as_in_the_planners_routes():
     kinds = [m.kind for spec in episode_specs(1, 50) for m in episode_commands(spec, EPISODE_HALF_SIZE)[2]]
-    turns = kinds.count("turn") / len(kinds)
+    moves = [k for k in kinds if k != "switch"]
+    turns = moves.count("turn") / len(moves)
     assert 0.3 < turns < 0.5, turns  # 40 % drawn, a few more where a move would leave the map
+    # A switch before each move or turn but the first.
+    switches = kinds.count("switch") / (len(moves) * (EPISODE_MISSIONS - 1) / EPISODE_MISSIONS)
+    assert abs(switches - SWITCH_PROBABILITY) < 0.05, switches
 
 
 def test_the_scene_map_is_extended_by_continuing_its_border():
@@ -67,16 +88,25 @@ def test_the_scene_map_is_extended_by_continuing_its_border():
     assert SCENE_HALF_SIZE < EPISODE_HALF_SIZE
 
 
-def test_an_episode_on_flat_ground_labels_every_mission_from_where_it_starts():
-    spec = _flat_episode()
+def test_an_episode_on_flat_ground_labels_every_mission_and_switch_from_where_it_starts():
+    spec = _flat_episode_with_switch()
     heading, _, missions = episode_commands(spec, EPISODE_HALF_SIZE)
     records = run_episode(spec)
-    assert [r["status"] for r in records] == ["executed"] * EPISODE_MISSIONS
+    assert [r["status"] for r in records] == ["executed"] * len(missions)
     assert all(r["success"] for r in records), [(r["reason"], r["message"]) for r in records]
-    assert [r["heading_sample"] for r in records] == list(range(EPISODE_MISSIONS))
+    assert [r["heading_sample"] for r in records] == list(range(len(missions)))
     assert [r["kind"] for r in records] == [m.kind for m in missions]
+    assert "switch" in [m.kind for m in missions]
     for k, r in enumerate(records):
         assert r["patch"].shape == (20, 20) and np.abs(r["patch"]).max() < 1e-6  # flat
+        assert r["topology"] == missions[k].topology
+        if r["kind"] == "switch":
+            # Its own sample: from the topology it leaves, over the switch's own stretch (six
+            # legs moved in two tripods, no BLC solve), back where it stood.
+            assert r["direction"] == TOPOLOGY_NAMES.index(missions[k - 1].topology) and r["topology"] == "hind_bend"
+            assert r["blc_success"] and r["blc_iterations"] == 0 and 3.0 < r["sim_time_s"] < 6.0
+            assert r["final_xy_error_m"] < 0.02
+            continue
         assert r["blc_success"] and r["blc_iterations"] > 0 and r["sim_time_s"] > 1.0
         assert r["final_xy_error_m"] < 0.15
         # Each mission starts where the last one took the robot: its heading is the last
