@@ -205,9 +205,15 @@ def load_network(weights: Path, card: dict, name: str):
                                           f"(header format {metadata.get('format')!r})")
     if card.get("weights_sha256") != _sha256(weights):
         raise _error(field, str(weights), "its SHA-256 differs from the card's weights_sha256 (file replaced?)")
-    # Cards written before the factored output have one output.
-    config = NetworkConfig(**{"factored": False, **card.get("network_config", {})})
-    net = CapabilityNet(kind, config)
+    # Cards written before the factored output have one output, before issue 37 at most two.
+    config = NetworkConfig(**{"factored": False, "outcomes": False, **card.get("network_config", {})})
+    members = int(card.get("ensemble_members", 1))
+    if members > 1:
+        from qz_drake.capability.networks import CapabilityEnsemble
+
+        net = CapabilityEnsemble([CapabilityNet(kind, config) for _ in range(members)])
+    else:
+        net = CapabilityNet(kind, config)
     try:
         net.load_state_dict(state, strict=True)
     except RuntimeError as e:
@@ -395,21 +401,24 @@ class CapabilityModel:
         """(left, right) success of turning from the same queries: the same as ``success``
         with d = 0 and d = 1, but the patch head runs once for both directions."""
         self.success(np.asarray(patches)[:0], np.asarray(feet)[:0], "turn", topology, direction=0)  # checks shapes
-        left_right, _ = self.success_all(patches, {topology: feet}, "turn")[topology]
+        left_right, _, _ = self.success_all(patches, {topology: feet}, "turn")[topology]
         return left_right[0], left_right[1]
 
     def success_all(self, patches, feet: dict, kind: str) -> dict:
         """Every listed topology's network of one kind on the same patches, each with its own
-        feet: topology -> (success, plan), success as ``success`` gives it (to float32
+        feet: topology -> (success, plan, spread), success as ``success`` gives it (to float32
         rounding), plan the chance that the BLC plans the move (None for a network with the
-        paper's single output); for turns each is (2, ...): left (d = 0), right (d = 1).
+        paper's single output), spread the standard deviation of an ensemble's members'
+        success (networks.CapabilityEnsemble; None for a single network); for turns each is
+        (2, ...): left (d = 0), right (d = 1).
 
-        What the topologies share is done once: the first convolution of all the networks runs
-        as one convolution of their stacked kernels over the raw patches (1.8x faster than one
-        per network on the CPU: the input is read once). Each network standardises its input
-        with its own scalars, z = (h - mean) / scale, zero-padded; the convolution is linear, so
-        conv(pad0(z)) = conv_{W / scale}(pad0(h)) - (mean / scale) conv_W(pad0(1)) + b, where the
-        last map (the kernel's sum over the patch's interior) is computed once per network.
+        What the topologies share is done once: the first convolution of all the networks (of
+        every ensemble member) runs as one convolution of their stacked kernels over the raw
+        patches (1.8x faster than one per network on the CPU: the input is read once). Each
+        network standardises its input with its own scalars, z = (h - mean) / scale,
+        zero-padded; the convolution is linear, so conv(pad0(z)) = conv_{W / scale}(pad0(h)) -
+        (mean / scale) conv_W(pad0(1)) + b, where the last map (the kernel's sum over the
+        patch's interior) is computed once per network.
 
         Args:
             patches: (..., 20, 20) height patches [m], the same for every topology.
@@ -423,6 +432,8 @@ class CapabilityModel:
         P.check_kind(kind)
         topologies = list(feet)
         nets = [self.network(t, kind) for t in topologies]
+        # Every member of every topology's network, with the topology it answers for.
+        members = [(i, m) for i, net in enumerate(nets) for m in getattr(net, "members", [net])]
         patches = np.asarray(patches, dtype=np.float32)
         if patches.shape[-2:] != (P.PATCH_SIZE, P.PATCH_SIZE):
             raise _error("patches", f"array of shape {patches.shape}",
@@ -438,36 +449,42 @@ class CapabilityModel:
             extras.append(torch.from_numpy(np.ascontiguousarray(f.reshape(n, 18))))
         x = torch.from_numpy(np.ascontiguousarray(patches.reshape(n, 1, P.PATCH_SIZE, P.PATCH_SIZE)))
         directions = (P.TURN_LEFT, P.TURN_RIGHT) if kind == "turn" else (None,)
-        out = np.empty((len(topologies), len(directions), n))
-        plan = np.full((len(topologies), len(directions), n), np.nan)
+        out = np.empty((len(members), len(directions), n))
+        plan = np.full((len(members), len(directions), n), np.nan)
         with torch.inference_mode():
             kernels, offsets = [], []
-            for net in nets:
+            for _, net in members:
                 weight, bias = net.conv1.weight, net.conv1.bias
                 pad = weight.shape[-1] // 2
                 interior = torch.conv2d(torch.ones(1, 1, P.PATCH_SIZE, P.PATCH_SIZE), weight, padding=pad)[0]
                 kernels.append(weight / net.patch_scale)
                 offsets.append(interior * (net.patch_mean / net.patch_scale) - bias[:, None, None])
             kernels, offsets = torch.cat(kernels), torch.cat(offsets)
-            width = nets[0].conv1.out_channels
-            chunk = INFERENCE_BATCH_ALL
+            width = members[0][1].conv1.out_channels
+            chunk = max(1, INFERENCE_BATCH_ALL * len(nets) // len(members))
             for start in range(0, n, chunk):
                 stop = min(start + chunk, n)
                 first = torch.relu(_max_pool_2x2(torch.conv2d(x[start:stop], kernels, padding=pad) - offsets))
-                for i, net in enumerate(nets):
-                    h = torch.relu(_max_pool_2x2(net.conv2(first[:, i * width:(i + 1) * width])))
+                for j, (i, net) in enumerate(members):
+                    h = torch.relu(_max_pool_2x2(net.conv2(first[:, j * width:(j + 1) * width])))
                     features = torch.relu(net.patch_dense(h.flatten(1)))
-                    for j, d in enumerate(directions):
+                    for k, d in enumerate(directions):
                         extra = extras[i][start:stop]
                         if d is not None:
                             extra = torch.cat([extra, torch.full((stop - start, 1), float(d))], dim=1)
                         logits = net.head(features, extra)
-                        out[i, j, start:stop] = net.success_of(logits).numpy()
+                        out[j, k, start:stop] = net.success_of(logits).numpy()
                         if net.factored:
-                            plan[i, j, start:stop] = net.plan_of(logits).numpy()
+                            plan[j, k, start:stop] = net.plan_of(logits).numpy()
         shape = (len(directions),) + batch if kind == "turn" else batch
-        return {t: (out[i].reshape(shape), plan[i].reshape(shape) if nets[i].factored else None)
-                for i, t in enumerate(topologies)}
+        result = {}
+        for i, t in enumerate(topologies):
+            rows = [j for j, (owner, _) in enumerate(members) if owner == i]
+            success = out[rows].mean(axis=0).reshape(shape)
+            planned = plan[rows].mean(axis=0).reshape(shape) if nets[i].factored else None
+            spread = out[rows].std(axis=0).reshape(shape) if len(rows) > 1 else None
+            result[t] = (success, planned, spread)
+        return result
 
     @staticmethod
     def query_inputs(heightmap, x, y, heading_index, kind: str, topology: str, *, ground=None):
@@ -515,6 +532,11 @@ class CapabilityMap:
     forward_plan: np.ndarray | None = None
     turn_left_plan: np.ndarray | None = None
     turn_right_plan: np.ndarray | None = None
+    # (T, 8, ny, nx) each, with ensembles (networks.CapabilityEnsemble): the standard deviation
+    # of the members' success; None otherwise.
+    forward_spread: np.ndarray | None = None
+    turn_left_spread: np.ndarray | None = None
+    turn_right_spread: np.ndarray | None = None
 
     @property
     def queries(self) -> int:
@@ -589,23 +611,32 @@ def evaluate_map(model, inputs: MapInputs) -> CapabilityMap:
     forward, left, right = np.empty(shape), np.empty(shape), np.empty(shape)
     if hasattr(model, "success_all"):  # the topologies' first convolutions as one
         plans = np.full((3,) + shape, np.nan)  # forward, left, right
+        spreads = np.full((3,) + shape, np.nan)
         for kind, mask in (("orthogonal", even), ("diagonal", ~even)):
             moves = model.success_all(inputs.move_patches[mask], {t: inputs.feet[t][mask] for t in topologies}, kind)
             for i, t in enumerate(topologies):
                 forward[i][mask] = moves[t][0]
                 if moves[t][1] is not None:
                     plans[0, i][mask] = moves[t][1]
+                if moves[t][2] is not None:
+                    spreads[0, i][mask] = moves[t][2]
         turns = model.success_all(inputs.turn_patches, inputs.feet, "turn")
         for i, t in enumerate(topologies):
-            (left[i], right[i]), plan = turns[t]
+            (left[i], right[i]), plan, spread = turns[t]
             if plan is not None:
                 plans[1, i], plans[2, i] = plan
+            if spread is not None:
+                spreads[1, i], spreads[2, i] = spread
         factored = not np.isnan(plans).any()
+        ensembles = not np.isnan(spreads).any()
         return CapabilityMap(xs=inputs.xs, ys=inputs.ys, topologies=topologies, forward=forward, turn_left=left,
                              turn_right=right, cell_size=inputs.cell_size,
                              plan_failure_share=_shares(model, topologies),
                              forward_plan=plans[0] if factored else None, turn_left_plan=plans[1] if factored else None,
-                             turn_right_plan=plans[2] if factored else None)
+                             turn_right_plan=plans[2] if factored else None,
+                             forward_spread=spreads[0] if ensembles else None,
+                             turn_left_spread=spreads[1] if ensembles else None,
+                             turn_right_spread=spreads[2] if ensembles else None)
     for i, t in enumerate(topologies):
         feet = inputs.feet[t]
         forward[i][even] = model.success(inputs.move_patches[even], feet[even], "orthogonal", t)

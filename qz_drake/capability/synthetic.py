@@ -5,6 +5,8 @@ The arrays have the keys and dtypes of ``qz_drake.capability.dataset.load_traini
 ahead of the robot and of a random height (plus a little roughness); the label is a known
 function of the patch: a trial succeeds when the patch's height range is at most
 ``max_step`` (0.15 m by default), and a fraction ``label_noise`` of the labels is flipped.
+A failure is the BLC's (no plan) unless its range is within ``failure_band`` above
+``max_step``: those are executed and fail (the three outcomes of issue 37).
 Nothing here is a simulation: it checks that the learning machinery can learn a rule that
 is in the data.
 """
@@ -27,7 +29,7 @@ def synthetic_rule(patches, max_step: float = SYNTHETIC_MAX_STEP) -> np.ndarray:
 
 def synthetic_arrays(*, scenes: int = 40, headings: int = 12, topologies=("nominal",), kinds=KINDS,
                      max_step: float = SYNTHETIC_MAX_STEP, label_noise: float = 0.03,
-                     seed: int = 0) -> tuple[dict[str, np.ndarray], dict]:
+                     failure_band: float = 0.0, seed: int = 0) -> tuple[dict[str, np.ndarray], dict]:
     """(arrays, manifest) in the dataset contract: ``scenes * headings`` rows per (topology, kind).
 
     Args:
@@ -37,6 +39,8 @@ def synthetic_arrays(*, scenes: int = 40, headings: int = 12, topologies=("nomin
         topologies, kinds: the networks that get rows.
         max_step: the rule's threshold. [m]
         label_noise: fraction of labels flipped.
+        failure_band: failures whose height range is at most max_step + failure_band are
+            executed and fail (blc_success True); the others are not planned. [m]
         seed: everything is drawn from it.
     """
     rng = np.random.default_rng(seed)
@@ -68,7 +72,8 @@ def synthetic_arrays(*, scenes: int = 40, headings: int = 12, topologies=("nomin
             rows["direction"].append(rng.integers(0, 2, n).astype(np.int8) if kind == "turn"
                                      else np.full(n, -1, np.int8))
             rows["success"].append(label ^ flip)
-            rows["blc_success"].append(label | flip)
+            steps = patch.max(axis=(-2, -1)) - patch.min(axis=(-2, -1))
+            rows["blc_success"].append(label | flip | (steps <= max_step + failure_band))
             rows["scene"].append(scene.astype(np.int64))
             rows["scene_kind"].append(np.full(n, "step"))
             rows["topology"].append(np.full(n, topology))

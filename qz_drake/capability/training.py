@@ -35,6 +35,9 @@ from qz_drake.progress import ProgressReport
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 
 LOSSES = ("mse", "bce")
+# Seed offset between an ensemble's members (a prime, so members never share another
+# network's seed: networks are seeded by their place among the 18).
+ENSEMBLE_SEED_STEP = 7919
 INITIALISATIONS = ("scratch", "pooled")
 # The 18 networks (topology, kind), in TOPOLOGY_NAMES x KINDS order.
 ALL_NETWORKS: tuple[tuple[str, str], ...] = tuple((t, k) for t in TOPOLOGY_NAMES for k in KINDS)
@@ -93,6 +96,15 @@ class TrainingConfig:
     # the planner needs the first per state to tell a plan not found (the robot stands) from a
     # fall. False: the paper's single success output.
     factored: bool = True
+    # Three outcomes as one softmax (networks.NetworkConfig.outcomes, issue 37): walked, no
+    # plan, executed and failed, trained on the same two labels (success; blc_success).
+    # "mse" is then the multi-class Brier score of the softmax, "bce" the cross-entropy.
+    outcomes: bool = True
+    # Members of each network's deep ensemble (networks.CapabilityEnsemble, issue 37): the
+    # loss and initialisation are chosen on the first member's runs, and the others are
+    # trained the same way from other seeds (their own initial weights and batch order). 1:
+    # a single network.
+    ensemble: int = 5
     # Networks to train, "topology/kind" names; empty: every (topology, kind) with data.
     networks: list[str] = dataclasses.field(default_factory=list)
     # Calibration bins and baseline features.
@@ -111,11 +123,12 @@ class TrainingConfig:
         if not self.initialisations or any(i not in INITIALISATIONS for i in self.initialisations):
             raise bad_value("training.initialisations", self.initialisations,
                             f"expected a non-empty list of {', '.join(INITIALISATIONS)}")
-        if not isinstance(self.mirror, bool):
-            raise bad_value("training.mirror", self.mirror, "expected true or false")
+        for name in ("mirror", "factored", "outcomes"):
+            if not isinstance(getattr(self, name), bool):
+                raise bad_value(f"training.{name}", getattr(self, name), "expected true or false")
         if self.select_by not in ("brier", "ece"):
             raise bad_value("training.select_by", self.select_by, "expected brier or ece")
-        for name in ("max_epochs", "patience", "batch_size", "min_train_trials", "min_train_per_class"):
+        for name in ("max_epochs", "patience", "batch_size", "min_train_trials", "min_train_per_class", "ensemble"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise bad_value(f"training.{name}", value, "must be a positive whole number")
@@ -206,10 +219,30 @@ def _split_tensors(arrays: dict, rows: dict[str, np.ndarray], kind: str, config:
             for split, r in rows.items()}
 
 
+# The three outcomes' order in a three-outcome network's output.
+OUTCOMES = ("walked", "no_plan", "failed")
+
+
+def outcome_classes(success, blc_success) -> np.ndarray:
+    """Each sample's outcome as an index into OUTCOMES: walked (success), no plan (the BLC did
+    not plan it), or executed and failed."""
+    success, planned = np.asarray(success, dtype=bool), np.asarray(blc_success, dtype=bool)
+    return np.where(success, 0, np.where(planned, 2, 1))
+
+
 def _loss(name: str, logits, labels):
-    """The loss of logits (B,) against the success labels, or of factored logits (B, 2): the
-    success output's against ``success`` plus the plan output's against ``blc_success``."""
+    """The loss of logits (B,) against the success labels; of factored logits (B, 2): the
+    success output's against ``success`` plus the plan output's against ``blc_success``; of
+    three-outcome logits (B, 3): the cross-entropy ("bce") or multi-class Brier score ("mse")
+    against the outcome (labels (B, 2) are blc_success, success)."""
     import torch
+
+    if logits.dim() == 2 and logits.shape[1] == 3:
+        target = torch.where(labels[:, 1] > 0.5, 0, torch.where(labels[:, 0] > 0.5, 2, 1))
+        if name == "mse":
+            onehot = torch.nn.functional.one_hot(target, 3).to(logits.dtype)
+            return ((torch.softmax(logits, dim=1) - onehot) ** 2).sum(dim=1).mean()
+        return torch.nn.functional.cross_entropy(logits, target)
 
     def term(x, y):
         if name == "mse":
@@ -231,7 +264,7 @@ def _fit(kind: str, train, val, loss: str, config: TrainingConfig, seed: int, ad
     from qz_drake.capability.networks import CapabilityNet, NetworkConfig
 
     torch.manual_seed(seed)
-    net = CapabilityNet(kind, NetworkConfig(factored=config.factored))
+    net = CapabilityNet(kind, NetworkConfig(factored=config.factored, outcomes=config.outcomes))
     if initial_state is None:
         net.set_input_scaling(train[0], train[1])
     else:
@@ -314,6 +347,17 @@ def train_one(arrays: dict, rows: dict[str, np.ndarray], topology: str, kind: st
     order = list(runs)
     chosen = min(runs, key=lambda r: (runs[r][1]["validation"][config.select_by], order.index(r)))
     net = runs[chosen][0]
+    members = []
+    if config.ensemble > 1:
+        from qz_drake.capability.networks import CapabilityEnsemble
+
+        loss, init = runs[chosen][1]["loss"], runs[chosen][1]["initialisation"]
+        members = [net]
+        for m in range(1, config.ensemble):
+            member, _, _ = _fit(kind, data["train"], data["validation"], loss, config, seed + ENSEMBLE_SEED_STEP * m,
+                                advance, initial_state=pooled[loss] if init == "pooled" else None)
+            members.append(member)
+        net = CapabilityEnsemble(members).eval()
     test_labels = np.asarray(arrays["success"][rows["test"]], dtype=bool)
     test = binary_metrics(test_labels, _predict(net, data["test"]), bins=bins)
     if net.factored:  # how well the plan output tells what the BLC plans (the planner's stand)
@@ -322,6 +366,16 @@ def train_one(arrays: dict, rows: dict[str, np.ndarray], topology: str, kind: st
         with torch.no_grad():
             planned = net.plan_probability(data["test"][0], data["test"][1]).numpy().astype(float)
         test["plan"] = binary_metrics(np.asarray(arrays["blc_success"][rows["test"]], dtype=bool), planned, bins=bins)
+    if getattr(net, "outcomes", False):  # the three outcomes on the test rows, against their base rates
+        test["outcomes"] = outcome_metrics(net, data["test"], arrays, rows, bins)
+    if members:  # the ensemble's mean against its first member alone, and how much they disagree
+        import torch
+
+        with torch.no_grad():
+            spread = net.spread(data["test"][0], data["test"][1]).numpy()
+        test["first_member"] = binary_metrics(test_labels, _predict(members[0], data["test"]), bins=bins)
+        test["spread"] = {"mean": float(spread.mean()) if len(spread) else None,
+                          "p90": float(np.quantile(spread, 0.9)) if len(spread) else None}
     features = {split: baseline_inputs(arrays["patch"][r], arrays["direction"][r], kind, config.evaluation)
                 for split, r in rows.items() if split in ("train", "test")}
     baselines = baseline_metrics(features["train"], arrays["success"][rows["train"]], features["test"],
@@ -346,8 +400,32 @@ def train_one(arrays: dict, rows: dict[str, np.ndarray], topology: str, kind: st
         "test": test, "baselines": baselines,
         "beats_baselines": beats_baselines(test, baselines),
         "seed": seed,
+        # Members of the network's ensemble (1: a single network).
+        "ensemble_members": max(1, len(members)),
     }
     return NetworkResult(topology, kind, net, card)
+
+
+def outcome_metrics(net, data, arrays: dict, rows: dict, bins: int) -> dict:
+    """A three-outcome network on the test rows: its multi-class Brier score and log loss
+    against the training rows' outcome frequencies as a constant prediction, and "executed
+    and failed" scored as a binary prediction (what ends a walk)."""
+    import torch
+
+    with torch.no_grad():
+        probs = net.outcome_probabilities(data[0], data[1]).numpy().astype(float)
+    test = outcome_classes(arrays["success"][rows["test"]], arrays["blc_success"][rows["test"]])
+    train = outcome_classes(arrays["success"][rows["train"]], arrays["blc_success"][rows["train"]])
+    prior = (np.bincount(train, minlength=3) + 0.5) / (len(train) + 1.5)
+
+    def scores(p):
+        onehot = np.eye(3)[test]
+        return {"brier": float(np.mean(np.sum((p - onehot) ** 2, axis=1))),
+                "log_loss": float(-np.mean(np.log(np.clip(p[np.arange(len(test)), test], 1e-12, 1.0))))}
+
+    return {"counts": {name: int(np.sum(test == i)) for i, name in enumerate(OUTCOMES)},
+            "network": scores(probs), "base_rate": scores(np.broadcast_to(prior, probs.shape)),
+            "failed": binary_metrics(test == 2, probs[:, 2], bins=bins)}
 
 
 def _failure_counts(arrays: dict, rows: np.ndarray) -> dict[str, int]:
@@ -411,6 +489,12 @@ def train_networks(arrays: dict, *, fingerprint: str, fingerprints: dict | None 
     if not isinstance(fingerprint, str) or not fingerprint:
         raise bad_value("dataset.manifest.fingerprint", fingerprint, "expected a non-empty string")
     check_arrays(arrays)
+    # Topology switches (an episode dataset's kind "switch", issue 37) are samples of their
+    # own, for the tables of where a switch succeeds; no network learns them.
+    switches = np.asarray(arrays["kind"]).astype(str) == "switch"
+    if switches.any():
+        arrays = {key: (np.asarray(value)[~switches] if np.ndim(value) and len(value) == len(switches) else value)
+                  for key, value in arrays.items()}
     split = split_scenes(arrays["scene"], config.split, config.seed)
     scene = np.asarray(arrays["scene"], dtype=np.int64)
     in_split = {name: np.isin(scene, ids) for name, ids in split.items()}
@@ -445,7 +529,7 @@ def train_networks(arrays: dict, *, fingerprint: str, fingerprints: dict | None 
             mask = kind == k
             rows = {name: np.nonzero(mask & m)[0] for name, m in in_split.items()}
             pooled[k] = pooled_states(arrays, rows, k, config, config.seed + 1000 + KINDS.index(k))
-    runs = len(config.losses) * len(config.initialisations)
+    runs = len(config.losses) * len(config.initialisations) + config.ensemble - 1
     with ProgressReport("training networks", len(plan), unit="networks", completed=len(finished),
                         enabled=progress) as report:
         for index, t, k, rows in todo:

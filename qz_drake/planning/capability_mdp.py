@@ -102,6 +102,12 @@ class CapabilityMdpConfig:
     # no-fall probability did (0.77): the failures the model took for harmless planning
     # failures were legs on boxes. A knob to tune on the tuning worlds, 0 by default.
     plan_failure_risk: float = 0.0
+    # Doubt where an ensemble's members disagree (issue 37): an action's success is planned
+    # with as p - pessimism * spread, spread the standard deviation of the members' success
+    # (CapabilityMap.forward_spread etc.; a map without spreads is taken as it is); the
+    # probability taken from success goes to the failure state. A topology the networks are
+    # unsure of is then chosen only where its gain exceeds that doubt. 0: the mean alone.
+    pessimism: float = 1.0
     # Cost of a planning failure: the robot stood while the BLC searched, and the TLC replans;
     # about one action's time.
     plan_failure_cost: float = 1.0
@@ -166,7 +172,7 @@ class CapabilityMdpConfig:
 
     def check(self) -> "CapabilityMdpConfig":
         for name in ("goal_reward", "action_cost", "topology_change_cost", "switch_max_slope_deg",
-                     "switch_max_roughness", "switch_max_step", "plan_failure_cost"):
+                     "switch_max_roughness", "switch_max_step", "plan_failure_cost", "pessimism"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise bad_value(f"capability_mdp.{name}", getattr(self, name), "must be finite and >= 0")
         if not (np.isfinite(self.failure_reward) and self.failure_reward <= 0):
@@ -360,8 +366,11 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
         share = mdp.plan_failure_share[t]
         shares = (np.where(k % 2 == 0, share[0], share[1]), share[2], share[2])
         planned = _plan_probabilities(capability_map, config, t, k, iy, ix)
+        spreads = _spreads(capability_map, t, k, iy, ix)
         for m, (p, nxt) in enumerate(motions):
             a = 3 * t + m
+            if spreads is not None and config.pessimism > 0:
+                p = np.asarray(p, dtype=float) - config.pessimism * spreads[m]
             p = np.clip(np.asarray(p, dtype=float), 0.0, 1.0)
             # What the BLC could not plan leaves the robot standing; a forward move off the grid
             # and a refused topology change are not the BLC's and fail outright.
@@ -392,6 +401,15 @@ def _plan_probabilities(capability_map, config: CapabilityMdpConfig, t: int, k, 
         return None
     return tuple(np.asarray(getattr(capability_map, name)[t, k, iy, ix], dtype=float)
                  for name in ("forward_plan", "turn_left_plan", "turn_right_plan"))
+
+
+def _spreads(capability_map, t: int, k, iy, ix):
+    """(forward, turn left, turn right) the ensemble's spread of success per grid state of
+    topology t; None for a map without spreads (single networks, a stub)."""
+    if getattr(capability_map, "forward_spread", None) is None:
+        return None
+    return tuple(np.asarray(getattr(capability_map, name)[t, k, iy, ix], dtype=float)
+                 for name in ("forward_spread", "turn_left_spread", "turn_right_spread"))
 
 
 def _plan_failure_shares(capability_map, config: CapabilityMdpConfig, n_topologies: int) -> np.ndarray:

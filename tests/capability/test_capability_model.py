@@ -187,7 +187,8 @@ def test_all_topologies_at_once_give_each_networks_own_answer(kind):
     means = {float(model.network(t, kind).patch_mean) for t in topologies}
     assert len(means) == len(topologies)  # the folding is exercised with different scalars
     for t in topologies:
-        success, plan = together[t]
+        success, plan, spread = together[t]
+        assert spread is None  # single networks
         net = model.network(t, kind)
         directions = (0, 1) if kind == "turn" else (None,)
         assert success.shape == ((2, 3, 5) if kind == "turn" else (3, 5))
@@ -314,3 +315,31 @@ def test_the_compiled_map_sampler_gives_exactly_the_training_patches(kind):
                               ground.reshape(20, 25))
     assert got.dtype == np.float32 and got.shape == (20, 25, 20, 20)
     assert np.array_equal(got.reshape(n, 20, 20), expected)
+
+
+@pytest.mark.parametrize("kind", ["diagonal", "turn"])
+def test_an_ensembles_map_is_its_members_mean_with_their_spread(trained, saved, kind):
+    """The default training makes deep ensembles (TrainingConfig.ensemble); saved and loaded,
+    success_all (all members' first convolutions stacked) gives the members' mean success and
+    plan and the standard deviation of their success."""
+    model = CapabilityModel.load(saved)
+    net = model.network("nominal", kind)
+    assert len(net.members) == TrainingConfig().ensemble > 1
+    rng = np.random.default_rng(1)
+    patches = rng.normal(0.0, 0.08, (4, 3, 20, 20)) + rng.uniform(-0.2, 0.2, (4, 3, 1, 1))
+    feet = model.query_inputs(make_terrain("flat"), np.zeros((4, 3)), np.zeros((4, 3)), 1, kind, "nominal")[1]
+    success, plan, spread = model.success_all(patches, {"nominal": feet}, kind)["nominal"]
+    for i, d in enumerate((0, 1) if kind == "turn" else (None,)):
+        extra = feet.reshape(12, 18).astype(np.float32)
+        if d is not None:
+            extra = np.column_stack([extra, np.full(12, d, np.float32)])
+        x, e = torch.as_tensor(patches.reshape(12, 20, 20).astype(np.float32)), torch.as_tensor(extra)
+        with torch.no_grad():
+            each = np.stack([m.probability(x, e).numpy() for m in net.members]).reshape(-1, 4, 3)
+            plans = np.stack([m.plan_probability(x, e).numpy() for m in net.members]).reshape(-1, 4, 3)
+        pick = (lambda a: a[i]) if kind == "turn" else (lambda a: a)
+        np.testing.assert_allclose(pick(success), each.mean(0), atol=2e-6)
+        np.testing.assert_allclose(pick(spread), each.std(0), atol=2e-6)
+        np.testing.assert_allclose(pick(plan), plans.mean(0), atol=2e-6)
+        np.testing.assert_allclose(model.success(patches, feet, kind, "nominal", d), each.mean(0), atol=2e-6)
+    assert (spread > 0).all()

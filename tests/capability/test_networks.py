@@ -18,10 +18,11 @@ def test_layers_follow_the_paper():
     # 20 -> pool -> 10 -> pool -> 5: four 5 x 5 maps flattened into the patch's dense layer.
     assert net.patch_dense.in_features == 4 * 5 * 5
     assert net.dense1.in_features == NetworkConfig().patch_features + 18
-    # Factored (the default): P(the BLC plans it) and P(the walk passes | planned); the paper's one
-    # success output on request.
-    assert net.dense2.out_features == 2
-    assert CapabilityNet("orthogonal", NetworkConfig(factored=False)).dense2.out_features == 1
+    # Three outcomes (the default): walked, no plan, executed and failed; the factored two
+    # outputs or the paper's one success output on request.
+    assert net.dense2.out_features == 3
+    assert CapabilityNet("orthogonal", NetworkConfig(outcomes=False)).dense2.out_features == 2
+    assert CapabilityNet("orthogonal", NetworkConfig(outcomes=False, factored=False)).dense2.out_features == 1
     assert CapabilityNet("turn").dense1.in_features == NetworkConfig().patch_features + 19
     assert (extra_inputs("diagonal"), extra_inputs("turn")) == (18, 19)
 
@@ -39,13 +40,13 @@ def test_probabilities_batched_and_in_range():
 
 def test_the_second_output_is_the_chance_that_the_blc_plans_the_move():
     torch.manual_seed(1)
-    net = CapabilityNet("diagonal").eval()
+    net = CapabilityNet("diagonal", NetworkConfig(outcomes=False)).eval()
     patch, extra = torch.randn(5, 20, 20) * 0.1, torch.randn(5, 18)
     logits = net(patch, extra)
     assert logits.shape == (5, 2)
     assert torch.allclose(net.probability(patch, extra), torch.sigmoid(logits[:, 0]))
     assert torch.allclose(net.plan_probability(patch, extra), torch.sigmoid(logits[:, 1]))
-    single = CapabilityNet("diagonal", NetworkConfig(factored=False)).eval()
+    single = CapabilityNet("diagonal", NetworkConfig(outcomes=False, factored=False)).eval()
     assert single(patch, extra).shape == (5,) and single.plan_probability(patch, extra) is None
 
 
@@ -76,3 +77,37 @@ def test_input_scaling_is_a_saved_buffer():
     state = net.state_dict()
     assert float(state["patch_mean"]) == pytest.approx(float(patches.mean()))
     assert np.allclose(state["extra_scale"].numpy(), extra.std(dim=0).numpy(), rtol=1e-5)
+
+
+def test_the_three_outcome_loss_pushes_up_the_outcome_that_happened():
+    from qz_drake.capability.training import _loss
+
+    # (planned, success): walked; not planned; executed and failed.
+    labels = torch.tensor([[1.0, 1.0], [0.0, 0.0], [1.0, 0.0]])
+    for name in ("mse", "bce"):
+        logits = torch.zeros(3, 3, requires_grad=True)
+        _loss(name, logits, labels).backward()
+        for row, outcome in enumerate((0, 1, 2)):
+            assert logits.grad[row, outcome] < 0.0  # raised
+            assert all(logits.grad[row, o] > 0.0 for o in range(3) if o != outcome)
+
+
+def test_an_ensemble_answers_with_its_members_mean_and_their_spread():
+    from qz_drake.capability.networks import CapabilityEnsemble
+
+    torch.manual_seed(3)
+    members = [CapabilityNet("turn").eval() for _ in range(4)]
+    ensemble = CapabilityEnsemble(members).eval()
+    patch, extra = torch.randn(6, 20, 20) * 0.1, torch.randn(6, 19)
+    each = torch.stack([m.probability(patch, extra) for m in members])
+    assert torch.allclose(ensemble.probability(patch, extra), each.mean(0), atol=1e-6)
+    assert torch.allclose(ensemble.spread(patch, extra), each.std(0, unbiased=False), atol=1e-6)
+    assert bool((ensemble.spread(patch, extra) > 0).all())  # members from other seeds disagree
+    outcomes = ensemble.outcome_probabilities(patch, extra)
+    assert torch.allclose(outcomes.sum(1), torch.ones(6), atol=1e-5)
+    assert torch.allclose(ensemble.plan_probability(patch, extra), outcomes[:, 0] + outcomes[:, 2], atol=1e-6)
+    assert torch.allclose(ensemble.failure_probability(patch, extra), outcomes[:, 2], atol=1e-6)
+    # One member is a network alone: no disagreement.
+    assert torch.equal(CapabilityEnsemble(members[:1]).spread(patch, extra), torch.zeros(6))
+    with pytest.raises(ValueError, match="share"):
+        CapabilityEnsemble([members[0], CapabilityNet("orthogonal")])

@@ -211,3 +211,34 @@ def test_mirror_augmentation_doubles_the_training_rows_only():
     assert mirrored["test"]["n"] == plain["test"]["n"] == mirrored["n"]["test"]
     with pytest.raises(QzError, match="training.mirror"):
         train_networks(arrays, fingerprint=manifest["fingerprint"], config=small_config(mirror="yes"))
+
+
+def test_three_outcomes_are_learned_as_one_softmax_on_held_out_scenes():
+    # The rule: a range <= 0.15 m walks, 0.15-0.20 m is executed and fails, higher is not planned.
+    from qz_drake.capability.training import OUTCOMES, outcome_classes
+
+    arrays, manifest = synthetic_arrays(scenes=60, headings=8, kinds=("orthogonal",), label_noise=0.0,
+                                        failure_band=0.05, seed=2)
+    classes = outcome_classes(arrays["success"], arrays["blc_success"])
+    assert min(np.bincount(classes, minlength=3)) >= 40  # every outcome is in the data
+    result = train_networks(arrays, fingerprint=manifest["fingerprint"], config=small_config(batch_size=64))
+    card = result.networks[("nominal", "orthogonal")].card
+    net = result.networks[("nominal", "orthogonal")].net
+    assert net.outcomes and card["test"]["outcomes"]["counts"].keys() == set(OUTCOMES)
+    scores = card["test"]["outcomes"]
+    # Better than the outcome frequencies on the held-out scenes, and "executed and failed"
+    # ranked on its own (it is no difference of two outputs).
+    assert scores["network"]["brier"] < 0.6 * scores["base_rate"]["brier"]
+    assert scores["network"]["log_loss"] < scores["base_rate"]["log_loss"]
+    assert scores["failed"]["auc"] > 0.9
+    rows = np.isin(arrays["scene"], result.split["test"])
+    x, e = torch.as_tensor(arrays["patch"][rows]), torch.as_tensor(arrays["feet"][rows].reshape(-1, 18))
+    with torch.no_grad():
+        probs = net.outcome_probabilities(x, e).numpy()
+        # success, plan and failure read off the same softmax: P(plan) = P(walked) + P(failed).
+        np.testing.assert_allclose(net.probability(x, e).numpy(), probs[:, 0], atol=1e-6)
+        np.testing.assert_allclose(net.plan_probability(x, e).numpy(), probs[:, 0] + probs[:, 2], atol=1e-6)
+        np.testing.assert_allclose(net.failure_probability(x, e).numpy(), probs[:, 2], atol=1e-6)
+    np.testing.assert_allclose(probs.sum(axis=1), 1.0, rtol=1e-5)
+    predicted = probs.argmax(axis=1)
+    assert np.mean(predicted == classes[rows]) > 0.85

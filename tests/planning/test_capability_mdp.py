@@ -414,3 +414,34 @@ def test_a_greedy_policy_is_valued_exactly_along_its_chains_and_cycles():
     np.testing.assert_allclose(values, expected, rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(second[:grid], rest_b + gamma * stand[b, states] * expected[:grid], rtol=1e-10)
     assert np.all(values[grid:] == 0.0)
+
+
+def test_an_ensembles_disagreement_stops_a_switch_that_gains_less():
+    """Two topologies on open ground: split_up's networks say 0.97 per move against nominal's
+    0.93, but its ensemble's members disagree by 0.08. With the members' mean alone the robot
+    changes to split_up; planned pessimistically (p - spread) it stays nominal, and where the
+    members agree (spread 0.01) the gain exceeds the doubt and it changes again."""
+    from qz_drake.capability.model import CapabilityMap
+
+    nx, ny = 12, 3
+    shape = (2, 8, ny, nx)
+    forward = np.empty(shape)
+    forward[0], forward[1] = 0.93, 0.97
+    turn = np.full(shape, 0.99)
+    spread = np.zeros(shape)
+    spread[1] = 0.08
+
+    def route(spread, **config):
+        capability_map = CapabilityMap(xs=0.5 + np.arange(nx), ys=0.5 + np.arange(ny),
+                                       topologies=("nominal", "split_up"), forward=forward, turn_left=turn,
+                                       turn_right=turn.copy(), forward_spread=spread, turn_left_spread=spread,
+                                       turn_right_spread=spread)
+        return plan_on_map(capability_map, (0.5, 1.5), 0, (11.5, 1.5),
+                           config=CapabilityMdpConfig(topology_change_cost=0.5, **config))
+
+    assert route(spread, pessimism=0.0).topology_changes == 1
+    doubtful = route(spread)
+    assert doubtful.reaches_goal and doubtful.topology_changes == 0
+    assert route(np.where(spread > 0, 0.01, 0.0)).topology_changes == 1
+    with pytest.raises(QzError, match=r"capability_mdp.pessimism"):
+        route(spread, pessimism=-1.0)
