@@ -281,12 +281,15 @@ class FixedRoute:
       not say;
     * ``chooses_goal_heading``: whether the goal's heading is the route source's to choose (not
       judged);
+    * ``name``: who plans the route, in messages (e.g. "CapPlanner gave up ...");
     * ``add_visuals(builder, system, meshcat, info)`` and ``plots(system, scenario, info, states,
       out) -> files``: what it adds to the recording and the walk's figures.
     """
 
     mission_retries = 0
     chooses_goal_heading = False
+    # Who plans the route, in messages.
+    name = "the fixed route"
 
     def blc_parameters(self):
         return None
@@ -528,7 +531,8 @@ def judge_walk_run(scenario: Scenario, built: BuiltWalk, run: WalkRun) -> Simula
                    realtime_factor_excluding_planning=sim_time / max(wall - counts["blc_solve_time_s"], 1e-9),
                    terrain_contact=info.contact_representation, planner=scenario.controller.planner, **counts)
     if counts.get("unreachable"):
-        _gave_up(metrics, counts["unreachable"], counts.get("tlc_recoveries", 0))
+        _gave_up(metrics, counts["unreachable"], counts.get("tlc_recoveries", 0),
+                 getattr(built.route_source, "name", "the route source"))
     _add_station_metrics(metrics, built.station, context)
     return SimulationResult(metrics=metrics, times=times, states=states, foot_contact=contacts,
                             trunk_contact=trunk, files={})
@@ -655,11 +659,12 @@ class _BlcMissions:
                 "topology_changes": len(log.switches)}
 
 
-def _gave_up(metrics: dict, why: str, recoveries: int = 0) -> None:
-    """A failed walk whose route source gave up on the way (CapPlanner: no route left round
+def _gave_up(metrics: dict, why: str, recoveries: int = 0, planner: str = "CapPlanner") -> None:
+    """A failed walk whose route source gave up on the way (no route left round
     ``recoveries`` missions the BLC could not plan) says so: ``unreachable`` first when the
     walk otherwise only missed its target (that is why it did), after the other reasons when
-    something worse happened first; the message gains ``why``."""
+    something worse happened first; the message gains ``why``, with the ``planner`` that gave
+    up (the route source's ``name``)."""
     if metrics["success"]:
         return
     reasons = list(metrics["reasons"])
@@ -669,7 +674,7 @@ def _gave_up(metrics: dict, why: str, recoveries: int = 0) -> None:
         reasons.append("unreachable")
     metrics["reasons"] = reasons
     after = f" after going round {recoveries} missions the BLC could not plan" if recoveries else ""
-    metrics["reason"] = f"{metrics['reason']}; CapPlanner gave up{after}: {why}"
+    metrics["reason"] = f"{metrics['reason']}; {planner} gave up{after}: {why}"
 
 
 def _not_started(missions) -> WalkNotStarted:

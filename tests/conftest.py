@@ -21,8 +21,21 @@ def synthetic_model_dir(tmp_path_factory):
     result = train_networks(arrays, fingerprint=manifest["fingerprint"], fingerprints=None,
                             config=TrainingConfig(max_epochs=40, patience=8))
     # The planners' tests rely on the three nominal networks being there and having learned
-    # the rule on held-out scenes.
+    # the rule on held-out scenes: ranked against the rule itself (the labels have 3 % flipped,
+    # which caps the AUC against them near 0.9 on these 72 test trials a network).
+    import numpy as np
+    from sklearn.metrics import roc_auc_score
+
+    from qz_drake.capability.synthetic import synthetic_rule
+
     assert sorted(result.networks) == [("nominal", "diagonal"), ("nominal", "orthogonal"), ("nominal", "turn")]
-    for network in result.networks.values():
-        assert network.card["test"]["auc"] > 0.9, network.card["test"]
+    test = np.isin(arrays["scene"], result.split["test"])
+    for (_, kind), network in result.networks.items():
+        rows = test & (arrays["kind"] == kind)
+        extra = arrays["feet"][rows].reshape(-1, 18)
+        if kind == "turn":
+            extra = np.column_stack([extra, arrays["direction"][rows]]).astype(np.float32)
+        with torch.no_grad():
+            p = network.net.probability(torch.as_tensor(arrays["patch"][rows]), torch.as_tensor(extra)).numpy()
+        assert roc_auc_score(synthetic_rule(arrays["patch"][rows]), p) > 0.95, (kind, network.card["test"])
     return save_model(result, tmp_path_factory.mktemp("synthetic_model"))

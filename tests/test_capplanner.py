@@ -197,12 +197,18 @@ def test_route_calibration_sets_predicted_against_walked_and_counts_declined_tas
 
 
 def test_an_astar_walk_is_known_by_its_world_and_waypoints_before_it_is_walked():
-    """The tuning walks each distinct A* walk once: two settings share a walk exactly when their
-    routes (and every setting but A*'s) are the same."""
+    """The tuning walks each distinct A* walk once: without the recovery two settings share a
+    walk exactly when their routes (and every setting but A*'s) are the same; with it (the
+    default) a refused mission is gone round on A*'s own cost map, so every A* setting counts."""
     from qz_drake.experiments.fig9 import ExperimentConfig, TaskSpec, _astar_walk
 
-    def walk(terrain, **settings):
-        return _astar_walk(TaskSpec(terrain, "simple", 1000, "astar"), ExperimentConfig(scale=0.3, **settings))[0]
+    def walk(terrain, recoveries=0, **settings):
+        return _astar_walk(TaskSpec(terrain, "simple", 1000, "astar"),
+                           ExperimentConfig(scale=0.3, astar_max_recoveries=recoveries, **settings))[0]
+
+    recovering = walk("obstacles", 4, astar_max_step_height=0.24, astar_max_slope_deg=30.0)
+    assert recovering is not None
+    assert walk("obstacles", 4, astar_max_step_height=0.24, astar_max_slope_deg=40.0) != recovering
 
     boxes = walk("obstacles", astar_max_step_height=0.24, astar_max_slope_deg=30.0)
     assert boxes is not None

@@ -47,27 +47,67 @@ class Route:
     path_xy: np.ndarray
 
 
+class AStarBaseline:
+    """The A* baseline over one world: the geometric cost map built once, routes from any start,
+    and cells blocked where the BLC could not plan a mission (the recovery of
+    :class:`AStarRecoverySequencer`, the same going round that CapPlanner does)."""
+
+    def __init__(self, heightmap, config: AStarBaselineConfig = AStarBaselineConfig()):
+        from qz_drake.terrain.features import BodyCostConfig, BodyFeatureConfig, CostMapConfig, build_cost_map
+
+        self.config = config
+        cost_config = CostMapConfig(body_features=BodyFeatureConfig(radius=config.body_radius),
+                                    body_cost=BodyCostConfig(max_step_height=config.max_step_height))
+        cost_map = build_cost_map(heightmap, config=cost_config)
+        slope = np.asarray(cost_map.body.slope)
+        blocked = slope > math.radians(config.max_slope_deg)
+        self.cost_map = dataclasses.replace(cost_map, body_cost=np.where(blocked, np.inf, cost_map.body_cost))
+        # (x, y, radius) of the discs blocked so far. [m]
+        self.blocked: list[tuple[float, float, float]] = []
+
+    def block(self, xy, radius: float, *, keep_clear=None) -> None:
+        """Blocks the cells within ``radius`` of ``xy`` (x, y); with ``keep_clear`` (where the
+        robot stands, often inside that disc: a refused mission is short), only those nearer
+        ``xy`` than the robot, so that A* can leave in every direction away from it. [m]"""
+        if not radius > 0:
+            raise bad_value("block radius", radius, "must be positive")
+        H, W = self.cost_map.shape
+        res = self.cost_map.resolution
+        x0, y0 = self.cost_map.origin
+        gx, gy = np.meshgrid(x0 + res * np.arange(W), y0 + res * np.arange(H))
+        mask = np.hypot(gx - xy[0], gy - xy[1]) <= radius
+        if keep_clear is not None:
+            mask &= np.hypot(gx - xy[0], gy - xy[1]) < np.hypot(gx - keep_clear[0], gy - keep_clear[1]) - res
+        body = np.array(self.cost_map.body_cost, dtype=float)
+        body[mask] = np.inf
+        self.cost_map = dataclasses.replace(self.cost_map, body_cost=body)
+        self.blocked.append((float(xy[0]), float(xy[1]), float(radius)))
+
+    def route(self, start, goal) -> Route:
+        """A* over the cost map (with the blocked cells) from start to goal (x, y) [m]."""
+        import time
+
+        from qz_drake.planning.astar import AStarConfig, astar
+
+        clock = time.perf_counter()
+        config = self.config
+        result = astar(self.cost_map, start, goal, config=AStarConfig(distance_weight=1.0 - config.safety_weight,
+                                                                     safety_weight=config.safety_weight))
+        elapsed = time.perf_counter() - clock
+        if not result.found:
+            return Route(False, f"A*: {result.reason}", [], elapsed, np.zeros((0, 2)))
+        return Route(True, "", waypoints_along(result.xy, goal, config.waypoint_spacing), elapsed, result.xy)
+
+
 def astar_route(heightmap, start, goal, config: AStarBaselineConfig = AStarBaselineConfig()) -> Route:
-    """A* over the geometric cost map from start to goal (x, y) [m]."""
+    """A* over the geometric cost map from start to goal (x, y) [m]; the planning time includes
+    building the cost map."""
     import time
 
-    from qz_drake.planning.astar import AStarConfig, astar
-    from qz_drake.terrain.features import BodyCostConfig, BodyFeatureConfig, CostMapConfig, build_cost_map
-
     clock = time.perf_counter()
-    cost_config = CostMapConfig(body_features=BodyFeatureConfig(radius=config.body_radius),
-                                body_cost=BodyCostConfig(max_step_height=config.max_step_height))
-    cost_map = build_cost_map(heightmap, config=cost_config)
-    slope = np.asarray(cost_map.body.slope)
-    blocked = slope > math.radians(config.max_slope_deg)
-    body_cost = np.where(blocked, np.inf, cost_map.body_cost)
-    cost_map = dataclasses.replace(cost_map, body_cost=body_cost)
-    result = astar(cost_map, start, goal, config=AStarConfig(distance_weight=1.0 - config.safety_weight,
-                                                            safety_weight=config.safety_weight))
-    elapsed = time.perf_counter() - clock
-    if not result.found:
-        return Route(False, f"A*: {result.reason}", [], elapsed, np.zeros((0, 2)))
-    return Route(True, "", waypoints_along(result.xy, goal, config.waypoint_spacing), elapsed, result.xy)
+    baseline = AStarBaseline(heightmap, config)
+    route = baseline.route(start, goal)
+    return dataclasses.replace(route, planning_time_s=time.perf_counter() - clock)
 
 
 def waypoints_along(path_xy: np.ndarray, goal, spacing: float, topology: str = "nominal") -> list:

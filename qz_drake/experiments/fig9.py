@@ -53,6 +53,10 @@ class ExperimentConfig:
     astar_max_slope_deg: float = 30.0
     astar_safety_weight: float = 0.5
     astar_body_radius: float = 0.7
+    # Missions the BLC could not plan that A* goes round (experiments/astar_recovery.py, issue
+    # 38): the same number CapPlanner's TLC does (4); 0: A* stops at the first (the first
+    # Fig. 9 run's baseline).
+    astar_max_recoveries: int = 4
     # CapPlanner's risk and topology-change settings (capability_mdp.CapabilityMdpConfig's
     # failure_reward and topology_change_cost), chosen by ``qz experiment tune-capplanner`` on
     # the same tuning worlds as A*'s.
@@ -78,23 +82,29 @@ class TaskSpec:
 
 
 def _astar(task, config):
-    """A* over the geometric cost map: a fixed route in the nominal topology (planner blc)."""
-    from qz_drake.experiments.astar_baseline import AStarBaselineConfig, astar_route
+    """A* over the geometric cost map: a route in the nominal topology (planner blc), walked
+    with the recovery of experiments/astar_recovery.py (``astar_max_recoveries``)."""
+    import time
 
-    route = astar_route(task.heightmap, task.start, task.goal,
-                        AStarBaselineConfig(max_step_height=config.astar_max_step_height,
-                                            max_slope_deg=config.astar_max_slope_deg,
-                                            safety_weight=config.astar_safety_weight,
-                                            body_radius=config.astar_body_radius,
-                                            waypoint_spacing=config.mission_length))
-    return route, "blc", route.waypoints
+    from qz_drake.experiments.astar_baseline import AStarBaseline, AStarBaselineConfig
+    from qz_drake.experiments.astar_recovery import AStarRoute
+
+    clock = time.perf_counter()
+    baseline = AStarBaseline(task.heightmap, AStarBaselineConfig(max_step_height=config.astar_max_step_height,
+                                                                 max_slope_deg=config.astar_max_slope_deg,
+                                                                 safety_weight=config.astar_safety_weight,
+                                                                 body_radius=config.astar_body_radius,
+                                                                 waypoint_spacing=config.mission_length))
+    route = baseline.route(task.start, task.goal)
+    route = dataclasses.replace(route, planning_time_s=time.perf_counter() - clock)
+    return route, "blc", route.waypoints, AStarRoute(baseline, task.goal, config.astar_max_recoveries)
 
 
 def _capplanner(task, config):
     """CapPlanner's TLC in the diagram (planner capplanner): the goal is the only waypoint."""
     from qz_drake.experiments.astar_baseline import Route
 
-    return Route(True, "", [], 0.0, np.zeros((0, 2))), "capplanner", [(*task.goal, 0.0, "nominal")]
+    return Route(True, "", [], 0.0, np.zeros((0, 2))), "capplanner", [(*task.goal, 0.0, "nominal")], None
 
 
 def _mdp_overrides(config: ExperimentConfig) -> dict:
@@ -104,7 +114,8 @@ def _mdp_overrides(config: ExperimentConfig) -> dict:
                 plan_failure_risk=config.capplanner_plan_failure_risk)
 
 
-# Top-level controllers: name -> (task, config) -> (Route, walking planner, waypoints).
+# Top-level controllers: name -> (task, config) -> (Route, walking planner, waypoints, route
+# source of the walk or None: the scenario's own, qz_drake.planning.capplanner_route.route_source_for).
 PLANNERS = {"astar": _astar, "capplanner": _capplanner}
 
 
@@ -121,9 +132,9 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
     record = {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,
               "planner": spec.planner, "straight_m": task.distance, "success": False, "reason": "",
               "message": "", "walked_m": 0.0, "displacement_ratio": None, "missions": 0, "replans": 0,
-              "topology_changes": 0, "planning_time_s": 0.0, "wall_time_s": 0.0, "error": ""}
+              "recoveries": 0, "topology_changes": 0, "planning_time_s": 0.0, "wall_time_s": 0.0, "error": ""}
     try:
-        route, walking_planner, waypoints = PLANNERS[spec.planner](task, config)
+        route, walking_planner, waypoints, route_source = PLANNERS[spec.planner](task, config)
         record["planning_time_s"] = route.planning_time_s
         if not route.found:
             record.update(reason="planner", message=route.reason)
@@ -145,7 +156,8 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
         # the one the A* settings were tuned with); what differs is the TLC, including
         # CapPlanner's going round a mission the BLC could not plan.
         result = walk(scenario, heightmap=task.heightmap, stop_on_failure=True,
-                      out_dir=spec.record_dir or None, mission_retries=0, route_source=route_source_for(scenario),
+                      out_dir=spec.record_dir or None, mission_retries=0,
+                      route_source=route_source or route_source_for(scenario),
                       blc_params=BlcParameters(max_iterations=config.blc_max_iterations,
                                                time_limit=config.blc_time_limit))
         m = result.metrics
@@ -155,7 +167,7 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
                       message=str(m.get("reason", ""))[:300], walked_m=walked,
                       displacement_ratio=walked / task.distance if m["success"] else None,
                       missions=int(m.get("missions", 0)), topology_changes=int(m.get("topology_changes", 0)),
-                      replans=int(m.get("replans", 0)))
+                      replans=int(m.get("replans", 0)), recoveries=int(m.get("tlc_recoveries", 0)))
         if spec.planner == "capplanner":
             record["planning_time_s"] = float(m.get("planning_time_s", 0.0))
     except Exception as e:  # a crash of the run, not an outcome: recorded as an error
@@ -593,7 +605,7 @@ def _write_csv(path: Path, records: list[dict]) -> None:
     import csv
 
     fields = ["key", "terrain", "difficulty", "seed", "planner", "success", "reason", "straight_m", "walked_m",
-              "displacement_ratio", "missions", "replans", "topology_changes", "planning_time_s", "wall_time_s"]
+              "displacement_ratio", "missions", "replans", "recoveries", "topology_changes", "planning_time_s", "wall_time_s"]
     with path.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
         writer.writeheader()
@@ -653,10 +665,13 @@ def _astar_walk(spec: TaskSpec, config: ExperimentConfig) -> tuple[str | None, f
     import hashlib
 
     task = make_task(spec.terrain, spec.difficulty, spec.seed, scale=config.scale)
-    route, _, waypoints = _astar(task, config)
+    route, _, waypoints, _ = _astar(task, config)
     if not route.found:
         return None, route.planning_time_s
-    others = {k: v for k, v in dataclasses.asdict(config).items() if not k.startswith("astar_")}
+    # With the recovery a refused mission is gone round on A*'s own cost map: the walk then
+    # depends on every A* setting too.
+    others = {k: v for k, v in dataclasses.asdict(config).items()
+              if config.astar_max_recoveries > 0 or not k.startswith("astar_")}
     payload = json.dumps([spec.terrain, spec.difficulty, spec.seed, spec.planner, others, waypoints])
     return hashlib.sha256(payload.encode()).hexdigest(), route.planning_time_s
 

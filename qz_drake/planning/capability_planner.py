@@ -18,34 +18,29 @@ it says so (``unreachable``) instead of walking into an obstacle.
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 
-import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import LeafSystem
 
 from qz_drake.capability.patches import HEADING_STEP
 from qz_drake.planning.guidance import MissionSplitConfig, split_missions
-from qz_drake.systems.mission_sequencer import MissionLog
-from qz_drake.state_layout import BASE_XY, STATE_SIZE, base_rpy
+from qz_drake.systems.mission_sequencer import RecoveringSequencer, RecoveryLog, unwrapped_yaws
+from qz_drake.state_layout import BASE_XY, base_rpy
 
 
 @dataclasses.dataclass
-class CapabilityPlannerLog(MissionLog):
-    """The missions handed out (MissionLog's fields) and the planner's own record."""
+class CapabilityPlannerLog(RecoveryLog):
+    """The missions handed out, the ones gone round (RecoveryLog's fields: ``recoveries`` says
+    "split" into single actions or "forbade" the action and replanned) and the planner's own
+    record."""
 
     # (time, start (x, y, heading index, topology), missions planned, predicted success).
     replans: list = dataclasses.field(default_factory=list)
     planning_time_s: float = 0.0
     value_iterations: int = 0
-    unreachable: str = ""
-    # Missions the BLC could not plan that the planner went round: (time, target (x, y, yaw,
-    # topology), what it did: "split" into single actions or "forbade" the action and replanned).
-    recoveries: list = dataclasses.field(default_factory=list)
 
 
-class CapabilityVIPlanner(LeafSystem):
+class CapabilityVIPlanner(RecoveringSequencer):
     """Plans missions over the learned capability of the BLC-robot system (paper 000 TLC).
 
     .. pydrake_system::
@@ -102,25 +97,15 @@ class CapabilityVIPlanner(LeafSystem):
     def __init__(self, *, model, heightmap, goal, start, initial_topology: str = "nominal", mdp_config=None,
                  split_config: MissionSplitConfig = MissionSplitConfig(), min_route_success: float = 0.05,
                  plan_ahead: float = 0.0, check_period: float = 0.05, max_recoveries: int = 4):
-        super().__init__()
-        if isinstance(max_recoveries, bool) or not isinstance(max_recoveries, int) or max_recoveries < 0:
-            from qz_drake.errors import ConfigError, bad_value
-
-            raise bad_value("max_recoveries", max_recoveries, "must be a whole number >= 0", ConfigError)
-        self._max_recoveries = max_recoveries
-        self._failures_seen = 0
+        super().__init__(log=CapabilityPlannerLog(), max_recoveries=max_recoveries, plan_ahead=plan_ahead)
         from qz_drake.capability.model import predict_map
         from qz_drake.planning.capability_mdp import (CapabilityMdpConfig, build_capability_mdp, solve_capability_mdp,
                                                       switchable_cells)
 
-        self.log = CapabilityPlannerLog()
         # The plan from the start (a CapabilityPlan, for drawing: capability.plots.plot_plan).
         self.first_plan = None
-        self._last_handed = False
         self._split = split_config
         self._min_success = float(min_route_success)
-        self._plan_ahead = float(plan_ahead)
-        self._topology0 = initial_topology
         clock = time.perf_counter()
         config = (mdp_config or CapabilityMdpConfig()).check()
         # The grid is anchored on the start: the robot starts at a cell centre.
@@ -133,27 +118,15 @@ class CapabilityVIPlanner(LeafSystem):
         self.log.planning_time_s = time.perf_counter() - clock
         self.log.value_iterations = int(self.solution.iterations)
         self._goal = tuple(float(v) for v in goal)
-        self._state = self.DeclareVectorInputPort("state", STATE_SIZE)
-        self._plan = self.DeclareAbstractInputPort("plan", AbstractValue.Make(None))
-        self._failed = self.DeclareVectorInputPort("failed_missions", 1)
-        self._robot_topology = self.DeclareAbstractInputPort("robot_topology", AbstractValue.Make(""))
-        # (missions, index of the current one); the missions of the latest replan.
+        # The missions of the latest replan (the first from the start) and the index of the
+        # current one are the base class's Context state.
         first = self._replan(0.0, float(start[0]), float(start[1]), float(start[2]), initial_topology)
-        self._record(first, 0, 0.0)
-        self._missions = self.DeclareAbstractState(AbstractValue.Make((first, 0)))
-        # The mission the BLC could not plan when no route was left after it, as (target,
-        # topology): the outputs hold it, so that the BLC (which does not solve a mission twice)
-        # leaves the robot standing instead of being sent somewhere new. None: none yet.
-        self._held = self.DeclareAbstractState(AbstractValue.Make(None))
+        self._start(first, initial_topology, check_period)
         state_only = {self.all_state_ticket()}
-        self.DeclareVectorOutputPort("target", 3, self._calc_target, prerequisites_of_calc=state_only)
-        self.DeclareAbstractOutputPort("topology", lambda: AbstractValue.Make("nominal"), self._calc_topology,
-                                       prerequisites_of_calc=state_only)
         self.DeclareAbstractOutputPort("guidance", lambda: AbstractValue.Make([]), self._calc_guidance,
                                        prerequisites_of_calc=state_only)
         self.DeclareAbstractOutputPort("utility", lambda: AbstractValue.Make(None), self._calc_utility,
                                        prerequisites_of_calc={self.nothing_ticket()})
-        self.DeclarePeriodicUnrestrictedUpdateEvent(check_period, 0.0, self._update)
 
     # -- planning ------------------------------------------------------------------------------
     def _replan(self, t: float, x: float, y: float, yaw: float, topology: str) -> list:
@@ -182,75 +155,22 @@ class CapabilityVIPlanner(LeafSystem):
             return []
         return missions
 
-    def _record(self, missions, index, t) -> None:
-        if index < len(missions):
-            m = missions[index]
-            self.log.targets.append((*m.target, m.topology))
-            self.log.topologies.append(m.topology)
-            self.log.start_times.append(t)
-
-    @property
-    def done(self) -> bool:
-        """True once the last mission of the latest plan was handed out and its plan is in the
-        log, or the goal is unreachable."""
-        return bool(self.log.unreachable) or self._last_handed
-
-    def _update(self, context, state):
-        if self._failed.HasValue(context):
-            failed = int(round(self._failed.Eval(context)[0]))
-            if failed > self._failures_seen:
-                self._failures_seen = failed
-                self._recover(context, state)
-                return
-        plan = self._plan.Eval(context)
-        if plan is None or not getattr(plan, "is_mission", True):
-            return
-        if not self.log.plans or self.log.plans[-1] is not plan:
-            self.log.plans.append(plan)
-        missions, index = context.get_abstract_state(self._missions).get_value()
-        if not missions or len(self.log.plans) != len(self.log.targets):
-            return
-        if context.get_time() < plan.end_time - self._plan_ahead:
-            return
-        # The mission ended (or is about to): replan from where it is expected to end.
+    def _advance(self, context, state, plan, missions, index):
+        """The current mission ended (or is about to): replan from where it is expected to end."""
         if index + 1 >= len(missions):
-            self._last_handed = True
-            return
+            return None
         p = plan.base_position(plan.end_time)
         yaw = float(plan.base_rpy(plan.end_time)[2])
         topology = missions[index].topology
         ix, iy = self.mdp.cell_of(float(p[0]), float(p[1]), field="expected end", margin=self.mdp.config.cell_size)
         if (ix, iy) == self.mdp.goal_cell:
-            self._last_handed = True
-            return
-        new = self._replan(context.get_time(), float(p[0]), float(p[1]), yaw, topology)
-        if not new:
-            self._last_handed = True
-            return
-        state.get_mutable_abstract_state(self._missions).set_value((new, 0))
-        self._record(new, 0, context.get_time())
+            return None
+        return self._replan(context.get_time(), float(p[0]), float(p[1]), yaw, topology) or None
 
-    def _recover(self, context, state):
-        """The BLC could not plan the current mission: go round it (see the class docstring)."""
+    def _go_round(self, context, state, failed, missions, index):
+        """The BLC could not plan ``failed``: go round it (see the class docstring)."""
         from qz_drake.planning.capability_mdp import forbid_action, solve_capability_mdp, step_state_action
 
-        missions, index = context.get_abstract_state(self._missions).get_value()
-        t = context.get_time()
-        failed = missions[index] if index < len(missions) else None
-        target = None
-        if len(self.log.targets) > len(self.log.plans):  # its plan never came: out of the log
-            target = self.log.targets.pop()
-            self.log.topologies.pop()
-            self.log.start_times.pop()
-        if failed is not None:
-            state.get_mutable_abstract_state(self._held).set_value((tuple(failed.target), failed.topology))
-        if failed is None or len(self.log.recoveries) >= self._max_recoveries:
-            last = target if target is not None else (failed.target if failed is not None else None)
-            self.log.unreachable = (f"the BLC could not plan {len(self.log.recoveries) + 1} missions, the last "
-                                    + ("unknown" if last is None else
-                                       f"to (x, y, yaw) {[round(float(v), 2) for v in last[:3]]}"))
-            state.get_mutable_abstract_state(self._missions).set_value(([], 0))
-            return
         x = self._state.Eval(context)
         x0, y0 = (float(v) for v in x[BASE_XY])
         yaw = float(base_rpy(x)[2])
@@ -261,23 +181,14 @@ class CapabilityVIPlanner(LeafSystem):
             # last ending where the failed one did (the goal itself, if it was the last).
             single = split_missions(failed.steps, dataclasses.replace(self._split, min_success=1.0))
             single[-1].target = (failed.target[0], failed.target[1], single[-1].target[2])
-            new = _unwrapped(single + list(missions[index + 1:]), yaw)
-            action = "split"
-        else:
-            s, a = step_state_action(self.mdp, failed.steps[0])
-            forbid_action(self.mdp, s, a)
-            clock = time.perf_counter()
-            self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
-            self.log.planning_time_s += time.perf_counter() - clock
-            self.log.value_iterations += int(self.solution.iterations)
-            new = self._replan(t, x0, y0, yaw, topology)
-            action = "forbade"
-        self.log.recoveries.append((t, None if target is None else tuple(target), action))
-        state.get_mutable_abstract_state(self._missions).set_value((new, 0))
-        if not new:
-            self._last_handed = True
-            return
-        self._record(new, 0, t)
+            return unwrapped_yaws(single + list(missions[index + 1:]), yaw), "split"
+        s, a = step_state_action(self.mdp, failed.steps[0])
+        forbid_action(self.mdp, s, a)
+        clock = time.perf_counter()
+        self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
+        self.log.planning_time_s += time.perf_counter() - clock
+        self.log.value_iterations += int(self.solution.iterations)
+        return self._replan(context.get_time(), x0, y0, yaw, topology), "forbade"
 
     def counts(self) -> dict:
         """The planner's numbers for the walk's metrics."""
@@ -286,47 +197,12 @@ class CapabilityVIPlanner(LeafSystem):
                 "tlc_recoveries": len(self.log.recoveries)}
 
     # -- outputs -----------------------------------------------------------------------------
-    def _current(self, context):
-        missions, index = context.get_abstract_state(self._missions).get_value()
-        return missions[index] if index < len(missions) else None
-
-    def _calc_target(self, context, output):
-        m = self._current(context)
-        if m is None:
-            held = context.get_abstract_state(self._held).get_value()
-            if held is not None:  # no route left after a mission the BLC could not plan: stand
-                output.SetFromVector(np.asarray(held[0], dtype=float))
-                return
-            x = self._state.Eval(context)  # unreachable from the start: hold the start
-            output.SetFromVector([*x[BASE_XY], base_rpy(x)[2]])
-            return
-        output.SetFromVector(np.asarray(m.target, dtype=float))
-
-    def _calc_topology(self, context, output):
-        m = self._current(context)
-        if m is None:
-            held = context.get_abstract_state(self._held).get_value()
-            output.set_value(self._topology0 if held is None else held[1])
-            return
-        output.set_value(m.topology)
-
     def _calc_guidance(self, context, output):
         output.set_value(list(context.get_abstract_state(self._missions).get_value()[0]))
 
     def _calc_utility(self, context, output):
         V = self.solution.V[:self.mdp.goal_state].reshape(self.mdp.grid_shape).max(axis=(0, 1))
         output.set_value((V, self.mdp.xs, self.mdp.ys))
-
-
-def _unwrapped(missions: list, yaw: float) -> list:
-    """Copies of the missions with each target's yaw the previous one's (the first: ``yaw``)
-    plus the turn in between, so that no 2 pi jump reaches the BLC."""
-    out, previous = [], yaw
-    for m in missions:
-        x, y, target_yaw = m.target
-        previous = previous + math.remainder(target_yaw - previous, 2 * math.pi)
-        out.append(dataclasses.replace(m, target=(x, y, previous)))
-    return out
 
 
 __all__ = ["CapabilityVIPlanner", "CapabilityPlannerLog"]

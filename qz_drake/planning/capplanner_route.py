@@ -51,6 +51,7 @@ class CapPlannerRoute(FixedRoute):
 
     mission_retries = CAPPLANNER_MISSION_RETRIES
     chooses_goal_heading = True
+    name = "CapPlanner"
 
     def blc_parameters(self):
         # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt

@@ -214,3 +214,170 @@ class MissionTargetSequencer(LeafSystem):
         if index + 1 < len(self._targets):
             state.get_mutable_abstract_state(self._index).set_value(index + 1)
             self._record(index + 1, context.get_time())
+
+
+@dataclasses.dataclass
+class RecoveryLog(MissionLog):
+    """The missions handed out (MissionLog's fields) and how a route source went round the
+    missions the BLC could not plan."""
+
+    # (time, refused target (x, y, yaw, topology) or None, what was done, e.g. "split").
+    recoveries: list = dataclasses.field(default_factory=list)
+    # Why the goal is unreachable ("" while it is not).
+    unreachable: str = ""
+
+
+class RecoveringSequencer(LeafSystem):
+    """The route side of the BLC loop for a route source that goes round the missions the BLC
+    could not plan (CapPlanner's TLC, qz_drake.planning.capability_planner; the A* baseline's,
+    qz_drake.experiments.astar_recovery): the ports, the bookkeeping and the standing robot
+    are the same, what differs is how the next missions are found.
+
+    Input ports ``state``, ``plan``, ``failed_missions`` and ``robot_topology``
+    (TrajectoryOptimizationBLC's outputs of those names), output ports ``target`` (x, y, yaw)
+    and ``topology``. A mission is anything with ``target`` (x, y, yaw) and ``topology``.
+
+    A subclass calls :meth:`_start` with its first missions once it has them (after declaring
+    any ports of its own it wants first) and implements
+    ``_advance(context, state, plan, missions, index) -> missions or None`` (the current
+    mission has ended: the missions from here on, the next one first; None: the last was
+    handed out) and ``_go_round(context, state, failed, missions, index) -> (missions, what
+    was done)`` (the BLC could not plan ``failed``: the missions that go round it; no
+    missions: the goal is unreachable, with ``log.unreachable`` set).
+
+    Context state: the missions of the latest plan with the index of the current one, and the
+    mission held after the last refusal (the outputs hold it, so that the BLC system, which
+    does not solve one mission twice, leaves the robot standing instead of being sent
+    somewhere new). The count of failures already answered and ``log`` stay on ``self``: one
+    sequencer serves one walk.
+
+    Args:
+        log: a RecoveryLog (or a subclass of it).
+        max_recoveries: refused missions gone round; one more and the goal is unreachable.
+        plan_ahead: hand out the next mission this long before the current plan ends. [s]
+    """
+
+    def __init__(self, *, log: RecoveryLog, max_recoveries: int, plan_ahead: float = 0.0):
+        super().__init__()
+        if isinstance(max_recoveries, bool) or not isinstance(max_recoveries, int) or max_recoveries < 0:
+            from qz_drake.errors import ConfigError, bad_value
+
+            raise bad_value("max_recoveries", max_recoveries, "must be a whole number >= 0", ConfigError)
+        self.log = log
+        self._max_recoveries = max_recoveries
+        self._plan_ahead = float(plan_ahead)
+        self._failures_seen = 0
+        self._last_handed = False
+        self._state = self.DeclareVectorInputPort("state", STATE_SIZE)
+        self._plan = self.DeclareAbstractInputPort("plan", AbstractValue.Make(None))
+        self._failed = self.DeclareVectorInputPort("failed_missions", 1)
+        self._robot_topology = self.DeclareAbstractInputPort("robot_topology", AbstractValue.Make(""))
+
+    def _start(self, missions: list, initial_topology: str, check_period: float) -> None:
+        """Declares the state, the target and topology outputs and the update, with the first
+        missions."""
+        self._topology0 = initial_topology
+        self._record(missions, 0, 0.0)
+        self._missions = self.DeclareAbstractState(AbstractValue.Make((list(missions), 0)))
+        self._held = self.DeclareAbstractState(AbstractValue.Make(None))
+        state_only = {self.all_state_ticket()}
+        self.DeclareVectorOutputPort("target", 3, self._calc_target, prerequisites_of_calc=state_only)
+        self.DeclareAbstractOutputPort("topology", lambda: AbstractValue.Make("nominal"), self._calc_topology,
+                                       prerequisites_of_calc=state_only)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(check_period, 0.0, self._update)
+
+    def _record(self, missions, index, t) -> None:
+        if index < len(missions):
+            m = missions[index]
+            self.log.targets.append((*m.target, m.topology))
+            self.log.topologies.append(m.topology)
+            self.log.start_times.append(t)
+
+    @property
+    def done(self) -> bool:
+        """True once the last mission was handed out and its plan has ended, or the goal is
+        unreachable."""
+        return bool(self.log.unreachable) or self._last_handed
+
+    def _update(self, context, state):
+        if self._failed.HasValue(context):
+            failed = int(round(self._failed.Eval(context)[0]))
+            if failed > self._failures_seen:
+                self._failures_seen = failed
+                self._recover(context, state)
+                return
+        plan = self._plan.Eval(context)
+        if plan is None or not getattr(plan, "is_mission", True):
+            return
+        if not self.log.plans or self.log.plans[-1] is not plan:
+            self.log.plans.append(plan)
+        missions, index = context.get_abstract_state(self._missions).get_value()
+        if not missions or len(self.log.plans) != len(self.log.targets):
+            return
+        if context.get_time() < plan.end_time - self._plan_ahead:
+            return
+        new = self._advance(context, state, plan, missions, index)
+        if not new:
+            self._last_handed = True
+            return
+        state.get_mutable_abstract_state(self._missions).set_value((new, 0))
+        self._record(new, 0, context.get_time())
+
+    def _recover(self, context, state):
+        missions, index = context.get_abstract_state(self._missions).get_value()
+        failed = missions[index] if index < len(missions) else None
+        target = None
+        if len(self.log.targets) > len(self.log.plans):  # its plan never came: out of the log
+            target = self.log.targets.pop()
+            self.log.topologies.pop()
+            self.log.start_times.pop()
+        if failed is not None:
+            state.get_mutable_abstract_state(self._held).set_value((tuple(failed.target), failed.topology))
+        if failed is None or len(self.log.recoveries) >= self._max_recoveries:
+            last = target if target is not None else (
+                (*failed.target, failed.topology) if failed is not None else None)
+            self.log.unreachable = (f"the BLC could not plan {len(self.log.recoveries) + 1} missions, the last "
+                                    + ("unknown" if last is None else
+                                       f"to (x, y, yaw) {[round(float(v), 2) for v in last[:3]]}"))
+            state.get_mutable_abstract_state(self._missions).set_value(([], 0))
+            return
+        t = context.get_time()
+        new, action = self._go_round(context, state, failed, missions, index)
+        self.log.recoveries.append((t, None if target is None else tuple(target), action))
+        state.get_mutable_abstract_state(self._missions).set_value((list(new), 0))
+        if not new:
+            self._last_handed = True
+            return
+        self._record(new, 0, t)
+
+    def _calc_target(self, context, output):
+        missions, index = context.get_abstract_state(self._missions).get_value()
+        if index < len(missions):
+            output.SetFromVector(np.asarray(missions[index].target, dtype=float))
+            return
+        held = context.get_abstract_state(self._held).get_value()
+        if held is not None:  # no route left after a mission the BLC could not plan: stand
+            output.SetFromVector(np.asarray(held[0], dtype=float))
+            return
+        x = self._state.Eval(context)  # unreachable from the start: hold the start
+        output.SetFromVector([*x[BASE_XY], base_rpy(x)[2]])
+
+    def _calc_topology(self, context, output):
+        missions, index = context.get_abstract_state(self._missions).get_value()
+        if index < len(missions):
+            output.set_value(missions[index].topology)
+            return
+        held = context.get_abstract_state(self._held).get_value()
+        output.set_value(self._topology0 if held is None else held[1])
+
+
+def unwrapped_yaws(missions: list, yaw: float) -> list:
+    """Copies of the missions (dataclasses with a ``target`` (x, y, yaw)) with each target's
+    yaw the previous one's (the first: ``yaw``) plus the turn in between, so that no 2 pi jump
+    reaches the BLC."""
+    out, previous = [], yaw
+    for m in missions:
+        x, y, target_yaw = m.target
+        previous = previous + math.remainder(target_yaw - previous, 2 * math.pi)
+        out.append(dataclasses.replace(m, target=(x, y, previous)))
+    return out

@@ -1,0 +1,158 @@
+"""The A* baseline with CapPlanner's recovery (issue 38): when the BLC cannot plan a mission,
+A* goes round it from where the robot stands, as CapPlanner's TLC does.
+
+Without it the comparison of Fig. 9 was uneven in one place: CapPlanner went round a mission
+the BLC could not plan while A* stopped (7 of CapPlanner's 12 wins in the first run were A*'s
+planning failures). Both now answer a refused mission the same two ways, with the same limit
+(``max_recoveries``, CapabilityVIPlanner's default):
+
+* a mission longer than one step (``split_length``; A*'s missions are up to
+  ``mission_length`` long, CapPlanner's several actions) is handed out again in two halves, the
+  second ending where it did (CapPlanner: one action per mission);
+* a short mission is blocked: the cells within ``block_radius`` of its target become
+  impassable in A*'s cost map and A* plans again from the robot's measured position to the
+  goal (CapPlanner forbids the action from that state and solves value iteration again).
+
+After ``max_recoveries`` refused missions, or when A* finds no route, the goal is unreachable,
+with the reason, and the robot stands (the refused mission is held on the outputs, so that
+the BLC system, which does not solve one mission twice, leaves it where it is).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from qz_drake.errors import ConfigError, bad_value
+from qz_drake.experiments.astar_baseline import AStarBaseline
+from qz_drake.simulation import FixedRoute
+from qz_drake.state_layout import BASE_XY, base_rpy
+from qz_drake.systems.mission_sequencer import RecoveringSequencer, RecoveryLog, split_route, unwrapped_yaws
+
+# Refused missions either planner goes round (CapabilityVIPlanner's max_recoveries).
+MAX_RECOVERIES = 4
+# Radius of the disc blocked around a refused mission's target: half a capability cell, the
+# place CapPlanner's forbidden action leads to. [m]
+BLOCK_RADIUS = 0.5
+
+
+@dataclasses.dataclass
+class AStarRecoveryLog(RecoveryLog):
+    """The missions handed out, the ones gone round (RecoveryLog's fields: ``recoveries`` says
+    "split" or "blocked") and A*'s own record."""
+
+    # A* routes planned after a refusal: (time, start (x, y), found).
+    replans: list = dataclasses.field(default_factory=list)
+    planning_time_s: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class AStarMission:
+    """One mission of the A* route: the local target (x, y, yaw) and the topology."""
+
+    target: tuple[float, float, float]
+    topology: str
+
+
+class AStarRecoverySequencer(RecoveringSequencer):
+    """The A* route's missions for TrajectoryOptimizationBLC, going round the ones it refuses.
+
+    .. pydrake_system::
+
+        name: AStarRecoverySequencer
+        input_ports:
+        - state
+        - plan
+        - failed_missions
+        - robot_topology
+        output_ports:
+        - target
+        - topology
+
+    The ports, Context state and standing robot are those of RecoveringSequencer (shared with
+    CapPlanner's TLC); the module docstring says what it does on a refusal. The A* baseline
+    (its cost map with the blocked cells) and ``log`` stay on ``self``: one sequencer serves
+    one walk.
+
+    Args:
+        targets: the first route's local targets (x, y, yaw, topology) (split_route).
+        baseline: the AStarBaseline the route came from (its cost map is changed in place).
+        goal: (x, y) of the goal. [m]
+        mission_length: longest mission of a new route. [m]
+        split_length: a refused mission longer than this is split in two before any cell
+            is blocked (None: half the mission length). [m]
+        block_radius: radius blocked around a refused short mission's target. [m]
+        max_recoveries: refused missions gone round before the goal is unreachable.
+        plan_ahead: hand out the next target this long before the current plan ends. [s]
+        check_period: how often the plan is looked at. [s]
+    """
+
+    def __init__(self, *, targets, baseline: AStarBaseline, goal, mission_length: float,
+                 split_length: float | None = None, block_radius: float = BLOCK_RADIUS,
+                 max_recoveries: int = MAX_RECOVERIES, plan_ahead: float = 0.0, check_period: float = 0.05):
+        super().__init__(log=AStarRecoveryLog(), max_recoveries=max_recoveries, plan_ahead=plan_ahead)
+        if not mission_length > 0:
+            raise bad_value("mission_length", mission_length, "must be positive", ConfigError)
+        first = [AStarMission(tuple(float(v) for v in t[:3]), t[3]) for t in targets]
+        if not first:
+            raise bad_value("targets", list(targets), "needs at least one target", ConfigError)
+        self._baseline = baseline
+        self._goal = (float(goal[0]), float(goal[1]))
+        self._mission_length = float(mission_length)
+        self._split_length = 0.5 * self._mission_length if split_length is None else float(split_length)
+        self._block_radius = float(block_radius)
+        self._start(first, first[0].topology, check_period)
+
+    def counts(self) -> dict:
+        return {"planning_time_s": self.log.planning_time_s, "replans": len(self.log.replans),
+                "unreachable": self.log.unreachable, "tlc_recoveries": len(self.log.recoveries)}
+
+    def _advance(self, context, state, plan, missions, index):
+        return missions[index + 1:] or None
+
+    def _go_round(self, context, state, failed, missions, index):
+        import time
+
+        x = self._state.Eval(context)
+        here = tuple(float(v) for v in x[BASE_XY])
+        yaw = float(base_rpy(x)[2])
+        fx, fy, _ = failed.target
+        if math.hypot(fx - here[0], fy - here[1]) > self._split_length + 1e-9:
+            # Shorter missions are easier for the BLC: the same way in two halves.
+            middle = AStarMission((0.5 * (here[0] + fx), 0.5 * (here[1] + fy),
+                                   math.atan2(fy - here[1], fx - here[0])), failed.topology)
+            return unwrapped_yaws([middle, failed] + list(missions[index + 1:]), yaw), "split"
+        self._baseline.block((fx, fy), self._block_radius, keep_clear=here)
+        clock = time.perf_counter()
+        route = self._baseline.route(here, self._goal)
+        self.log.planning_time_s += time.perf_counter() - clock
+        self.log.replans.append((context.get_time(), here, route.found))
+        if not route.found:
+            self.log.unreachable = f"no route round the mission the BLC could not plan ({route.reason})"
+            return [], "blocked"
+        targets = split_route(here, route.waypoints, self._mission_length)
+        return unwrapped_yaws([AStarMission(tuple(t[:3]), t[3]) for t in targets], yaw), "blocked"
+
+
+class AStarRoute(FixedRoute):
+    """The A* baseline as a walk's route source: the first route's missions, and the recovery
+    of :class:`AStarRecoverySequencer` when the BLC refuses one.
+
+    Args:
+        baseline: the AStarBaseline the route was planned with (blocked cells are added to it).
+        goal: (x, y) of the goal. [m]
+        max_recoveries: refused missions gone round (None: MAX_RECOVERIES, CapPlanner's).
+    """
+
+    name = "A*"
+
+    def __init__(self, baseline: AStarBaseline, goal, max_recoveries: int | None = None):
+        self._baseline = baseline
+        self._goal = goal
+        self._max_recoveries = MAX_RECOVERIES if max_recoveries is None else max_recoveries
+
+    def make(self, scenario, info, targets) -> AStarRecoverySequencer:
+        control = scenario.controller
+        return AStarRecoverySequencer(targets=targets, baseline=self._baseline, goal=self._goal,
+                                      mission_length=control.mission_length, plan_ahead=control.plan_ahead,
+                                      max_recoveries=self._max_recoveries)
