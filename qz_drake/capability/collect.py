@@ -199,7 +199,7 @@ def _crashed(spec: TrialSpec, message: str, config: TrialConfig) -> dict:
     from qz_drake.capability.trials import base_record
 
     record = base_record(spec, config)
-    record.update(status="error", error=message)
+    record.update(status="error", error=message[-400:])
     return record
 
 
@@ -485,6 +485,28 @@ class Recertification:
     machine_differences: list = dataclasses.field(default_factory=list)
 
 
+def _episode_sample(arrays: dict, count: int, key: str, seed: int):
+    """(EpisodeSpecs, episode index -> its stored records in mission order) of up to ``count``
+    episodes, chosen as recertification_sample chooses trials but by each episode's last record
+    (where an episode's outcome is: the first failure ends it)."""
+    import numpy as np
+
+    from qz_drake.capability.episodes import EpisodeSpec
+
+    index = np.asarray(arrays["index"])
+    order = np.lexsort((np.asarray(arrays["heading_sample"]), index))
+    last = {int(index[i]): int(i) for i in order}  # each episode's last record
+    first = {}
+    for i in order[::-1]:
+        first[int(index[i])] = int(i)
+    positions = sorted(last.values())
+    ends = {k: v[positions] for k, v in arrays.items()}
+    chosen = [int(ends["index"][j]) for j in recertification_sample(ends, count, key)]
+    specs = [EpisodeSpec(seed, e, int(arrays["scene"][first[e]]), str(arrays["topology"][first[e]])) for e in chosen]
+    stored = {e: [{k: v[i:i + 1] for k, v in arrays.items()} for i in order if int(index[i]) == e] for e in chosen}
+    return specs, stored
+
+
 def recertification_sample(arrays: dict, count: int, key: str) -> list[int]:
     """Up to ``count`` record positions, spread over every (status, kind, topology, outcome,
     scene kind) group in turn, drawn with a seed derived from ``key``: failures and successes,
@@ -539,11 +561,9 @@ def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "",
     if workers < 1:
         raise bad_value("--workers", workers, "must be at least 1")
     manifest = read_manifest(path)
-    if manifest.get("settings", {}).get("protocol") == "episodes":
-        # An episode's records are one walk: re-running a sample of them means re-running whole
-        # episodes and comparing record lists, which this does not do yet.
-        raise bad_value("dataset", str(path), "is an episode dataset (--protocol episodes): recertifying "
-                                              "one is not supported; collect it again")
+    if manifest.get("settings", {}).get("protocol") == "episodes" and reference_code is not None:
+        raise bad_value("--reference-code", str(reference_code), "is for trial datasets: an episode "
+                                                                  "dataset is recertified on this machine's runs alone")
     lock = DatasetLock(path, field="dataset")  # no collection may write it meanwhile
     try:
         return _recertify(path, manifest, sample, workers, command, clock, reference_code)
@@ -559,6 +579,7 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
     from qz_drake.capability.trials import TIME_FIELDS
 
     settings = dict(manifest.get("settings", {}))
+    episodes = settings.pop("protocol", "moves") == "episodes"
     try:
         config = TrialConfig(**settings)
     except TypeError as e:
@@ -571,41 +592,56 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
         return Recertification(str(path), [], 0, True, [], before, before,
                                time.perf_counter() - clock)
     arrays, _ = load_records(path)
-    positions = recertification_sample(arrays, sample, before + combined_fingerprint(parts))
     seed = int(manifest["seed"])
-    specs = [TrialSpec(seed, int(arrays["index"][i]), int(arrays["scene"][i]),
-                       int(arrays["heading_sample"][i]), str(arrays["topology"][i]),
-                       str(arrays["kind"][i])) for i in positions]
-    stored = {int(arrays["index"][i]): {k: v[i:i + 1] for k, v in arrays.items()} for i in positions}
-    rerun: dict[int, dict] = {}
-    pool = LocalPool(min(workers, len(specs)), config, 0) if specs else None
+    key = before + combined_fingerprint(parts)
+    if episodes:
+        specs, stored = _episode_sample(arrays, sample, key, seed)
+    else:
+        positions = recertification_sample(arrays, sample, key)
+        specs = [TrialSpec(seed, int(arrays["index"][i]), int(arrays["scene"][i]),
+                           int(arrays["heading_sample"][i]), str(arrays["topology"][i]),
+                           str(arrays["kind"][i])) for i in positions]
+        stored = {int(arrays["index"][i]): [{k: v[i:i + 1] for k, v in arrays.items()}] for i in positions}
+    rerun: dict[int, list] = {}
+    function, crashed = (execute_episode, _crashed_episode) if episodes else (execute, _crashed)
+    pool = LocalPool(min(workers, len(specs)), config, 0, function, crashed) if specs else None
     try:
         if pool is not None:
-            pool.run(specs, lambda record: rerun.__setitem__(int(record["index"]), record))
+            # A trial gives one record, an episode a list (one per mission).
+            pool.run(specs, lambda out: rerun.__setitem__(
+                int((out[0] if isinstance(out, list) else out)["index"]), out if isinstance(out, list) else [out]))
     finally:
         if pool is not None:
             pool.close()
     mismatches = []
     largest = 0.0
-    for index, old_record in stored.items():
-        new = records_to_arrays([rerun[index]])
-        # Labels, reasons, iteration counts and inputs: equal. Measured floats: equal to
-        # RECERTIFY_RTOL for a walk that succeeded; a failed walk's measurements are where it
-        # was stopped, which rounding on another processor moves (not compared).
-        skip = TIME_FIELDS + (() if bool(old_record["success"][0]) else MEASURED_FIELDS)
-        fields = differing_fields(old_record, new, skip=skip, rtol=RECERTIFY_RTOL,
-                                  atol=RECERTIFY_ATOL)
-        largest = max(largest, _largest_relative_difference(old_record, new))
-        if fields:
-            mismatches.append({"index": index, "fields": fields,
-                               "stored": {f: _plain(old_record[f][0]) for f in fields[:4]},
-                               "now": {f: _plain(new[f][0]) for f in fields[:4]}})
+    for index, old_records in stored.items():
+        new_records = rerun[index]
+        if len(new_records) != len(old_records):
+            mismatches.append({"index": index, "fields": ["records"],
+                               "stored": {"records": len(old_records)}, "now": {"records": len(new_records)}})
+            continue
+        for old_record, record in zip(old_records, new_records):
+            new = records_to_arrays([record])
+            # Labels, reasons, iteration counts and inputs: equal. Measured floats: equal to
+            # RECERTIFY_RTOL for a walk that succeeded; a failed walk's measurements are where
+            # it was stopped, which rounding on another processor moves (not compared).
+            skip = TIME_FIELDS + (() if bool(old_record["success"][0]) else MEASURED_FIELDS)
+            fields = differing_fields(old_record, new, skip=skip, rtol=RECERTIFY_RTOL,
+                                      atol=RECERTIFY_ATOL)
+            largest = max(largest, _largest_relative_difference(old_record, new))
+            if fields:
+                mismatches.append({"index": index, "fields": fields,
+                                   **({"mission": int(old_record["heading_sample"][0])} if episodes else {}),
+                                   "stored": {f: _plain(old_record[f][0]) for f in fields[:4]},
+                                   "now": {f: _plain(new[f][0]) for f in fields[:4]}})
+                break
     machine = []
     if mismatches and reference_code is not None:
         indices = [m["index"] for m in mismatches]
         reference = _run_with_code(reference_code, [s for s in specs if s.index in indices], settings, old)
         for m in list(mismatches):
-            here = differing_fields(reference[m["index"]], records_to_arrays([rerun[m["index"]]]),
+            here = differing_fields(reference[m["index"]], records_to_arrays(rerun[m["index"]]),
                                     skip=TIME_FIELDS)
             if not here:
                 mismatches.remove(m)

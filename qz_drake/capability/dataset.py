@@ -341,6 +341,14 @@ def records_to_arrays(records: list[dict]) -> dict[str, np.ndarray]:
     from qz_drake.capability.trials import ARRAY_FIELDS, RECORD_FIELDS, TIME_FIELDS
 
     out = {name: np.array([r[name] for r in records], dtype=dt) for name, dt in RECORD_FIELDS.items()}
+    for name, dt in RECORD_FIELDS.items():
+        # A text longer than its field would be cut silently by numpy: refuse it instead (the
+        # free-text fields are cut on purpose, with their length, where they are written).
+        if dt.startswith("U"):
+            long = [str(r[name]) for r in records if len(str(r[name])) > int(dt[1:])]
+            if long:
+                raise bad_value(f"record.{name}", long[0], f"longer than its field ({dt}): widen it in "
+                                                            "qz_drake.capability.trials.RECORD_FIELDS")
     for name, (shape, dt) in ARRAY_FIELDS.items():
         out[name] = np.array([np.asarray(r[name]).reshape(shape) for r in records], dtype=dt)
     for name in TIME_FIELDS:

@@ -157,7 +157,7 @@ def trial_scenario(spec: TrialSpec, config: TrialConfig, criteria=None):
 
 # Scalar fields of a record and their numpy dtypes, in the order shards store them.
 RECORD_FIELDS: dict[str, str] = {
-    "index": "i8", "scene": "i8", "heading_sample": "i8", "scene_kind": "U16", "difficulty": "f8",
+    "index": "i8", "scene": "i8", "heading_sample": "i8", "scene_kind": "U24", "difficulty": "f8",
     "scene_seed": "i8", "topology": "U16", "kind": "U16", "heading": "f8", "direction": "i1",
     "status": "U8", "success": "?", "reason": "U16", "message": "U200", "blc_success": "?",
     "blc_reason": "U200", "blc_iterations": "i8", "final_xy_error_m": "f8",

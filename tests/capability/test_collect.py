@@ -301,3 +301,16 @@ def test_recertify_with_the_certified_code_tells_a_machines_difference_from_the_
                                   "blc_iterations", 1)
     with pytest.raises(ConfigError, match="--reference-code"):
         recertify(made_up, sample=1, reference_code=certified)
+
+
+def test_a_text_longer_than_its_field_is_refused_not_cut():
+    """numpy would cut a scene kind longer than its field silently (the first episode
+    collection stored stairs_among_boxes as stairs_among_box): records_to_arrays refuses it."""
+    from qz_drake.capability.dataset import records_to_arrays
+    from qz_drake.capability.trials import RECORD_FIELDS, blank_record
+
+    fine = dict(blank_record(), scene_kind="stairs_among_boxes")
+    assert records_to_arrays([fine])["scene_kind"][0] == "stairs_among_boxes"
+    width = int(RECORD_FIELDS["topology"][1:])
+    with pytest.raises(ConfigError, match=r"record.topology.*longer than its field"):
+        records_to_arrays([dict(blank_record(), topology="x" * (width + 1))])

@@ -145,10 +145,37 @@ def test_an_episode_collection_stores_a_record_per_mission_and_resumes(tmp_path)
     assert list(arrays["kind"]) == [m.kind for m in missions]
     again = collect(out, seed=5, scenes=1, topologies=["nominal"], protocol="episodes", progress=False)
     assert again.already_done == 1 and again.ran == 0
+    # A code change that keeps behaviour is certified by re-running whole episodes and
+    # comparing their record lists; the dataset then resumes under the new code. A stored
+    # record the code no longer reproduces is refused with the mission named.
+    import json
+    import shutil
+
     from qz_drake.capability.collect import recertify
 
-    with pytest.raises(Exception, match="episode dataset"):
-        recertify(out)
+    manifest = json.loads((out / "manifest.json").read_text())
+    current = dict(manifest["fingerprints"])
+    moved = tmp_path / "moved"
+    shutil.copytree(out, moved)
+    manifest["fingerprints"]["controller"] = "0123456789abcdef"
+    (moved / "manifest.json").write_text(json.dumps(manifest))
+    result = recertify(moved, sample=1)
+    assert result.changed == ["controller"] and result.rerun == 1 and result.identical, result.mismatches
+    assert json.loads((moved / "manifest.json").read_text())["fingerprints"] == current
+    altered = tmp_path / "altered"
+    shutil.copytree(out, altered)
+    (altered / "manifest.json").write_text(json.dumps(manifest))
+    shard = next(altered.glob("shard-*.npz"))
+    with np.load(shard) as f:
+        data = {k: f[k] for k in f.files}
+    data["blc_iterations"] = data["blc_iterations"].copy()
+    data["blc_iterations"][2] += 1
+    np.savez(shard, **data)
+    refused = recertify(altered, sample=1)
+    assert not refused.identical and refused.mismatches[0]["fields"] == ["blc_iterations"]
+    assert refused.mismatches[0]["mission"] == 2
+    with pytest.raises(Exception, match="--reference-code"):
+        recertify(altered, reference_code=tmp_path)
     with pytest.raises(Exception, match="--kinds"):
         collect(tmp_path / "other", scenes=1, kinds=["turn"], protocol="episodes", progress=False)
     with pytest.raises(Exception, match="--protocol"):
