@@ -483,6 +483,8 @@ class Recertification:
     # Mismatches that the certified code, re-run here (``reference_code``), reproduces exactly
     # as the new code does: the stored record is the processor that collected it, not the code.
     machine_differences: list = dataclasses.field(default_factory=list)
+    # What was re-run: "trials" (one record each) or "episodes" (a record per mission).
+    unit: str = "trials"
 
 
 def _episode_sample(arrays: dict, count: int, key: str, seed: int):
@@ -659,7 +661,7 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
         write_manifest(path, manifest)
     return Recertification(str(path), changed, len(stored), not mismatches, mismatches, before,
                            after if not mismatches else before, time.perf_counter() - clock,
-                           largest, machine)
+                           largest, machine, "episodes" if episodes else "trials")
 
 
 # Run by _run_with_code in a fresh interpreter whose qz_drake is the reference tree's.

@@ -107,7 +107,7 @@ def run_recertify(args) -> int:
     elif not result.changed:
         print(f"{result.dataset}: the code's fingerprints are the dataset's; nothing to certify")
     elif result.identical:
-        print(f"{result.dataset}: {', '.join(result.changed)} changed; {result.rerun} trials re-run, "
+        print(f"{result.dataset}: {', '.join(result.changed)} changed; {result.rerun} {result.unit} re-run, "
               f"every record the same (labels and inputs equal, successful walks' measurements "
               f"within 2 %; largest relative difference of any measurement "
               f"{result.largest_relative_difference:.1e}): the manifest now names this code "
@@ -118,7 +118,8 @@ def run_recertify(args) -> int:
     else:
         first = result.mismatches[0]
         print(f"{result.dataset}: {', '.join(result.changed)} changed; {len(result.mismatches)} of "
-              f"{result.rerun} re-run trials differ (trial {first['index']}: {', '.join(first['fields'])}): "
+              f"{result.rerun} re-run {result.unit} differ ({result.unit[:-1]} {first['index']}"
+              f"{'' if 'mission' not in first else ', mission ' + str(first['mission'])}: {', '.join(first['fields'])}): "
               f"the labels describe other behaviour; collect a new dataset"
               + ("" if args.reference_code else
                  " (or, if the records came from another processor, compare with the certified code on this "
