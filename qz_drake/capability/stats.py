@@ -87,6 +87,64 @@ def stairs_up_comparisons(rows: list[dict], reference: str = "nominal") -> list[
     return out
 
 
+def outcome_counts(arrays: dict, mask) -> dict:
+    """Of the executed records in ``mask``: walked, no plan (the BLC found none; the robot
+    stood) and executed and failed."""
+    ex = np.asarray(mask) & (np.asarray(arrays["status"]) == "executed")
+    walked = ex & np.asarray(arrays["success"], dtype=bool)
+    planned = ex & np.asarray(arrays["blc_success"], dtype=bool)
+    return {"executed": int(ex.sum()), "walked": int(walked.sum()), "no_plan": int((ex & ~planned).sum()),
+            "failed": int((planned & ~walked).sum())}
+
+
+def topology_rows(arrays: dict, reference: str = "nominal") -> list[dict]:
+    """Where the topologies differ (issue 37): per scene kind and action (moves, turns), each
+    topology's three outcomes and the two-sided Fisher exact p-value of its walked share
+    against ``reference``'s on the same scene kind and action (topology switches excluded:
+    :func:`switch_rows`)."""
+    from scipy.stats import fisher_exact
+
+    kind = np.asarray(arrays["kind"]).astype(str)
+    actions = {"moves": np.isin(kind, ("orthogonal", "diagonal")), "turns": kind == "turn"}
+    scene_kind = np.asarray(arrays["scene_kind"]).astype(str)
+    topology = np.asarray(arrays["topology"]).astype(str)
+    rows = []
+    for sk in sorted(set(scene_kind.tolist())):
+        for action, in_action in actions.items():
+            base = (scene_kind == sk) & in_action
+            ref = outcome_counts(arrays, base & (topology == reference))
+            for t in sorted(set(topology[base].tolist())):
+                c = outcome_counts(arrays, base & (topology == t))
+                if not c["executed"]:
+                    continue
+                p = None
+                if t != reference and ref["executed"]:
+                    _, p = fisher_exact([[c["walked"], c["executed"] - c["walked"]],
+                                         [ref["walked"], ref["executed"] - ref["walked"]]])
+                rows.append({"scene_kind": sk, "action": action, "topology": t, **c,
+                             "walked_rate": c["walked"] / c["executed"],
+                             "p_against_reference": None if p is None else float(p), "reference": reference})
+    return rows
+
+
+def switch_rows(arrays: dict) -> list[dict]:
+    """Topology switches of an episode dataset (kind "switch") per scene kind and the topology
+    switched to: executed, walked (the switch done and the robot standing in the new topology
+    where it stood), refused before it started (no plan) and failed."""
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+    kind = np.asarray(arrays["kind"]).astype(str)
+    scene_kind = np.asarray(arrays["scene_kind"]).astype(str)
+    topology = np.asarray(arrays["topology"]).astype(str)
+    rows = []
+    for sk in sorted(set(scene_kind[kind == "switch"].tolist())):
+        for t in TOPOLOGY_NAMES:
+            c = outcome_counts(arrays, (kind == "switch") & (scene_kind == sk) & (topology == t))
+            if c["executed"]:
+                rows.append({"scene_kind": sk, "to": t, **c})
+    return rows
+
+
 # A scene's difficulty in [0, 1] read as easy / medium / hard (low <= d < high).
 DIFFICULTY_BINS = ((0.0, 1 / 3, "easy"), (1 / 3, 2 / 3, "medium"), (2 / 3, 1.01, "hard"))
 
@@ -140,6 +198,7 @@ def dataset_stats(path) -> dict:
             "rows": rows, "scene_kinds": scene_rows, "kinds": kind_rows, "failure_reasons": reasons,
             "stairs_up": (stairs := stairs_up_rows(arrays, int(manifest.get("seed", 0)))),
             "stairs_up_against_nominal": stairs_up_comparisons(stairs),
+            "topologies": topology_rows(arrays), "switches": switch_rows(arrays),
             "seed": manifest.get("seed"), "fingerprint": manifest.get("fingerprint"),
             "fingerprints": manifest.get("fingerprints")}
 
@@ -234,6 +293,26 @@ def stats_markdown(stats: dict) -> str:
                          f"({_percent(row['successes'] / row['executed'])}) | {row['reference_successes']} / "
                          f"{row['reference_executed']} ({_percent(row['reference_successes'] / row['reference_executed'])}) "
                          f"| {row['p_value']:.2g} |")
+    differing = [r for r in stats.get("topologies", []) if r["p_against_reference"] is not None
+                 and r["p_against_reference"] < 0.05]
+    if stats.get("topologies"):
+        lines += ["", "Where a topology's walked share differs from nominal's on the same scene kind and action "
+                      f"(Fisher exact p < 0.05; {len(differing)} of "
+                      f"{sum(r['p_against_reference'] is not None for r in stats['topologies'])} comparisons):", "",
+                  "| scene kind | action | topology | executed | walked | no plan | failed | nominal walked | Fisher p |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        ref = {(r["scene_kind"], r["action"]): r for r in stats["topologies"] if r["topology"] == r["reference"]}
+        for row in differing:
+            n = ref[(row["scene_kind"], row["action"])]
+            lines.append(f"| {row['scene_kind']} | {row['action']} | {row['topology']} | {row['executed']} "
+                         f"| {_percent(row['walked_rate'])} | {row['no_plan']} | {row['failed']} "
+                         f"| {_percent(n['walked_rate'])} of {n['executed']} | {row['p_against_reference']:.2g} |")
+    if stats.get("switches"):
+        lines += ["", "| topology switches on | to | executed | done | refused (no plan) | failed |",
+                  "| --- | --- | --- | --- | --- | --- |"]
+        for row in stats["switches"]:
+            lines.append(f"| {row['scene_kind']} | {row['to']} | {row['executed']} | {row['walked']} "
+                         f"| {row['no_plan']} | {row['failed']} |")
     if stats.get("against"):
         lines += ["", f"Against `{stats['against']['other']}` (fingerprint `{stats['against']['other_fingerprint']}`), "
                       "the trials executed in both:", "",

@@ -118,3 +118,37 @@ def test_two_collections_of_the_same_trials_are_compared_pair_by_pair(monkeypatc
     assert "| all | 7 | 2 | 4 | 3 | 1 |" in capsys.readouterr().out
     assert main(["capability", "stats", "new", "--against", "seed1"]) == 2
     assert "--against" in capsys.readouterr().err
+
+
+def test_topologies_are_compared_per_scene_kind_with_three_outcomes_and_switches_apart():
+    from scipy.stats import fisher_exact
+
+    from qz_drake.capability.stats import stats_markdown, switch_rows, topology_rows
+
+    def records(scene_kind, topology, kind, walked, no_plan, failed):
+        n = walked + no_plan + failed
+        return {"scene_kind": [scene_kind] * n, "topology": [topology] * n, "kind": [kind] * n,
+                "status": ["executed"] * n, "success": [True] * walked + [False] * (no_plan + failed),
+                "blc_success": [True] * walked + [False] * no_plan + [True] * failed}
+
+    parts = [records("box_field", "nominal", "orthogonal", 30, 8, 2), records("box_field", "hind_bend", "diagonal", 15, 25, 0),
+             records("box_field", "hind_bend", "turn", 10, 0, 0), records("flat", "nominal", "orthogonal", 20, 0, 0),
+             records("box_field", "split_up", "switch", 3, 2, 1)]
+    arrays = {k: np.array(sum((p[k] for p in parts), [])) for k in parts[0]}
+    rows = topology_rows(arrays)
+    hind = next(r for r in rows if (r["scene_kind"], r["action"], r["topology"]) == ("box_field", "moves", "hind_bend"))
+    assert (hind["executed"], hind["walked"], hind["no_plan"], hind["failed"]) == (40, 15, 25, 0)
+    assert hind["p_against_reference"] == pytest.approx(fisher_exact([[15, 25], [30, 10]])[1])
+    nominal = next(r for r in rows if (r["scene_kind"], r["topology"]) == ("box_field", "nominal"))
+    assert nominal["failed"] == 2 and nominal["p_against_reference"] is None
+    # hind_bend's turns have no nominal turns to be compared with; switches are not actions.
+    turns = next(r for r in rows if r["action"] == "turns")
+    assert turns["p_against_reference"] is None
+    assert not any(r["topology"] == "split_up" for r in rows)
+    assert switch_rows(arrays) == [{"scene_kind": "box_field", "to": "split_up", "executed": 6, "walked": 3,
+                                    "no_plan": 2, "failed": 1}]
+    text = stats_markdown({"trials": 0, "executed": 1, "invalid_starts": 0, "errors": 0, "successes": 0,
+                           "fingerprint": "x", "rows": [], "scene_kinds": [], "kinds": [], "failure_reasons": {},
+                           "stairs_up": [], "topologies": rows, "switches": switch_rows(arrays)})
+    assert "| box_field | moves | hind_bend | 40 | 38 % | 25 | 0 | 75 % of 40 |" in text
+    assert "| box_field | split_up | 6 | 3 | 2 | 1 |" in text
