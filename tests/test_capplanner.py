@@ -228,9 +228,11 @@ def test_astar_is_tuned_on_worlds_that_are_not_the_experiments(tmp_path):
     from qz_drake.experiments.fig9 import ExperimentConfig, read_results, tune_astar
 
     def tune():
+        # Without A*'s recovery, so that a walk is fixed by its route and shared between
+        # settings (with it, every A* setting walks its own: test_an_astar_walk_is_known...).
         return tune_astar(tmp_path, step_heights=(0.05, 0.24), slopes_deg=(30.0, 40.0), body_radii=(0.7,),
                           terrains=("obstacles",), difficulties=("simple",), tasks=1,
-                          config=ExperimentConfig(scale=0.3), progress=False)
+                          config=ExperimentConfig(scale=0.3, astar_max_recoveries=0), progress=False)
 
     report = tune()
     # Resumed, it walks nothing and reports the same.
@@ -259,6 +261,10 @@ def test_astar_is_tuned_on_worlds_that_are_not_the_experiments(tmp_path):
     assert chosen["max_slope_deg"] == 30.0
     assert [g for g in grid if g["max_step_height"] == chosen["max_step_height"]][0]["successes"] == best
     assert json.loads((tmp_path / "tuning.json").read_text())["chosen"] == chosen
+    # The margin over the runner-up, on the same task.
+    margin = report["margin"]
+    assert margin["tasks_both"] == 1 and margin["successes"] >= margin["runner_up_successes"]
+    assert margin["only_chosen"] + margin["only_runner_up"] <= 1 and 0 < margin["mcnemar_p"] <= 1
     # The experiment takes the chosen setting from the tuning.
     from qz_drake.experiments.fig9 import astar_settings
 
@@ -268,11 +274,13 @@ def test_astar_is_tuned_on_worlds_that_are_not_the_experiments(tmp_path):
 
 @pytest.mark.slow
 def test_capplanner_is_tuned_on_the_same_tuning_worlds_as_astar(synthetic_model_dir, tmp_path):
-    """Each (failure reward, topology-change cost) walks the tuning tasks with those settings in
-    CapPlanner's MDP; the experiment then takes the chosen pair."""
+    """Each (failure reward, topology-change cost, longest mission, merge threshold) walks the
+    tuning tasks with those settings in CapPlanner's MDP and mission split; the experiment then
+    takes the chosen setting."""
     from qz_drake.experiments.fig9 import ExperimentConfig, capplanner_settings, read_results, tune_capplanner
 
     report = tune_capplanner(tmp_path, failure_rewards=(-100.0, -300.0), topology_change_costs=(2.0,),
+                             mission_lengths=(1.5,), merge_min_success=(0.95,),
                              terrains=("obstacles",), difficulties=("simple",), tasks=1,
                              config=ExperimentConfig(capability_model=str(synthetic_model_dir), scale=0.3),
                              progress=False)
@@ -283,10 +291,14 @@ def test_capplanner_is_tuned_on_the_same_tuning_worlds_as_astar(synthetic_model_
         assert record["seed"] >= 1000 and record["planner"] == "capplanner" and record["reason"] != "error"
         settings = json.loads((Path(g["folder"]) / "settings.json").read_text())
         assert settings["capplanner_failure_reward"] == g["failure_reward"]
+        assert (settings["capplanner_mission_length"], settings["capplanner_merge_min_success"]) == (1.5, 0.95)
+        assert Path(g["folder"]).name.endswith("_missions1.5_merge0.95")
     assert report["chosen"]["failure_reward"] in (-100.0, -300.0)
     assert capplanner_settings(tmp_path) == {"capplanner_failure_reward": report["chosen"]["failure_reward"],
                                              "capplanner_topology_change_cost": 2.0,
-                                             "capplanner_plan_failure_risk": 0.0}
+                                             "capplanner_plan_failure_risk": 0.0,
+                                             "capplanner_mission_length": 1.5,
+                                             "capplanner_merge_min_success": 0.95}
 
 
 def test_capplanner_results_are_not_resumed_with_another_model(synthetic_model_dir, tmp_path):
@@ -423,10 +435,13 @@ def test_experiment_takes_a_tuning_and_refuses_a_missing_or_foreign_one(tmp_path
 
     (tmp_path / "capplanner.json").write_text(json.dumps(
         {"planner": "capplanner", "chosen": {"failure_reward": -200.0, "topology_change_cost": 6.0}}))
-    # A tuning from before plan_failure_risk was a setting: the risk's default (0).
+    # A tuning from before plan_failure_risk, the mission length and the merge threshold were
+    # settings: their defaults.
     assert capplanner_settings(tmp_path / "capplanner.json") == {"capplanner_failure_reward": -200.0,
                                                                  "capplanner_topology_change_cost": 6.0,
-                                                                 "capplanner_plan_failure_risk": 0.0}
+                                                                 "capplanner_plan_failure_risk": 0.0,
+                                                                 "capplanner_mission_length": 2.0,
+                                                                 "capplanner_merge_min_success": 0.8}
     with pytest.raises(QzError, match="--astar-tuning"):
         astar_settings(tmp_path / "capplanner.json")
     with pytest.raises(QzError, match="--capplanner-tuning"):

@@ -67,9 +67,19 @@ def _print_tuning(report, args) -> None:
         walked = f", {row['walked']} walked here" if "walked" in row else ""
         print(f"{setting}: {row['successes']}/{row['tasks']} succeeded{walked}")
     print(f"chosen: {report['chosen']}")
+    margin = report.get("margin")
+    if margin:
+        print(f"margin over the runner-up {margin['runner_up']}: {margin['successes']} against "
+              f"{margin['runner_up_successes']} successes; of {margin['tasks_both']} tasks, {margin['only_chosen']} "
+              f"walked by the chosen only, {margin['only_runner_up']} by the runner-up only "
+              f"(McNemar exact p = {margin['mcnemar_p']:.2g})")
 
 
 def _check_tasks(args) -> None:
+    from qz_drake.experiments.fig9 import TUNING_TASKS_PER_CELL
+
+    if args.tasks is None:
+        args.tasks = TUNING_TASKS_PER_CELL
     if args.tasks < 1:
         from qz_drake.errors import bad_value
 
@@ -94,8 +104,9 @@ def run_tune_astar(args) -> int:
 
 
 def run_tune_capplanner(args) -> int:
-    from qz_drake.experiments.fig9 import (TUNING_FAILURE_REWARDS, TUNING_PLAN_FAILURE_RISKS,
-                                           TUNING_TOPOLOGY_CHANGE_COSTS, ExperimentConfig, tune_capplanner)
+    from qz_drake.experiments.fig9 import (TUNING_FAILURE_REWARDS, TUNING_MERGE_MIN_SUCCESS, TUNING_MISSION_LENGTHS,
+                                           TUNING_PLAN_FAILURE_RISKS, TUNING_TOPOLOGY_CHANGE_COSTS, ExperimentConfig,
+                                           tune_capplanner)
     from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS
 
     _check_tasks(args)
@@ -103,6 +114,8 @@ def run_tune_capplanner(args) -> int:
         args.out, failure_rewards=_numbers(args.failure_rewards, "--failure-rewards") or TUNING_FAILURE_REWARDS,
         topology_change_costs=_numbers(args.switch_costs, "--switch-costs") or TUNING_TOPOLOGY_CHANGE_COSTS,
         plan_failure_risks=_numbers(args.plan_failure_risks, "--plan-failure-risks") or TUNING_PLAN_FAILURE_RISKS,
+        mission_lengths=_numbers(args.mission_lengths, "--mission-lengths") or TUNING_MISSION_LENGTHS,
+        merge_min_success=_numbers(args.merge_thresholds, "--merge-thresholds") or TUNING_MERGE_MIN_SUCCESS,
         terrains=_names(args.terrains, "--terrains", TERRAINS),
         difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
@@ -114,7 +127,8 @@ def run_tune_capplanner(args) -> int:
 
 def _tuning_arguments(p) -> None:
     p.add_argument("--out", required=True, help="tuning folder (one results folder per setting, tuning.json)")
-    p.add_argument("--tasks", type=int, default=2, help="tuning tasks per terrain and difficulty")
+    p.add_argument("--tasks", type=int, default=None,
+                   help="tuning tasks per terrain and difficulty (default 4, fig9.TUNING_TASKS_PER_CELL)")
     p.add_argument("--terrains", default=None, help="comma-separated: stairs,obstacles,both")
     p.add_argument("--difficulties", default=None, help="comma-separated: simple,medium,hard")
     p.add_argument("--scale", type=float, default=1.0, help="world scale (1: the experiment's worlds)")
@@ -169,8 +183,8 @@ def register(subparsers) -> None:
                    help="comma-separated body-disc radii of the cost map [m] (default 0.7,0.9)")
     p.set_defaults(func=run_tune_astar)
 
-    p = sub.add_parser("tune-capplanner", help="choose CapPlanner's failure reward and topology-change cost "
-                                               "on the same tuning worlds as A*'s")
+    p = sub.add_parser("tune-capplanner", help="choose CapPlanner's failure reward, topology-change cost, longest "
+                                               "mission and merge threshold on the same tuning worlds as A*'s")
     _tuning_arguments(p)
     p.add_argument("--failure-rewards", default=None,
                    help="comma-separated failure rewards, negative (default -100,-200; the goal is +100)")
@@ -178,5 +192,9 @@ def register(subparsers) -> None:
     p.add_argument("--plan-failure-risks", default=None,
                    help="comma-separated shares of predicted planning failures counted as falls, in [0, 1] "
                         "(default 0: the model's split)")
+    p.add_argument("--mission-lengths", default=None,
+                   help="comma-separated longest missions of CapPlanner's split [m] (default 1.5,2)")
+    p.add_argument("--merge-thresholds", default=None,
+                   help="comma-separated least predicted success of a merged mission (default 0.8,0.95)")
     p.add_argument("--model", default=None, help="CapPlanner's capability model folder (default: shipped)")
     p.set_defaults(func=run_tune_capplanner)

@@ -65,6 +65,10 @@ class ExperimentConfig:
     # The share of predicted planning failures CapPlanner counts as falls
     # (capability_mdp.CapabilityMdpConfig.plan_failure_risk).
     capplanner_plan_failure_risk: float = 0.0
+    # CapPlanner's split of its path into BLC missions (guidance.MissionSplitConfig): the
+    # longest mission [m] and the least predicted success of a merged mission.
+    capplanner_mission_length: float = 2.0
+    capplanner_merge_min_success: float = 0.8
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,8 +107,13 @@ def _astar(task, config):
 def _capplanner(task, config):
     """CapPlanner's TLC in the diagram (planner capplanner): the goal is the only waypoint."""
     from qz_drake.experiments.astar_baseline import Route
+    from qz_drake.planning.capplanner_route import CapPlannerRoute
+    from qz_drake.planning.guidance import MissionSplitConfig
 
-    return Route(True, "", [], 0.0, np.zeros((0, 2))), "capplanner", [(*task.goal, 0.0, "nominal")], None
+    split = MissionSplitConfig(max_length=config.capplanner_mission_length,
+                               min_success=config.capplanner_merge_min_success)
+    return (Route(True, "", [], 0.0, np.zeros((0, 2))), "capplanner", [(*task.goal, 0.0, "nominal")],
+            CapPlannerRoute(split))
 
 
 def _mdp_overrides(config: ExperimentConfig) -> dict:
@@ -626,7 +635,12 @@ ASTAR_TUNED = {"max_step_height": "astar_max_step_height", "max_slope_deg": "ast
                "body_radius": "astar_body_radius"}
 CAPPLANNER_TUNED = {"failure_reward": "capplanner_failure_reward",
                     "topology_change_cost": "capplanner_topology_change_cost",
-                    "plan_failure_risk": "capplanner_plan_failure_risk"}
+                    "plan_failure_risk": "capplanner_plan_failure_risk",
+                    "mission_length": "capplanner_mission_length",
+                    "merge_min_success": "capplanner_merge_min_success"}
+# Tuning tasks per terrain and difficulty for either planner (issue 38: with two, every A*
+# setting scored 9-11 of 18 and the choice was noise).
+TUNING_TASKS_PER_CELL = 4
 
 
 def _tuned_settings(path, names: dict, flag: str, command: str) -> dict:
@@ -653,8 +667,9 @@ def astar_settings(path) -> dict:
 
 
 def capplanner_settings(path) -> dict:
-    """The ExperimentConfig fields of ``tune_capplanner``'s chosen setting:
-    capplanner_failure_reward, capplanner_topology_change_cost."""
+    """The ExperimentConfig fields of ``tune_capplanner``'s chosen setting: capplanner_failure_reward,
+    capplanner_topology_change_cost, capplanner_plan_failure_risk, capplanner_mission_length and
+    capplanner_merge_min_success (a tuning without one of them: its default)."""
     return _tuned_settings(path, CAPPLANNER_TUNED, "--capplanner-tuning", "tune-capplanner")
 
 
@@ -707,14 +722,35 @@ def _tune(out, planner: str, grid: list[dict], names: dict, folder_of, *, terrai
             results.append(_tune_setting(out, planner, setting, names, folder_of, fixed, walks, terrains=terrains,
                                          difficulties=difficulties, tasks=tasks, workers=workers,
                                          ray_address=ray_address, config=config, bar=bar))
-    best = max(enumerate(results), key=lambda item: (item[1]["successes"],
-                                                     -(item[1]["displacement_ratio"] or np.inf),
-                                                     -item[0]))[1]
+    ranked = sorted(enumerate(results), key=lambda item: (item[1]["successes"],
+                                                          -(item[1]["displacement_ratio"] or np.inf),
+                                                          -item[0]), reverse=True)
+    best = ranked[0][1]
     report = {"planner": planner, "chosen": {k: best[k] for k in grid[0]},
-              "grid": results, "tasks_per_cell": tasks, "first_seed": TUNING_SEED_START}
+              "grid": results, "tasks_per_cell": tasks, "first_seed": TUNING_SEED_START,
+              "margin": _margin(best, ranked[1][1] if len(ranked) > 1 else None, list(grid[0]))}
     out.mkdir(parents=True, exist_ok=True)
     (out / "tuning.json").write_text(json.dumps(report, indent=1))
     return report
+
+
+def _margin(best: dict, runner_up: dict | None, names: list) -> dict | None:
+    """How far the chosen setting is ahead of the runner-up, on the same tuning tasks: the
+    successes of each, the tasks only one of them walked and McNemar's exact p of that (a
+    margin inside the noise says the choice is one of equals)."""
+    if runner_up is None:
+        return None
+    from qz_drake.capability.evaluation import mcnemar_exact_p
+
+    walked = [{r["key"]: bool(r["success"]) for r in read_results(Path(row["folder"])) if r.get("reason") != "error"}
+              for row in (best, runner_up)]
+    shared = sorted(set(walked[0]) & set(walked[1]))
+    only_best = sum(walked[0][k] and not walked[1][k] for k in shared)
+    only_runner_up = sum(walked[1][k] and not walked[0][k] for k in shared)
+    return {"runner_up": {k: runner_up[k] for k in names}, "successes": best["successes"],
+            "runner_up_successes": runner_up["successes"], "tasks_both": len(shared),
+            "only_chosen": only_best, "only_runner_up": only_runner_up,
+            "mcnemar_p": mcnemar_exact_p(only_best, only_runner_up)}
 
 
 def _tune_setting(out: Path, planner: str, setting: dict, names: dict, folder_of, fixed, walks: dict, *,
@@ -770,8 +806,8 @@ def _check_numbers(flag: str, numbers, ok, expected: str) -> None:
 
 def tune_astar(out, *, step_heights=TUNING_STEP_HEIGHTS, slopes_deg=TUNING_SLOPES_DEG,
                body_radii=TUNING_BODY_RADII,
-               terrains=TERRAINS, difficulties=DIFFICULTIES, tasks: int = 2, workers: int = 1,
-               ray_address: str | None = None, config: ExperimentConfig = ExperimentConfig(),
+               terrains=TERRAINS, difficulties=DIFFICULTIES, tasks: int = TUNING_TASKS_PER_CELL,
+               workers: int = 1, ray_address: str | None = None, config: ExperimentConfig = ExperimentConfig(),
                progress: bool = True) -> dict:
     """Tunes the A* baseline's thresholds as strongly as it honestly can be: every
     (max step height, max slope, body radius) of the grid on the tuning worlds (``_tune``)."""
@@ -793,23 +829,42 @@ TUNING_FAILURE_REWARDS = (-100.0, -200.0)
 TUNING_TOPOLOGY_CHANGE_COSTS = (2.0, 6.0)
 # How much of the predicted planning failures counts as falls (0: none, the model's split).
 TUNING_PLAN_FAILURE_RISKS = (0.0,)
+# CapPlanner's split of its path into missions (issue 38): the longest mission [m] (a diagonal
+# cell's 1.42 m at least) and the merge threshold. With the two above, 16 settings: as many as
+# A*'s grid.
+TUNING_MISSION_LENGTHS = (1.5, 2.0)
+TUNING_MERGE_MIN_SUCCESS = (0.8, 0.95)
 
 
 def tune_capplanner(out, *, failure_rewards=TUNING_FAILURE_REWARDS,
                     topology_change_costs=TUNING_TOPOLOGY_CHANGE_COSTS,
-                    plan_failure_risks=TUNING_PLAN_FAILURE_RISKS, terrains=TERRAINS,
-                    difficulties=DIFFICULTIES, tasks: int = 2, workers: int = 1, ray_address: str | None = None,
-                    config: ExperimentConfig = ExperimentConfig(), progress: bool = True) -> dict:
-    """Tunes CapPlanner's failure reward and topology-change cost the way A* is tuned: every
-    pair of the grid on the same tuning worlds (``_tune``)."""
+                    plan_failure_risks=TUNING_PLAN_FAILURE_RISKS, mission_lengths=TUNING_MISSION_LENGTHS,
+                    merge_min_success=TUNING_MERGE_MIN_SUCCESS, terrains=TERRAINS,
+                    difficulties=DIFFICULTIES, tasks: int = TUNING_TASKS_PER_CELL, workers: int = 1,
+                    ray_address: str | None = None, config: ExperimentConfig = ExperimentConfig(),
+                    progress: bool = True) -> dict:
+    """Tunes CapPlanner's failure reward, topology-change cost, longest mission and merge
+    threshold the way A* is tuned: every combination of the grid on the same tuning worlds
+    (``_tune``)."""
+    from qz_drake.planning.guidance import MissionSplitConfig
+
     _check_numbers("--failure-rewards", failure_rewards, lambda v: v < 0, "expected negative numbers")
     _check_numbers("--switch-costs", topology_change_costs, lambda v: v >= 0, "expected numbers >= 0")
     _check_numbers("--plan-failure-risks", plan_failure_risks, lambda v: 0 <= v <= 1, "expected numbers in [0, 1]")
-    grid = [{"failure_reward": float(f), "topology_change_cost": float(c), "plan_failure_risk": float(r)}
-            for r in plan_failure_risks for f in failure_rewards for c in topology_change_costs]
-    # Folders of the settings without a risk keep the names they had before it was a setting.
+    _check_numbers("--mission-lengths", mission_lengths, lambda v: v >= 1.42, "expected lengths >= 1.42 m "
+                                                                                "(a diagonal move)")
+    _check_numbers("--merge-thresholds", merge_min_success, lambda v: 0 <= v <= 1, "expected numbers in [0, 1]")
+    grid = [{"failure_reward": float(f), "topology_change_cost": float(c), "plan_failure_risk": float(r),
+             "mission_length": float(m), "merge_min_success": float(s)}
+            for r in plan_failure_risks for f in failure_rewards for c in topology_change_costs
+            for m in mission_lengths for s in merge_min_success]
+    split = MissionSplitConfig()
+    # Folders of the settings at the defaults keep the names they had before these were settings.
     return _tune(out, "capplanner", grid, CAPPLANNER_TUNED,
                  lambda g: f"failure{-g['failure_reward']:g}_switch{g['topology_change_cost']:g}"
-                           + (f"_risk{g['plan_failure_risk']:g}" if g["plan_failure_risk"] else ""),
+                           + (f"_risk{g['plan_failure_risk']:g}" if g["plan_failure_risk"] else "")
+                           + (f"_missions{g['mission_length']:g}" if g["mission_length"] != split.max_length else "")
+                           + (f"_merge{g['merge_min_success']:g}" if g["merge_min_success"] != split.min_success
+                              else ""),
                  terrains=terrains, difficulties=difficulties, tasks=tasks, workers=workers,
                  ray_address=ray_address, config=config, progress=progress)

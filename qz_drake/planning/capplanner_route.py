@@ -16,6 +16,7 @@ from qz_drake.capability.trials import TrialConfig, trial_blc_parameters
 from qz_drake.errors import bad_value
 from qz_drake.planning.capability_mdp import CapabilityMdpConfig
 from qz_drake.planning.capability_planner import CapabilityVIPlanner
+from qz_drake.planning.guidance import MissionSplitConfig
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 from qz_drake.scene import check_standable
 from qz_drake.simulation import FixedRoute
@@ -47,11 +48,16 @@ class CapPlannerRoute(FixedRoute):
     ``controller.capability_model`` (empty: the shipped one), the goal at the route's last
     waypoint (its heading the planner's to choose), planned over the station's heightmap from
     the robot's start. The BLC solves as the capability model learned it (the trials'
-    iteration budget) and retries a mission CAPPLANNER_MISSION_RETRIES times."""
+    iteration budget) and retries a mission CAPPLANNER_MISSION_RETRIES times. ``split_config``
+    (guidance.MissionSplitConfig: the longest mission, the merge threshold) is the planner's
+    split of its path into missions (None: the defaults)."""
 
     mission_retries = CAPPLANNER_MISSION_RETRIES
     chooses_goal_heading = True
     name = "CapPlanner"
+
+    def __init__(self, split_config: MissionSplitConfig | None = None):
+        self._split = (split_config or MissionSplitConfig()).check()
 
     def blc_parameters(self):
         # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt
@@ -75,7 +81,8 @@ class CapPlannerRoute(FixedRoute):
         return CapabilityVIPlanner(model=model, heightmap=info.heightmap, goal=(goal.x, goal.y),
                                    start=(float(start_x), float(start_y), float(base_rpy(x0)[2])),
                                    initial_topology=info.topology.name, plan_ahead=control.plan_ahead,
-                                   mdp_config=mdp_config(control.capability_mdp, topologies))
+                                   mdp_config=mdp_config(control.capability_mdp, topologies),
+                                   split_config=self._split)
 
     def unreachable(self, source) -> str:
         return source.log.unreachable
