@@ -92,6 +92,49 @@ def mcnemar_exact_p(only_a: int, only_b: int) -> float:
     return float(binomtest(int(only_a), n, 0.5).pvalue) if n else 1.0
 
 
+def mcnemar_power(pairs: int, discordant: float, difference: float, alpha: float = 0.05) -> float:
+    """Power of McNemar's exact test (:func:`mcnemar_exact_p` < ``alpha``) on ``pairs`` paired
+    tasks, when a share ``discordant`` of them is walked by one system only and the first
+    system's success rate is ``difference`` above the second's. Exact: the discordant count D
+    is Binomial(pairs, discordant), and given D, the first system's share of them is
+    Binomial(D, (discordant + difference) / (2 discordant))."""
+    from scipy.stats import binom
+
+    if not (0.0 < discordant <= 1.0 and 0.0 <= difference <= discordant):
+        from qz_drake.errors import bad_value
+
+        raise bad_value("discordant", (discordant, difference), "needs 0 < discordant <= 1 and "
+                                                                 "0 <= difference <= discordant")
+    q = (discordant + difference) / (2.0 * discordant)
+    power = 0.0
+    for d in range(1, int(pairs) + 1):
+        weight = binom.pmf(d, pairs, discordant)
+        if weight < 1e-12:
+            continue
+        # The counts k of the first system's wins that reject: the exact two-sided p-value of
+        # a symmetric binomial is twice the smaller tail (mcnemar_exact_p's, vectorised).
+        ks = np.arange(d + 1)
+        p_two = np.minimum(1.0, 2.0 * np.minimum(binom.cdf(ks, d, 0.5), binom.sf(ks - 1, d, 0.5)))
+        power += weight * float(binom.pmf(ks[p_two < alpha], d, q).sum())
+    return float(power)
+
+
+def pairs_for_power(discordant: float, difference: float, *, alpha: float = 0.05, power: float = 0.8,
+                    most: int = 5000) -> int | None:
+    """Fewest paired tasks whose McNemar test has at least ``power`` (see :func:`mcnemar_power`);
+    None if not within ``most``."""
+    low, high = 1, most
+    if mcnemar_power(high, discordant, difference, alpha) < power:
+        return None
+    while low < high:  # power grows with the pairs (up to the test's discreteness)
+        mid = (low + high) // 2
+        if mcnemar_power(mid, discordant, difference, alpha) >= power:
+            high = mid
+        else:
+            low = mid + 1
+    return low
+
+
 def binary_metrics(labels, probabilities, *, bins: int = 10) -> dict:
     """n, positives, accuracy at 0.5, ROC AUC (None for one class), Brier score, ECE and its
     small-sample floor (:func:`ece_floor`), confusion matrix [[TN, FP], [FN, TP]] and the

@@ -16,9 +16,12 @@ def _names(text, field, valid) -> tuple[str, ...]:
 def run_fig9(args) -> int:
     from qz_drake.experiments.fig9 import PLANNERS, ExperimentConfig, run_experiment
     from qz_drake.experiments.plots import plot_fig9
-    from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS
+    from qz_drake.experiments.worlds import DIFFICULTIES, TASKS_PER_CELL, TERRAINS
 
     from qz_drake.experiments.fig9 import astar_settings, capplanner_settings
+
+    if args.tasks is None:
+        args.tasks = TASKS_PER_CELL
 
     tuned = astar_settings(args.astar_tuning) if args.astar_tuning else {}
     if args.capplanner_tuning:
@@ -143,7 +146,9 @@ def register(subparsers) -> None:
     sub = experiment.add_subparsers(dest="experiment_command", required=True, parser_class=type(experiment))
     p = sub.add_parser("capplanner-vs-astar", help="paper 000 Fig. 9: the learned TLC against A*")
     p.add_argument("--out", required=True, help="results folder (results.jsonl, results.csv/json, fig9.png)")
-    p.add_argument("--tasks", type=int, default=20, help="tasks per terrain and difficulty")
+    p.add_argument("--tasks", type=int, default=None,
+                   help="tasks per terrain and difficulty (default 50, worlds.TASKS_PER_CELL: 80 %% power for "
+                        "the aim)")
     p.add_argument("--terrains", default=None, help="comma-separated: stairs,obstacles,both")
     p.add_argument("--difficulties", default=None, help="comma-separated: simple,medium,hard")
     p.add_argument("--planners", default=None, help="comma-separated: capplanner,astar (default both)")

@@ -261,6 +261,54 @@ def compare_planners(records: list[dict], planner: str = "capplanner", baseline:
     return rows
 
 
+# The aim issue 38 states for the decisive run (paper 000's claim, made testable): CapPlanner
+# at least CLAIM_DIFFERENCE above A* on medium + hard together with McNemar's exact p below
+# CLAIM_ALPHA, and CapPlanner's own success at least CLAIM_RATES per difficulty.
+CLAIM_DIFFERENCE = 0.10
+CLAIM_ALPHA = 0.01
+CLAIM_RATES = {"medium": 0.80, "hard": 0.40}
+CLAIM_DIFFICULTIES = ("medium", "hard")
+# Power wanted to detect CLAIM_DIFFERENCE at CLAIM_ALPHA.
+CLAIM_POWER = 0.8
+
+
+def claim_check(records: list[dict]) -> dict | None:
+    """The aim, checked on a run: on medium + hard pooled (paired tasks), both planners'
+    success, the difference with its 95 % Wald interval for paired proportions, McNemar's exact
+    p; CapPlanner's rate per difficulty against CLAIM_RATES; whether each part holds; and the
+    design's power: the share of discordant tasks, the power of this many paired tasks to find
+    CLAIM_DIFFERENCE at CLAIM_ALPHA, and the tasks per cell that would give CLAIM_POWER."""
+    from qz_drake.capability.evaluation import mcnemar_exact_p, mcnemar_power, pairs_for_power
+
+    rows = {(c["terrain"], c["difficulty"]): c for c in compare_planners(records)}
+    cells = [c for (t, d), c in rows.items() if t != "all" and d in CLAIM_DIFFICULTIES]
+    n = sum(c["tasks"] for c in cells)
+    if not n:
+        return None
+    b = sum(c["only_capplanner"] for c in cells)
+    c_ = sum(c["only_astar"] for c in cells)
+    cap = sum(c["capplanner_successes"] for c in cells) / n
+    astar = sum(c["astar_successes"] for c in cells) / n
+    difference = (b - c_) / n
+    half = 1.96 * np.sqrt(max((b + c_) - (b - c_) ** 2 / n, 0.0)) / n
+    p = mcnemar_exact_p(b, c_)
+    rates = {d: (rows[("all", d)]["capplanner_successes"] / rows[("all", d)]["tasks"]) if ("all", d) in rows else None
+             for d in CLAIM_RATES}
+    discordant = (b + c_) / n
+    per_cell = len(cells)
+    needed = (pairs_for_power(discordant, CLAIM_DIFFERENCE, alpha=CLAIM_ALPHA, power=CLAIM_POWER)
+              if discordant >= CLAIM_DIFFERENCE else None)
+    return {"tasks": n, "capplanner_rate": cap, "astar_rate": astar, "difference": difference,
+            "difference_ci95": [difference - half, difference + half], "only_capplanner": b, "only_astar": c_,
+            "p_value": p, "difference_holds": bool(difference >= CLAIM_DIFFERENCE and p < CLAIM_ALPHA),
+            "capplanner_rates": rates,
+            "rates_hold": {d: (r is not None and r >= CLAIM_RATES[d]) for d, r in rates.items()},
+            "discordant_share": discordant,
+            "power": (mcnemar_power(n, discordant, CLAIM_DIFFERENCE, CLAIM_ALPHA)
+                      if discordant >= CLAIM_DIFFERENCE else None),
+            "tasks_per_cell_for_power": None if needed is None else int(np.ceil(needed / per_cell))}
+
+
 def compare_runs(records: list[dict], other: list[dict], planners=None) -> list[dict]:
     """Each planner against itself in another run of the same tasks (another capability model,
     BLC or tuning): paired by task as :func:`compare_planners`, with McNemar's exact test of
@@ -406,7 +454,7 @@ def report(out, against=None) -> dict:
             bucket = reasons.setdefault(r["planner"], {})
             bucket[r["reason"]] = bucket.get(r["reason"], 0) + 1
     summary = {"rows": summarise(records), "comparisons": compare_planners(records), "failure_reasons": reasons,
-               "errors": errors, "tasks_done": len(records),
+               "claim": claim_check(records), "errors": errors, "tasks_done": len(records),
                "wall_time_s": float(sum(r.get("wall_time_s", 0.0) for r in records))}
     if (out / PREDICTIONS).is_file():  # written by qz experiment report --predict
         predictions = [json.loads(line) for line in (out / PREDICTIONS).read_text().splitlines() if line.strip()]
@@ -440,6 +488,24 @@ def report_markdown(summary: dict) -> str:
         for c in summary["comparisons"]:
             lines.append(f"| {c['terrain']} | {c['difficulty']} | {c['tasks']} | {c['both']} | {c['only_capplanner']} "
                          f"| {c['only_astar']} | {c['neither']} | {c['p_value']:.2g} |")
+    claim = summary.get("claim")
+    if claim:
+        lo, hi = claim["difference_ci95"]
+        rates = ", ".join(f"{d} {100 * r:.0f} % (aim {100 * CLAIM_RATES[d]:.0f} %: "
+                          f"{'met' if claim['rates_hold'][d] else 'missed'})"
+                          for d, r in claim["capplanner_rates"].items() if r is not None)
+        power = "-" if claim["power"] is None else f"{100 * claim['power']:.0f} %"
+        lines += ["", f"The aim on medium + hard ({claim['tasks']} paired tasks): CapPlanner "
+                      f"{100 * claim['capplanner_rate']:.1f} %, A* {100 * claim['astar_rate']:.1f} %, difference "
+                      f"{100 * claim['difference']:+.1f} points (95 % interval {100 * lo:+.1f} to {100 * hi:+.1f}), "
+                      f"McNemar exact p = {claim['p_value']:.2g}: "
+                      f"{'met' if claim['difference_holds'] else 'missed'} (at least "
+                      f"{100 * CLAIM_DIFFERENCE:.0f} points with p < {CLAIM_ALPHA:g}). CapPlanner's success: {rates}. "
+                      f"Design: {100 * claim['discordant_share']:.0f} % of the tasks discordant; power to find "
+                      f"{100 * CLAIM_DIFFERENCE:.0f} points at p < {CLAIM_ALPHA:g}: {power}; "
+                      + ("" if claim["tasks_per_cell_for_power"] is None else
+                         f"{claim['tasks_per_cell_for_power']} tasks per cell would give "
+                         f"{100 * CLAIM_POWER:.0f} %.")]
     if summary.get("route_calibration"):
         lines += ["", "| terrain | difficulty | CapPlanner set out | predicted no-fall | predicted success "
                       "| walked | declined (no path) | of those, A* walked |",

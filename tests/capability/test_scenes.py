@@ -255,11 +255,14 @@ def test_trial_scenes_are_disjoint_from_the_fig9_experiment_and_tuning_worlds():
     from qz_drake.experiments import worlds
 
     seeds = {scene_recipe(seed, i)[2] for seed in range(4) for i in range(500)}
-    # Task seeds: the experiment's 0-19, the tunings' from TUNING_SEED_START on, one per task.
-    assert min(seeds) >= SCENE_SEED_START > worlds.TUNING_SEED_START + 10**6 > worlds.TASKS_PER_CELL
+    # Task seeds: the experiment's 0 to TASKS_PER_CELL - 1, the walks that check the model from
+    # VALIDATION_SEED_START on, the tunings' from TUNING_SEED_START on, one per task.
+    assert min(seeds) >= SCENE_SEED_START > worlds.TUNING_SEED_START + 10**6
+    assert worlds.TASKS_PER_CELL <= worlds.VALIDATION_SEED_START < worlds.TUNING_SEED_START
     # The random streams too: a scene draws from default_rng(scene seed), a world from
     # default_rng([terrain, difficulty, task seed, 0xF19]); no scene's first draw is a world's.
-    task_seeds = [*range(worlds.TASKS_PER_CELL), *range(worlds.TUNING_SEED_START, worlds.TUNING_SEED_START + 1000)]
+    task_seeds = [*range(worlds.TASKS_PER_CELL), *range(worlds.VALIDATION_SEED_START, worlds.TUNING_SEED_START),
+                  *range(worlds.TUNING_SEED_START, worlds.TUNING_SEED_START + 1000)]
     world_draws = {int(np.random.default_rng([t, d, s, 0xF19]).integers(2**63))
                    for t in range(len(worlds.TERRAINS)) for d in range(len(worlds.DIFFICULTIES)) for s in task_seeds}
     scene_draws = {int(np.random.default_rng(s).integers(2**63)) for s in seeds}

@@ -242,3 +242,21 @@ def test_three_outcomes_are_learned_as_one_softmax_on_held_out_scenes():
     np.testing.assert_allclose(probs.sum(axis=1), 1.0, rtol=1e-5)
     predicted = probs.argmax(axis=1)
     assert np.mean(predicted == classes[rows]) > 0.85
+
+
+def test_mcnemar_power_is_the_share_of_simulated_runs_the_exact_test_rejects():
+    from qz_drake.capability.evaluation import mcnemar_exact_p, mcnemar_power, pairs_for_power
+
+    rng = np.random.default_rng(0)
+    pairs, discordant, difference = 120, 0.25, 0.10
+    # Each pair: only A walked (p (d + diff) / 2), only B ((d - diff) / 2), or concordant.
+    draws = rng.multinomial(pairs, [(discordant + difference) / 2, (discordant - difference) / 2,
+                                    1 - discordant], size=4000)
+    simulated = np.mean([mcnemar_exact_p(a, b) < 0.01 for a, b, _ in draws])
+    assert mcnemar_power(pairs, discordant, difference, alpha=0.01) == pytest.approx(simulated, abs=0.025)
+    assert mcnemar_power(pairs, discordant, 0.0, alpha=0.05) < 0.05  # no difference: the test's size
+    needed = pairs_for_power(discordant, difference, alpha=0.01)
+    assert mcnemar_power(needed, discordant, difference, 0.01) >= 0.8 > mcnemar_power(needed - 1, discordant,
+                                                                                       difference, 0.01)
+    with pytest.raises(QzError, match="discordant"):
+        mcnemar_power(10, 0.05, 0.10)
