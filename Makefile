@@ -55,9 +55,9 @@ WORKERS ?= 2
 fig9: $(STAMP)
 	test -f $(FIG9)/model/report.json || \
 		$(VENV)/bin/qz capability train --dataset $(DATASET) --out $(FIG9)/model
-	nice -n 19 $(VENV)/bin/qz experiment tune-astar --out $(FIG9)/astar_tuning --tasks 2 --workers $(WORKERS)
+	nice -n 19 $(VENV)/bin/qz experiment tune-astar --out $(FIG9)/astar_tuning --workers $(WORKERS)
 	nice -n 19 $(VENV)/bin/qz experiment tune-capplanner --model $(FIG9)/model --out $(FIG9)/capplanner_tuning \
-		--tasks 2 --workers $(WORKERS) --plan-failure-risks 0,1
+		--workers $(WORKERS)
 	nice -n 19 $(VENV)/bin/qz experiment capplanner-vs-astar --model $(FIG9)/model \
 		--astar-tuning $(FIG9)/astar_tuning --capplanner-tuning $(FIG9)/capplanner_tuning \
 		--out $(FIG9)/experiment --workers $(WORKERS)

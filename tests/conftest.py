@@ -7,7 +7,8 @@ import pytest
 def synthetic_model_dir(tmp_path_factory):
     """A capability model of the nominal topology trained on synthetic trials whose label is a
     known rule (success when the patch's height range is at most 0.15 m): real CNNs, real
-    files, for the planners' end-to-end tests while no model ships."""
+    files, for the planners' end-to-end tests while no model ships. Ensembles of two (the
+    planners read their spread; five would triple the training for no other test)."""
     import torch
 
     from qz_drake.capability.model import save_model
@@ -19,7 +20,7 @@ def synthetic_model_dir(tmp_path_factory):
     # No component fingerprints: the model describes no robot configuration, so the robot
     # check of CapabilityModel.load lets it through.
     result = train_networks(arrays, fingerprint=manifest["fingerprint"], fingerprints=None,
-                            config=TrainingConfig(max_epochs=40, patience=8))
+                            config=TrainingConfig(max_epochs=40, patience=8, ensemble=2))
     # The planners' tests rely on the three nominal networks being there and having learned
     # the rule on held-out scenes: ranked against the rule itself (the labels have 3 % flipped,
     # which caps the AUC against them near 0.9 on these 72 test trials a network).

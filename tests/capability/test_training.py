@@ -15,6 +15,9 @@ torch.set_num_threads(1)
 
 
 def small_config(**kw):
+    # Single networks: the ensembles' training, saving and map are tested in
+    # test_capability_model.py; here the protocol is.
+    kw.setdefault("ensemble", 1)
     kw.setdefault("max_epochs", 60)
     kw.setdefault("patience", 10)
     kw.setdefault("networks", ["nominal/orthogonal"])

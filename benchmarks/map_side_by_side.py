@@ -1,0 +1,69 @@
+"""The capability map of the 20 m long_range world from two source trees, side by side.
+
+    git worktree add --detach /tmp/base COMMIT
+    python benchmarks/map_side_by_side.py /tmp/base . --repeats 3
+
+Each run is a fresh interpreter importing qz_drake from the tree given (the editable install's
+finder is taken out of sys.meta_path, so PYTHONPATH alone would not do); the trees alternate
+(base, new, base, new, ...). Random weights (CapabilityModel.random, seed 0), single networks
+and ensembles of five members; torch on one thread. Prints one JSON line per run and the medians
+with their ratios (new / base).
+"""
+
+import json
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+_RUN = r"""
+import json, sys, time
+sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in type(f).__name__.lower()
+                    and "editable" not in str(getattr(f, "__module__", "")).lower()]
+sys.path.insert(0, sys.argv[1])
+import torch
+torch.set_num_threads(1)
+import qz_drake
+assert qz_drake.__file__.startswith(sys.argv[1]), qz_drake.__file__
+from qz_drake.capability.model import CapabilityModel, predict_map
+from qz_drake.capability.networks import CapabilityEnsemble, CapabilityNet
+from qz_drake.terrain import make_terrain
+hm = make_terrain("long_range", seed=0)
+single = CapabilityModel.random(seed=0)
+torch.manual_seed(0)
+ensemble = CapabilityModel({k: CapabilityEnsemble([CapabilityNet(k[1]).eval() for _ in range(5)]).eval()
+                            for k in single.networks}, dict(single.card))
+predict_map(single, hm, anchor=(1, 1))
+out = {}
+for name, model in (("single", single), ("ensemble5", ensemble)):
+    clock = time.perf_counter()
+    predict_map(model, hm, anchor=(1, 1))
+    out[name] = time.perf_counter() - clock
+print(json.dumps(out))
+"""
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("base")
+    parser.add_argument("new")
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args(argv)
+    times = {"base": [], "new": []}
+    for _ in range(args.repeats):
+        for label in ("base", "new"):
+            root = str(Path(getattr(args, label)).resolve())
+            run = subprocess.run([sys.executable, "-c", _RUN, root], capture_output=True, text=True, check=True)
+            result = json.loads(run.stdout.strip().splitlines()[-1])
+            print(json.dumps({"tree": label, **result}))
+            times[label].append(result)
+    medians = {label: {k: statistics.median(r[k] for r in rows) for k in rows[0]} for label, rows in times.items()}
+    print(json.dumps({"medians": medians,
+                      "ratio_new_over_base": {k: medians["new"][k] / medians["base"][k] for k in medians["new"]}}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
