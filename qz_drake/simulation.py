@@ -359,8 +359,8 @@ class WalkRun:
 def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | Path | None = None,
          max_duration: float | None = None, heightmap=None, stop_on_failure: bool = False,
          blc_params=None, station_factory=make_station, realtime_rate: float = 0.0,
-         mission_retries: int | None = None, progress=None, route_source: FixedRoute | None = None
-         ) -> SimulationResult:
+         mission_retries: int | None = None, progress=None, route_source: FixedRoute | None = None,
+         on_judged=None) -> SimulationResult:
     """Walks a scenario's route: missions planned from the measured state, IK + joint PD; builds
     (build_walk), runs (run_walk), judges (judge_walk_run) and writes its files.
 
@@ -372,7 +372,9 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     are the BLC's BlcParameters (None: the route source's). ``mission_retries``: how often the
     BLC system solves a mission that failed to plan again, one tripod cycle longer each time
     (None: the route source's). ``station_factory``, ``realtime_rate`` and ``progress`` as in
-    simulate(); ``progress`` hears the missions planned so far."""
+    simulate(); ``progress`` hears the missions planned so far. ``on_judged(built, run, result)``
+    is called once the walk is judged, before its files are written (to read the missions'
+    logs: qz_drake.capability.walk_missions); a walk that never started does not call it."""
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
@@ -387,6 +389,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     if isinstance(run, WalkNotStarted):
         return _unplanned(scenario, out, run)
     result = judge_walk_run(scenario, built, run)
+    if on_judged is not None:
+        on_judged(built, run, result)
     if out is not None:
         from qz_drake.viz.plots import plot_walk
         from qz_drake.viz.recording import save_recording

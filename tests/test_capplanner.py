@@ -51,7 +51,7 @@ def test_capplanner_walks_round_a_wall_to_the_goal(synthetic_model_dir, tmp_path
 def test_the_fig9_pipeline_runs_a_tiny_task_per_planner(synthetic_model_dir, tmp_path):
     from qz_drake.experiments.fig9 import ExperimentConfig, read_results, run_experiment
 
-    config = ExperimentConfig(capability_model=str(synthetic_model_dir), scale=0.3)
+    config = ExperimentConfig(capability_model=str(synthetic_model_dir), scale=0.3, record_missions=True)
     summary = run_experiment(tmp_path, terrains=("obstacles",), difficulties=("simple",), tasks=1, config=config,
                              progress=False)
     assert summary["ran"] == 2
@@ -60,6 +60,10 @@ def test_the_fig9_pipeline_runs_a_tiny_task_per_planner(synthetic_model_dir, tmp
     for r in records:
         assert r["reason"] != "error", r
         assert r["success"] == (r["reason"] == "")
+        # Every mission kept with its outcome (issue 37): a walk that arrived walked them all.
+        missions = r["mission_records"]
+        assert len(missions) >= r["missions"] >= 1
+        assert not r["success"] or all(m["outcome"] == "walked" for m in missions)
     rows = summary["rows"]
     assert {r["planner"] for r in rows} == {"astar", "capplanner"} and all(r["tasks"] == 1 for r in rows)
     for r in records:  # the first task of each planner is recorded

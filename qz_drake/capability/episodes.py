@@ -44,8 +44,7 @@ from qz_drake.capability.trials import TrialConfig, blank_record, trial_blc_para
 from qz_drake.errors import QzError, bad_value
 from qz_drake.robot.params import DEFAULT_PARAMS
 from qz_drake.robot.topology import TOPOLOGY_NAMES
-from qz_drake.state_layout import BASE_XY, base_rpy
-from qz_drake.verdict import blc_failure_code, judge_walk
+from qz_drake.verdict import blc_failure_code
 
 # Missions in an episode (the first failure ends it earlier).
 EPISODE_MISSIONS = 4
@@ -285,30 +284,17 @@ def _label_missions(spec, scene, missions, built, run, result, criteria) -> list
     """One record per mission the robot set out on, each judged on its own stretch of the walk:
     a move or turn from its plan's start to the next switch's or plan's start (the last: to the
     end of the run), a switch from its start to the next plan's."""
-    from qz_drake.simulation import feet_in_world
+    from qz_drake.capability.walk_missions import WalkWindows
 
     log = built.missions.log
     plans = log.plans
     failures = dict(log.failures)
     switches = list(built.missions.blc.log.switches)
-    times, states = result.times, result.states
-    desired = built.logs["desired"].FindLog(run.context).data().T
-    links = built.logs["leg"].FindLog(run.context).data().T if built.logs["leg"] is not None else None
-    selfc = built.logs["self"].FindLog(run.context).data()[0] if built.logs["self"] is not None else None
-    feet_W = feet_in_world(states, built.info.params)
-    end = times[-1] + 1e-9
+    windows = WalkWindows(built, run, result, criteria)
+    times, end, measured_at = windows.times, windows.end, windows.measured_at
 
     def judge(record, t0, t1, goal, last):
-        window = (times >= t0 - 1e-9) & (times < t1)
-        n = int(window.sum())
-        verdict = judge_walk(
-            criteria, goal_xy_yaw=goal, times=times[window], states=states[window],
-            desired_q=desired[window], feet_W=feet_W[window], contacts=result.foot_contact[window],
-            trunk=result.trunk_contact[window],
-            leg_link_force=np.zeros((n, 6)) if links is None else links[window],
-            self_force=np.zeros(n) if selfc is None else selfc[window],
-            fell=run.fell and last, timed_out=last and not run.stopped and not run.fell
-            and not built.missions.done)
+        verdict, seconds = windows.judge(t0, t1, goal, last)
         m = verdict.measures
         record.update(
             success=bool(verdict.success), reason=verdict.reasons[0] if verdict.reasons else "",
@@ -316,12 +302,8 @@ def _label_missions(spec, scene, missions, built, run, result, criteria) -> list
             final_xy_error_m=float(m["final_xy_error_m"]), final_yaw_error_deg=float(m["final_yaw_error_deg"]),
             max_tilt_deg=float(m["max_tilt_deg"]), max_joint_error_deg=float(m["max_joint_error_deg"]),
             max_foot_slip_m=float(m["max_foot_slip_m"]), max_leg_link_force_n=float(m["max_leg_link_force_n"]),
-            sim_time_s=float(times[window][-1] - times[window][0]) if n else 0.0)
+            sim_time_s=seconds)
         return verdict.success
-
-    def measured_at(t):
-        i = min(int(np.searchsorted(times, t)), len(times) - 1)
-        return (float(states[i, BASE_XY][0]), float(states[i, BASE_XY][1]), float(base_rpy(states[i])[2])), feet_W[i]
 
     def no_plan(record, reason, k):
         record.update(success=False, reason=blc_failure_code(reason), message=reason[:200], blc_success=False,

@@ -69,6 +69,10 @@ class ExperimentConfig:
     # longest mission [m] and the least predicted success of a merged mission.
     capplanner_mission_length: float = 2.0
     capplanner_merge_min_success: float = 0.8
+    # Keep every mission of every walk in its record (``missions``: where it started, its
+    # target, its outcome; capability.walk_missions), for scoring a capability model on whole
+    # walks (issue 37). Off for the experiment itself (the records stay small).
+    record_missions: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -164,9 +168,18 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
         # One BLC for both planners, as paper 000 has it: first solves only (the trials' BLC, and
         # the one the A* settings were tuned with); what differs is the TLC, including
         # CapPlanner's going round a mission the BLC could not plan.
+        if config.record_missions:  # a walk that never started (its first mission refused) keeps none
+            record["mission_records"] = []
+
+        def keep_missions(built, run, judged):
+            from qz_drake.capability.walk_missions import walk_mission_records
+
+            record["mission_records"] = walk_mission_records(built, run, judged, scenario.success)
+
         result = walk(scenario, heightmap=task.heightmap, stop_on_failure=True,
                       out_dir=spec.record_dir or None, mission_retries=0,
                       route_source=route_source or route_source_for(scenario),
+                      on_judged=keep_missions if config.record_missions else None,
                       blc_params=BlcParameters(max_iterations=config.blc_max_iterations,
                                                time_limit=config.blc_time_limit))
         m = result.metrics

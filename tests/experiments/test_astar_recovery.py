@@ -155,3 +155,19 @@ def test_in_a_walk_astar_goes_round_the_missions_the_blc_refuses_with_the_same_l
     assert m["blc_solves"] >= m["missions"] + MAX_RECOVERIES and m["blc_failures"] == MAX_RECOVERIES + 1
     assert not m["success"] and "unreachable" in m["reasons"] and m["tlc_recoveries"] == MAX_RECOVERIES
     assert f"A* gave up after going round {MAX_RECOVERIES} missions the BLC could not plan" in m["reason"]
+    # Every mission of the walk with its outcome, as a capability model must predict it
+    # (issue 37): the planned ones judged on their own stretch, the refused ones "no plan"
+    # from where the robot stood, in the order they started.
+    from qz_drake.capability.walk_missions import walk_mission_records
+
+    records = walk_mission_records(built, run, judge_walk_run(scenario, built, run), scenario.success)
+    outcomes = [r["outcome"] for r in records]
+    assert outcomes.count("no_plan") == m["blc_failures"] and len(records) == m["blc_solves"]
+    assert outcomes.count("walked") + outcomes.count("failed") == m["missions"]
+    assert [r["start_time"] for r in records] == sorted(r["start_time"] for r in records)
+    assert [r["index"] for r in records] == list(range(len(records)))
+    for before, after in zip(records, records[1:]):
+        if before["outcome"] == "walked":  # the next one starts where it ended
+            assert np.hypot(*(np.subtract(after["start"][:2], before["target"][:2]))) < 0.15
+    refused = [r for r in records if r["outcome"] == "no_plan"]
+    assert all(r["reason"].startswith("blc_") and len(r["feet"]) == 6 for r in refused)

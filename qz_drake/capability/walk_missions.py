@@ -1,0 +1,113 @@
+"""Every mission of a whole walk, judged on its own stretch (issue 37): what the capability model
+must predict when it plans walks.
+
+A walk hands the BLC one mission after another (a fixed route's, A*'s with its recovery,
+CapPlanner's). Each mission ends in one of the three outcomes the networks predict: the BLC
+found no plan (the robot stood where it was), or it was executed and walked, or executed and
+failed (a fall, a leg or the trunk on the terrain, a slip, a missed target). :class:`WalkWindows`
+judges a stretch of a finished walk with the strict verdict (qz_drake.verdict.judge_walk), the
+same judgement the capability episodes give their missions (capability/episodes.py);
+:func:`walk_mission_records` lists a walk's missions with where each started (the pose and
+feet the BLC planned it from), its target and topology, and its outcome, so that a model can
+be scored on walks it never saw (the Fig. 9 experiment's ``record_missions``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from qz_drake.state_layout import BASE_XY, base_rpy
+from qz_drake.verdict import blc_failure_code, judge_walk
+
+# A mission's three outcomes, as the networks order them (capability.training.OUTCOMES).
+WALKED, NO_PLAN, FAILED = "walked", "no_plan", "failed"
+
+
+class WalkWindows:
+    """A finished walk's logs (build_walk, run_walk, judge_walk_run), judged stretch by stretch."""
+
+    def __init__(self, built, run, result, criteria):
+        from qz_drake.simulation import feet_in_world
+
+        self.built, self.run, self.result, self.criteria = built, run, result, criteria
+        self.times, self.states = result.times, result.states
+        self.desired = built.logs["desired"].FindLog(run.context).data().T
+        self.links = built.logs["leg"].FindLog(run.context).data().T if built.logs["leg"] is not None else None
+        self.selfc = built.logs["self"].FindLog(run.context).data()[0] if built.logs["self"] is not None else None
+        self.feet_W = feet_in_world(self.states, built.info.params)
+        # Later than every sample: the end of a stretch that runs to the end of the walk.
+        self.end = float(self.times[-1]) + 1e-9
+
+    def judge(self, t0: float, t1: float, goal, last: bool):
+        """The strict verdict of the samples in [t0, t1) against ``goal`` (x, y, yaw); ``last``:
+        the stretch ends the walk (a fall or a timeout then counts in it). Returns (verdict,
+        simulated seconds of the stretch)."""
+        times = self.times
+        window = (times >= t0 - 1e-9) & (times < t1)
+        n = int(window.sum())
+        run = self.run
+        verdict = judge_walk(
+            self.criteria, goal_xy_yaw=goal, times=times[window], states=self.states[window],
+            desired_q=self.desired[window], feet_W=self.feet_W[window], contacts=self.result.foot_contact[window],
+            trunk=self.result.trunk_contact[window],
+            leg_link_force=np.zeros((n, 6)) if self.links is None else self.links[window],
+            self_force=np.zeros(n) if self.selfc is None else self.selfc[window],
+            fell=run.fell and last, timed_out=last and not run.stopped and not run.fell
+            and not self.built.missions.done)
+        return verdict, (float(times[window][-1] - times[window][0]) if n else 0.0)
+
+    def measured_at(self, t: float):
+        """((x, y, yaw), feet (6, 3)) of the robot at the first sample from time t on."""
+        i = min(int(np.searchsorted(self.times, t)), len(self.times) - 1)
+        x = self.states[i]
+        return (float(x[BASE_XY][0]), float(x[BASE_XY][1]), float(base_rpy(x)[2])), self.feet_W[i]
+
+
+def walk_mission_records(built, run, result, criteria) -> list[dict]:
+    """One record per mission the walk's BLC was given, in the order they started: planned
+    ones judged on their stretch (from the mission's start, or the topology switch before it,
+    to the next mission's), refused ones as "no plan" from the state the robot stood in. Each
+    record: ``start_time`` [s], ``start`` (x, y, yaw) and ``feet`` (6, 3) in the world where the
+    BLC planned it from [m, rad], ``target`` (x, y, yaw), ``topology``, ``switched_from`` (the
+    topology of a switch just before it, "" without), ``outcome`` (walked, no_plan, failed),
+    ``reason`` (the verdict's first, or the BLC's failure code), ``message``, ``sim_time_s``.
+    JSON-ready."""
+    windows = WalkWindows(built, run, result, criteria)
+    log = built.missions.log
+    blc = built.missions.blc.log
+    switches = {round(s.end_time, 6): s for s in blc.switches if math.isfinite(s.end_time)}
+    planned = []
+    for i, plan in enumerate(log.plans):
+        t0 = float(plan.start_time)
+        switch = switches.get(round(t0, 6))
+        base, rpy = plan.base_position(t0), plan.base_rpy(t0)
+        target = log.targets[i] if i < len(log.targets) else (*np.asarray(plan.base_position(plan.end_time))[:2],
+                                                              float(plan.base_rpy(plan.end_time)[2]), "")
+        planned.append({"start_time": float(switch.start_time) if switch else t0,
+                        "start": [float(base[0]), float(base[1]), float(rpy[2])],
+                        "feet": np.asarray(plan.foot_positions(t0), dtype=float).round(5).tolist(),
+                        "target": [float(v) for v in target[:3]],
+                        "topology": log.topologies[i] if i < len(log.topologies) else "",
+                        "switched_from": switch.from_topology if switch else ""})
+    refused = []
+    for s in blc.failures:
+        pose, feet = windows.measured_at(float(s.start_time))
+        refused.append({"start_time": float(s.start_time), "start": list(pose),
+                        "feet": np.asarray(feet, dtype=float).round(5).tolist(),
+                        "target": [float(v) for v in s.target], "topology": s.topology, "switched_from": "",
+                        "outcome": NO_PLAN, "reason": blc_failure_code(s.reason), "message": s.reason[:200],
+                        "sim_time_s": 0.0})
+    starts = sorted([r["start_time"] for r in planned] + [r["start_time"] for r in refused])
+    for r in planned:
+        later = [t for t in starts if t > r["start_time"] + 1e-9]
+        t1 = later[0] if later else windows.end
+        verdict, seconds = windows.judge(r["start_time"], t1, tuple(r["target"]), last=windows.times[-1] < t1)
+        r.update(outcome=WALKED if verdict.success else FAILED,
+                 reason=verdict.reasons[0] if verdict.reasons else "", message="; ".join(verdict.messages)[:200],
+                 sim_time_s=seconds)
+    records = sorted(planned + refused, key=lambda r: r["start_time"])
+    for k, r in enumerate(records):
+        r["index"] = k
+    return records
