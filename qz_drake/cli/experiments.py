@@ -1,6 +1,7 @@
 """``qz experiment capplanner-vs-astar``: paper 000 Fig. 9, and ``qz experiment tune-astar`` /
 ``tune-capplanner``, each planner's settings chosen on tuning worlds (see
-qz_drake.experiments.fig9)."""
+qz_drake.experiments.fig9); ``score-missions``, a capability model against the missions of a
+run's walks (qz_drake.experiments.walk_scores)."""
 
 from __future__ import annotations
 
@@ -47,6 +48,44 @@ def run_report(args) -> int:
         predict_routes(args.out, progress=not args.json)
     summary = report(args.out, against=args.against)
     print(json.dumps(summary) if args.json else report_markdown(summary))
+    return 0
+
+
+def run_score_missions(args) -> int:
+    from pathlib import Path
+
+    from qz_drake.capability.model import CapabilityModel
+    from qz_drake.errors import bad_value
+    from qz_drake.experiments.fig9 import RESULTS, _settings, read_results
+    from qz_drake.experiments.walk_scores import score_missions
+
+    out = Path(args.out)
+    if not (out / RESULTS).is_file():
+        raise bad_value("results", str(out), f"no {RESULTS} there (run qz experiment capplanner-vs-astar)")
+    settings = _settings(out)
+    model = CapabilityModel.load(args.model or settings.get("capability_model") or None)
+    scores = score_missions(read_results(out), model, scale=float(settings.get("scale", 1.0)))
+    if args.json:
+        print(json.dumps(scores))
+        return 0
+
+    def auc(name):
+        m = scores.get(name)
+        return "-" if not m or m["auc"] is None else f"{m['auc']:.3f} ({m['positives']} of {m['n']})"
+
+    def num(v):
+        return "-" if v is None else f"{v:.2f}"
+
+    o = scores["outcomes"]
+    print(f"{scores['missions']} missions of {scores['walks']} walks ({scores['walks_without_missions']} walks kept "
+          f"none): walked {o['walked']}, no plan {o['no_plan']}, executed and failed {o['failed']}. ROC AUC of "
+          f"P(executed and failed) {auc('failed')}, of P(no plan) {auc('no_plan')}, of P(walked) {auc('walked')}.")
+    print("\n| planner | terrain | difficulty | walks | without an execution failure | predicted | missions "
+          "| walked | predicted |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for c in scores["cells"]:
+        print(f"| {c['planner']} | {c['terrain']} | {c['difficulty']} | {c['walks']} "
+              f"| {num(c['walks_without_execution_failure'])} | {num(c['predicted_without_execution_failure'])} "
+              f"| {c['missions']} | {num(c['missions_walked'])} | {num(c['predicted_walked'])} |")
     return 0
 
 
@@ -178,6 +217,13 @@ def register(subparsers) -> None:
                         "(predictions.jsonl, resumable; minutes) to add the route calibration table")
     # `out` names a folder to read here, not an output for qz's --out checks.
     p.set_defaults(func=run_report, out_kind=None)
+
+    p = sub.add_parser("score-missions", help="a capability model against the missions of a run's walks "
+                                              "(a run with record_missions; issue 37)")
+    p.add_argument("out", help="results folder whose walks kept their missions")
+    p.add_argument("--model", default=None, help="capability model folder (default: the run's, else the shipped one)")
+    p.add_argument("--json", action="store_true", help="print one JSON line instead of the table")
+    p.set_defaults(func=run_score_missions, out_kind=None)
 
     p = sub.add_parser("tune-astar", help="choose the A* baseline's thresholds on tuning worlds "
                                           "(seeds from 1000, never the experiment's)")
