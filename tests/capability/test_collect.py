@@ -272,6 +272,7 @@ def _fingerprints_of(tree: Path, settings: dict) -> dict:
     return json.loads(run.stdout)
 
 
+@pytest.mark.slow  # a second interpreter on a second source tree: 13 s of make test's budget
 def test_recertify_with_the_certified_code_tells_a_machines_difference_from_the_changes(reference, tmp_path):
     # The certified code: a copy of this tree whose verdict module differs in syntax, not in
     # behaviour, so that the running code is "a change" against the manifest.

@@ -127,15 +127,26 @@ def test_the_first_failed_mission_ends_the_episode_with_its_reason():
     assert "off its reference" in records[0]["message"]
 
 
-def test_an_episode_collection_stores_a_record_per_mission_and_resumes(tmp_path):
+@pytest.fixture(scope="module")
+def one_episode(tmp_path_factory):
+    """Seed 5's first scene walked as one nominal episode (all four missions walk: measured)."""
     from qz_drake.capability.collect import collect
-    from qz_drake.capability.dataset import load_records
 
-    out = tmp_path / "episodes"
-    # Seed 5's first scene: the nominal topology walks all four missions (measured).
+    out = tmp_path_factory.mktemp("episodes") / "one"
     summary = collect(out, seed=5, scenes=1, topologies=["nominal"], protocol="episodes",
                       progress=False, shard_size=10)
     assert summary.planned == 1 and summary.ran == 1
+    return out
+
+
+def test_an_episode_collection_stores_a_record_per_mission_and_resumes(one_episode, tmp_path):
+    import json
+    import shutil
+
+    from qz_drake.capability.collect import collect, recertify
+    from qz_drake.capability.dataset import load_records
+
+    out = one_episode
     arrays, manifest = load_records(out)
     assert manifest["settings"]["protocol"] == "episodes"
     assert len(arrays["index"]) == EPISODE_MISSIONS and set(arrays["index"]) == {0}
@@ -146,13 +157,7 @@ def test_an_episode_collection_stores_a_record_per_mission_and_resumes(tmp_path)
     again = collect(out, seed=5, scenes=1, topologies=["nominal"], protocol="episodes", progress=False)
     assert again.already_done == 1 and again.ran == 0
     # A code change that keeps behaviour is certified by re-running whole episodes and
-    # comparing their record lists; the dataset then resumes under the new code. A stored
-    # record the code no longer reproduces is refused with the mission named.
-    import json
-    import shutil
-
-    from qz_drake.capability.collect import recertify
-
+    # comparing their record lists; the dataset then resumes under the new code.
     manifest = json.loads((out / "manifest.json").read_text())
     current = dict(manifest["fingerprints"])
     moved = tmp_path / "moved"
@@ -161,9 +166,27 @@ def test_an_episode_collection_stores_a_record_per_mission_and_resumes(tmp_path)
     (moved / "manifest.json").write_text(json.dumps(manifest))
     result = recertify(moved, sample=1)
     assert result.changed == ["controller"] and result.rerun == 1 and result.identical, result.mismatches
+    assert result.unit == "episodes"
     assert json.loads((moved / "manifest.json").read_text())["fingerprints"] == current
+    with pytest.raises(Exception, match="--reference-code"):
+        recertify(moved, reference_code=tmp_path)
+    with pytest.raises(Exception, match="--kinds"):
+        collect(tmp_path / "other", scenes=1, kinds=["turn"], protocol="episodes", progress=False)
+    with pytest.raises(Exception, match="--protocol"):
+        collect(tmp_path / "other", scenes=1, protocol="walks", progress=False)
+
+
+@pytest.mark.slow
+def test_an_episode_the_code_no_longer_reproduces_is_refused_with_its_mission(one_episode, tmp_path):
+    import json
+    import shutil
+
+    from qz_drake.capability.collect import recertify
+
     altered = tmp_path / "altered"
-    shutil.copytree(out, altered)
+    shutil.copytree(one_episode, altered)
+    manifest = json.loads((altered / "manifest.json").read_text())
+    manifest["fingerprints"]["controller"] = "0123456789abcdef"
     (altered / "manifest.json").write_text(json.dumps(manifest))
     shard = next(altered.glob("shard-*.npz"))
     with np.load(shard) as f:
@@ -174,9 +197,4 @@ def test_an_episode_collection_stores_a_record_per_mission_and_resumes(tmp_path)
     refused = recertify(altered, sample=1)
     assert not refused.identical and refused.mismatches[0]["fields"] == ["blc_iterations"]
     assert refused.mismatches[0]["mission"] == 2
-    with pytest.raises(Exception, match="--reference-code"):
-        recertify(altered, reference_code=tmp_path)
-    with pytest.raises(Exception, match="--kinds"):
-        collect(tmp_path / "other", scenes=1, kinds=["turn"], protocol="episodes", progress=False)
-    with pytest.raises(Exception, match="--protocol"):
-        collect(tmp_path / "other", scenes=1, protocol="walks", progress=False)
+    assert json.loads((altered / "manifest.json").read_text()) == manifest  # nothing written
