@@ -9,9 +9,10 @@ planning failures). Both now answer a refused mission the same two ways, with th
 * a mission longer than one step (``split_length``; A*'s missions are up to
   ``mission_length`` long, CapPlanner's several actions) is handed out again in two halves, the
   second ending where it did (CapPlanner: one action per mission);
-* a short mission is blocked: the cells within ``block_radius`` of its target become
-  impassable in A*'s cost map and A* plans again from the robot's measured position to the
-  goal (CapPlanner forbids the action from that state and solves value iteration again).
+* a short mission is blocked: the cells within ``block_radius`` of its target that are nearer
+  it than the robot become impassable in A*'s cost map (AStarBaseline.block: the robot keeps a
+  way out) and A* plans again from the robot's measured position to the goal (CapPlanner
+  forbids the action from that state and solves value iteration again).
 
 After ``max_recoveries`` refused missions, or when A* finds no route, the goal is unreachable,
 with the reason, and the robot stands (the refused mission is held on the outputs, so that
