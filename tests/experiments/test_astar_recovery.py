@@ -155,6 +155,9 @@ def test_in_a_walk_astar_goes_round_the_missions_the_blc_refuses_with_the_same_l
     assert m["blc_solves"] >= m["missions"] + MAX_RECOVERIES and m["blc_failures"] == MAX_RECOVERIES + 1
     assert not m["success"] and "unreachable" in m["reasons"] and m["tlc_recoveries"] == MAX_RECOVERIES
     assert f"A* gave up after going round {MAX_RECOVERIES} missions the BLC could not plan" in m["reason"]
+    # The task is a goal position: the heading A* arrives with is its own, never judged
+    # against the first route's last segment (a route planned again comes in from elsewhere).
+    assert m["final_yaw_error_deg"] == 0.0
     # Every mission of the walk with its outcome, as a capability model must predict it
     # (issue 37): the planned ones judged on their own stretch, the refused ones "no plan"
     # from where the robot stood, in the order they started.
