@@ -5,7 +5,8 @@
 
 Each run is a fresh interpreter importing qz_drake from the tree given (the editable install's
 finder is taken out of sys.meta_path, so PYTHONPATH alone would not do); the trees alternate
-(base, new, base, new, ...). Random weights (CapabilityModel.random, seed 0), single networks
+(base, new, base, new, ...); ``--world`` picks the 20 m long_range world (default) or a Fig. 9
+task's world (e.g. ``obstacles-hard``, seed 0). Random weights (CapabilityModel.random, seed 0), single networks
 and ensembles of five members; torch on one thread. Prints one JSON line per run and the medians
 with their ratios (new / base).
 """
@@ -28,16 +29,21 @@ assert qz_drake.__file__.startswith(sys.argv[1]), qz_drake.__file__
 from qz_drake.capability.model import CapabilityModel, predict_map
 from qz_drake.capability.networks import CapabilityEnsemble, CapabilityNet
 from qz_drake.terrain import make_terrain
-hm = make_terrain("long_range", seed=0)
+if sys.argv[2] == "long_range":
+    hm, anchor = make_terrain("long_range", seed=0), (1, 1)
+else:  # a Fig. 9 world: terrain-difficulty, e.g. obstacles-hard (flat outside its feature band)
+    from qz_drake.experiments.worlds import make_task
+    task = make_task(*sys.argv[2].split("-"), 0)
+    hm, anchor = task.heightmap, task.start
 single = CapabilityModel.random(seed=0)
 torch.manual_seed(0)
 ensemble = CapabilityModel({k: CapabilityEnsemble([CapabilityNet(k[1]).eval() for _ in range(5)]).eval()
                             for k in single.networks}, dict(single.card))
-predict_map(single, hm, anchor=(1, 1))
+predict_map(single, hm, anchor=anchor)
 out = {}
 for name, model in (("single", single), ("ensemble5", ensemble)):
     clock = time.perf_counter()
-    predict_map(model, hm, anchor=(1, 1))
+    predict_map(model, hm, anchor=anchor)
     out[name] = time.perf_counter() - clock
 print(json.dumps(out))
 """
@@ -50,12 +56,14 @@ def main(argv=None) -> int:
     parser.add_argument("base")
     parser.add_argument("new")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--world", default="long_range",
+                        help="long_range (the 20 m world) or a Fig. 9 cell such as obstacles-hard (seed 0)")
     args = parser.parse_args(argv)
     times = {"base": [], "new": []}
     for _ in range(args.repeats):
         for label in ("base", "new"):
             root = str(Path(getattr(args, label)).resolve())
-            run = subprocess.run([sys.executable, "-c", _RUN, root], capture_output=True, text=True, check=True)
+            run = subprocess.run([sys.executable, "-c", _RUN, root, args.world], capture_output=True, text=True, check=True)
             result = json.loads(run.stdout.strip().splitlines()[-1])
             print(json.dumps({"tree": label, **result}))
             times[label].append(result)

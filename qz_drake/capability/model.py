@@ -225,6 +225,34 @@ def load_network(weights: Path, card: dict, name: str):
     return net.eval()
 
 
+def distinct_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first, inverse) of an (n, k) array: ``first`` the index of one row of each distinct
+    row, ``inverse`` (n,) the position in ``first`` of each row's, so that
+    ``rows[first[inverse]]`` equals ``rows`` exactly (rows with NaN stand alone).
+
+    Rows are grouped by a random projection and every row is then compared with its group's
+    first, entry by entry: a row that differs from it (two rows with the same projection) gets
+    a group of its own, so the answer is exact whatever the projection."""
+    rows = np.asarray(rows)
+    n = rows.shape[0]
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    weights = np.random.default_rng(0).normal(size=rows.shape[1]).astype(rows.dtype, copy=False)
+    keys = rows @ weights if rows.dtype.kind == "f" else rows.astype(np.float64) @ weights
+    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1).astype(np.int64)
+    same = np.empty(n, bool)
+    step = max(1, (1 << 22) // max(rows.shape[1], 1))
+    for a in range(0, n, step):
+        b = min(a + step, n)
+        same[a:b] = (rows[a:b] == rows[first[inverse[a:b]]]).all(axis=1)
+    alone = np.flatnonzero(~same)
+    if len(alone):
+        inverse[alone] = len(first) + np.arange(len(alone))
+        first = np.concatenate([first, alone])
+    return first.astype(np.int64), inverse
+
+
 class _StackedMembers:
     """Several CapabilityNets of one kind and layer sizes evaluated as one: their weights stacked
     (member m's in slice m), so that a batch of patches goes through all of them in a few large
@@ -511,26 +539,39 @@ class CapabilityModel:
                 raise _error(f"feet[{t}]", f"array of shape {f.shape}",
                              f"expected {batch + (6, 3)} to match the patches")
             extras.append(torch.from_numpy(np.ascontiguousarray(f.reshape(n, 18))))
-        x = torch.from_numpy(np.ascontiguousarray(patches.reshape(n, 1, P.PATCH_SIZE, P.PATCH_SIZE)))
+        flat = np.ascontiguousarray(patches.reshape(n, P.PATCH_SIZE * P.PATCH_SIZE))
+        # The convolutions run once per distinct patch (a map's flat ground repeats one patch
+        # from cell to cell); the dense layers once per query, with its own feet.
+        first, inverse = distinct_rows(flat)
+        order = np.argsort(inverse, kind="stable")  # queries grouped by their distinct patch
+        bounds = np.searchsorted(inverse[order], np.arange(len(first) + 1))
+        x = torch.from_numpy(flat[first].reshape(len(first), 1, P.PATCH_SIZE, P.PATCH_SIZE))
+        by_topology = torch.stack(extras, dim=1) if extras else torch.zeros(n, 0, 18)  # (n, T, 18)
         directions = (P.TURN_LEFT, P.TURN_RIGHT) if kind == "turn" else (None,)
         out = np.empty((len(members), len(directions), n))
         plan = np.full((len(members), len(directions), n), np.nan)
-        owners = [i for i, _ in members]
+        owners = torch.as_tensor([i for i, _ in members])
         nets_m = [m for _, m in members]
         with torch.inference_mode():
             stacked = _StackedMembers(nets_m)
             chunk = max(16, INFERENCE_BATCH_ALL * 6 // len(members))
-            for start in range(0, n, chunk):
-                stop = min(start + chunk, n)
+            for start in range(0, len(first), chunk):
+                stop = min(start + chunk, len(first))
                 features = stacked.features(x[start:stop])
-                for k, d in enumerate(directions):
-                    extra = torch.stack([extras[i][start:stop] for i in owners], dim=1)  # (B, M, 18)
-                    if d is not None:
-                        extra = torch.cat([extra, torch.full(extra.shape[:2] + (1,), float(d))], dim=2)
-                    success, planned = stacked.outputs(features, extra)
-                    out[:, k, start:stop] = success.T.numpy()
-                    if planned is not None:
-                        plan[:, k, start:stop] = planned.T.numpy()
+                queries = order[bounds[start]:bounds[stop]]
+                for a in range(0, len(queries), chunk):
+                    q = queries[a:a + chunk]
+                    qt = torch.from_numpy(q)
+                    f = features[torch.from_numpy(inverse[q] - start)]
+                    extra = by_topology[qt][:, owners]  # (B, M, 18)
+                    for k, d in enumerate(directions):
+                        e = extra
+                        if d is not None:
+                            e = torch.cat([extra, torch.full(extra.shape[:2] + (1,), float(d))], dim=2)
+                        success, planned = stacked.outputs(f, e)
+                        out[:, k, q] = success.T.numpy()
+                        if planned is not None:
+                            plan[:, k, q] = planned.T.numpy()
         shape = (len(directions),) + batch if kind == "turn" else batch
         result = {}
         for i, t in enumerate(topologies):

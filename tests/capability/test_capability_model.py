@@ -209,6 +209,42 @@ def test_all_topologies_at_once_give_each_networks_own_answer(kind):
         model.success_all(patches, {**feet, "split_up": feet["split_up"][:2]}, kind)
 
 
+def test_distinct_rows_is_exact():
+    """distinct_rows groups equal rows only: every row is its group's first exactly, NaN rows
+    stand alone, and the groups are as many as the distinct rows."""
+    from qz_drake.capability.model import distinct_rows
+
+    rng = np.random.default_rng(3)
+    base = rng.normal(size=(7, 400)).astype(np.float32)
+    rows = base[rng.integers(0, 7, 500)].copy()
+    rows[10, 3] = np.nan
+    rows[11] = rows[12]
+    rows[12, 399] = np.nextafter(rows[12, 399], np.float32(1.0))  # one ulp apart: not equal
+    first, inverse = distinct_rows(rows)
+    same = (rows[first[inverse]] == rows) | (np.isnan(rows) & (np.arange(500) == 10)[:, None])
+    assert same.all() and inverse[10] not in np.delete(inverse, 10)
+    assert len(set(inverse.tolist())) == len({r.tobytes() for r in rows})
+
+
+@pytest.mark.parametrize("kind", ["diagonal", "turn"])
+def test_repeated_patches_are_evaluated_once_and_answer_as_each_query(kind):
+    """success_all runs the convolutions once per distinct patch (flat ground repeats one):
+    queries that share a patch but stand on other feet get their own answers, the same as
+    the same queries given apart."""
+    model = CapabilityModel.random(seed=2)
+    rng = np.random.default_rng(4)
+    distinct = rng.normal(0.0, 0.08, (3, 20, 20))
+    pick = rng.integers(0, 3, 40)
+    patches = distinct[pick]
+    feet = model.query_inputs(make_terrain("flat"), np.zeros(40), np.zeros(40), 1, kind, "nominal")[1]
+    feet = feet + rng.normal(0.0, 0.02, feet.shape)  # every query its own feet
+    together = model.success_all(patches, {"nominal": feet}, kind)["nominal"][0]
+    for i in range(0, 40, 7):
+        alone = model.success_all(patches[i:i + 1], {"nominal": feet[i:i + 1]}, kind)["nominal"][0]
+        np.testing.assert_allclose(together[..., i], alone[..., 0], atol=1e-6)
+    assert np.ptp(together[..., pick == pick[0]]) > 0  # one patch, other feet: other answers
+
+
 # -- commands ---------------------------------------------------------------------------------
 def _parser():
     parser = argparse.ArgumentParser(prog="qz capability")
