@@ -222,6 +222,29 @@ def test_relative_imports_resolve_against_the_importing_package():
         "qz_drake.pkg", "qz_drake.pkg.a", "qz_drake.x", "qz_drake.x.y", "qz_drake.z"}
 
 
+def test_imports_are_found_at_any_depth_of_the_code():
+    """The fingerprint's import scan visits statements only; it finds every import a full walk
+    of the syntax tree finds: in functions, classes, branches, handlers, loops, with blocks
+    and match cases, here and in every module of the package."""
+    import ast
+
+    from qz_drake.capability.dataset import _PACKAGE_ROOT, _imported_modules
+
+    tree = ast.parse(
+        "def f():\n    class C:\n        def g(self):\n            import qz_drake.a\n"
+        "try:\n    pass\nexcept ImportError:\n    from qz_drake import b\nelse:\n    import qz_drake.c\n"
+        "finally:\n    import qz_drake.d\n"
+        "for _ in ():\n    pass\nelse:\n    import qz_drake.e\n"
+        "with open('x'):\n    import qz_drake.f\n"
+        "match 1:\n    case 1:\n        import qz_drake.g\n")
+    assert _imported_modules("qz_drake.m", tree) == {"qz_drake", "qz_drake.b", *(f"qz_drake.{c}" for c in "acdefg")}
+    for file in _PACKAGE_ROOT.rglob("*.py"):
+        tree = ast.parse(file.read_text())
+        # Every import the full walk finds, put at the top level of a module of its own.
+        walked = ast.Module([n for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom))], [])
+        assert _imported_modules("qz_drake.m", tree) == _imported_modules("qz_drake.m", walked), file
+
+
 def test_recertification_compares_labels_exactly_and_measurements_to_a_tolerance():
     """Across processors the same code reproduces labels but not the last bits of measured
     floats (1e-10 apart, seen between two machines): recertification accepts that, not a
