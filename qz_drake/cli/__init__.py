@@ -3,8 +3,10 @@
 The application layer: nothing in the package imports it. Each command group is a module with
 ``register(subparsers)`` that sets ``func(args) -> exit code`` on its parsers; the groups are
 listed in ``COMMAND_GROUPS`` (a group that fails to import fails the command, it is never
-skipped). Errors a user can cause (QzError) print one line and exit with status 2; a failed
-solve or a fall is a reported outcome with exit status 1.
+skipped). Building the parser imports only what parsing needs: a command imports what it runs
+(matplotlib, pydrake, scipy, torch, ...) when it runs, so that ``qz --help`` and a mistyped
+option are answered at once. Errors a user can cause (QzError) print one line and exit with
+status 2; a failed solve or a fall is a reported outcome with exit status 1.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import os
 import sys
 
 from qz_drake.cli import blc, capability, classification, core, experiments, hardware, plan, planning
-from qz_drake.cli.arguments import OneLineParser, check_output_argument, package_version
+from qz_drake.cli.arguments import OneLineParser, PackageVersion, check_output_argument
 from qz_drake.errors import QzError
 
 # In the order of `qz --help`.
@@ -22,7 +24,7 @@ COMMAND_GROUPS = (core, blc, planning, plan, classification, capability, hardwar
 
 def build_parser():
     parser = OneLineParser(prog="qz", description=__doc__.splitlines()[0])
-    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
+    parser.add_argument("--version", action=PackageVersion)
     sub = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
     for group in COMMAND_GROUPS:
         group.register(sub)

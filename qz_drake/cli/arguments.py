@@ -1,25 +1,35 @@
 """The ``qz`` command's argument helpers: the one-line parser, output folders and files checked
-before any work runs, numbers, names and help texts built from the package's own tuples."""
+before any work runs, numbers, names and help texts built from the package's own tuples.
+
+Building the parser imports nothing slow: the modules a help text lists names from (terrain
+generators, topologies, materials) are imported when that help page is shown (LazyText), and
+the commands import what they run when they run."""
 
 from __future__ import annotations
 
 import argparse
-import inspect
 import math
 import os
 import re
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
-from qz_drake.config import MAX_SIMULATED_TIME, parse_key_values  # noqa: F401 (the commands' --param)
 from qz_drake.errors import ConfigError, bad_value
-from qz_drake.scene import check_against_map, make_heightmap
-from qz_drake.terrain import TERRAIN_KINDS, grid_map_terrain
 
 
 # A number or a comma-separated list of numbers, e.g. -5,-3 or -1e-2: an option's value, not an
 # option. Maps are centred on the origin, so half of all coordinates are negative.
 _NEGATIVE_NUMBERS = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(,\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)*$")
+
+
+class LazyText:
+    """A help text or epilog made by ``make()`` when its help page is first shown: the names it
+    lists come from modules too slow to import for every command (OneLineParser)."""
+
+    def __init__(self, make):
+        self._make = make
+
+    def __str__(self) -> str:
+        return self._make()
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -28,8 +38,35 @@ class OneLineParser(argparse.ArgumentParser):
         # argparse reads "--start -5,-3" as two options; it accepts "-5" only.
         self._negative_number_matcher = _NEGATIVE_NUMBERS
 
+    def add_argument(self, *args, **kwargs):
+        # A LazyText help is set after argparse's checks of the new argument (newer Pythons
+        # format its help there), so that adding it makes nothing.
+        help_text = kwargs.pop("help", None) if isinstance(kwargs.get("help"), LazyText) else None
+        action = super().add_argument(*args, **kwargs)
+        if help_text is not None:
+            action.help = help_text
+        return action
+
+    def format_help(self):
+        # The LazyText help texts and epilog, made once, when this page is first shown.
+        for action in self._actions:
+            if isinstance(action.help, LazyText):
+                action.help = str(action.help)
+        if isinstance(self.epilog, LazyText):
+            self.epilog = str(self.epilog)
+        return super().format_help()
+
     def error(self, message):  # one line, exit 2, as for every other bad input
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+class PackageVersion(argparse._VersionAction):
+    """``--version``: the installed package's version, looked up when asked for
+    (importlib.metadata is slow to import)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        self.version = f"%(prog)s {package_version()}"
+        super().__call__(parser, namespace, values, option_string)
 
 
 def _check_can_write_into(path: Path, field: str, value) -> None:
@@ -99,6 +136,8 @@ def positive_seconds(value, field: str, limit: float | None = None) -> float | N
         return None
     if not (math.isfinite(value) and value > 0):
         raise ConfigError(f"{field} = {value}: must be a finite positive number of seconds")
+    from qz_drake.config import MAX_SIMULATED_TIME
+
     limit = MAX_SIMULATED_TIME if limit is None else limit
     if value > limit:
         raise bad_value(field, value, f"longer than the limit of {limit:g} s of simulated time")
@@ -113,6 +152,10 @@ def one_of(names) -> str:
 def terrain_kinds_text() -> str:
     """Each terrain kind with its parameters and their defaults, one line each (from the
     generators' signatures), for help pages."""
+    import inspect
+
+    from qz_drake.terrain import TERRAIN_KINDS, grid_map_terrain
+
     def default(value):
         return ",".join(value) if isinstance(value, tuple) else f"{value:g}" if isinstance(value, float) else value
 
@@ -127,11 +170,22 @@ def terrain_kinds_text() -> str:
 
 def terrain_names() -> tuple[str, ...]:
     """The names ``--terrain`` / ``qz terrain`` take: the generators and grid_map."""
+    from qz_drake.terrain import TERRAIN_KINDS
+
     return (*TERRAIN_KINDS, "grid_map")
+
+
+def topology_names() -> tuple[str, ...]:
+    """The Qingzhui topologies (qz_drake.robot.topology.TOPOLOGY_NAMES), for help texts."""
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+    return TOPOLOGY_NAMES
 
 
 def package_version() -> str:
     """The installed qz_drake's version (importlib.metadata)."""
+    from importlib.metadata import PackageNotFoundError, version
+
     try:
         return version("qz_drake")
     except PackageNotFoundError:
@@ -141,6 +195,8 @@ def package_version() -> str:
 def prepare_scenario(scenario):
     """The scenario's heightmap, after the checks that need it (start and waypoints on the map,
     a start the robot can stand on: qz_drake.scene.check_against_map)."""
+    from qz_drake.scene import check_against_map, make_heightmap
+
     heightmap = make_heightmap(scenario.terrain, scenario.random_seed)
     check_against_map(scenario, heightmap)
     return heightmap

@@ -18,7 +18,7 @@ import dataclasses
 import json
 import math
 
-from qz_drake.cli.arguments import one_of, parse_key_values, terrain_kinds_text, terrain_names
+from qz_drake.cli.arguments import LazyText, one_of, terrain_kinds_text, terrain_names, topology_names
 from qz_drake.errors import ConfigError, bad_value
 
 # Longest task the command solves. The program grows with T: measured peak memory 0.28 GB at
@@ -85,7 +85,7 @@ def blc_parameters(items: list[str] | None):
 
 
 def run(args) -> int:
-    from qz_drake.config import TerrainConfig, check_feet_on_map
+    from qz_drake.config import TerrainConfig, check_feet_on_map, parse_key_values
     from qz_drake.robot.topology import TOPOLOGY_NAMES
     from qz_drake.scene import make_heightmap
     from qz_drake.trajopt.robot_model import make_robot
@@ -124,21 +124,30 @@ def run(args) -> int:
 def register(subparsers) -> None:
     import argparse
 
-    from qz_drake.robot.topology import TOPOLOGY_NAMES
-    from qz_drake.trajopt.gait import GAIT_NAMES
-    from qz_drake.trajopt.robot_model import ROBOT_NAMES
+    # The names the help texts list, looked up when a help page is shown.
+    def robots() -> str:
+        from qz_drake.trajopt.robot_model import ROBOT_NAMES
 
-    p = subparsers.add_parser("blc", help="solve one BLC trajectory optimisation", epilog=terrain_kinds_text(),
+        return one_of(ROBOT_NAMES)
+
+    def gaits() -> str:
+        from qz_drake.trajopt.gait import GAIT_NAMES
+
+        return f"gait (default: the robot's), {one_of(GAIT_NAMES)}"
+
+    p = subparsers.add_parser("blc", help="solve one BLC trajectory optimisation", epilog=LazyText(terrain_kinds_text),
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--terrain", default="flat", metavar="KIND", help=f"terrain kind, {one_of(terrain_names())}")
+    p.add_argument("--terrain", default="flat", metavar="KIND",
+                   help=LazyText(lambda: f"terrain kind, {one_of(terrain_names())}"))
     p.add_argument("--terrain-param", action="append", metavar="KEY=VALUE",
                    help="terrain parameter (see below), seed included")
     p.add_argument("--distance", type=float, required=True, help="target distance along x [m]")
     p.add_argument("--duration", type=float, required=True,
                    help=f"task duration T [s], at most {MAX_BLC_DURATION:g}")
-    p.add_argument("--topology", default="nominal", help=f"Qingzhui topology, {one_of(TOPOLOGY_NAMES)}")
-    p.add_argument("--robot", default="qingzhui", help=one_of(ROBOT_NAMES))
-    p.add_argument("--gait", default=None, help=f"gait (default: the robot's), {one_of(GAIT_NAMES)}")
+    p.add_argument("--topology", default="nominal",
+                   help=LazyText(lambda: f"Qingzhui topology, {one_of(topology_names())}"))
+    p.add_argument("--robot", default="qingzhui", help=LazyText(robots))
+    p.add_argument("--gait", default=None, help=LazyText(gaits))
     p.add_argument("--blc-param", action="append", metavar="KEY=VALUE",
                    help="a BlcParameters field, e.g. optimize_phase_durations=true")
     p.add_argument("--out", default=None, help="write the solution sampled at 100 Hz as .npz")

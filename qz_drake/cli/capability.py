@@ -28,22 +28,19 @@ import shlex
 import sys
 from pathlib import Path
 
-import numpy as np
-from rich.console import Console
-from rich.table import Table
-
-from qz_drake.capability import model_commands, stats, training
-from qz_drake.capability.collect import PROTOCOLS, collect, recertify
-from qz_drake.capability.evaluation import evaluate_model
-from qz_drake.capability.model import CapabilityModel
-from qz_drake.capability.patches import KINDS
-from qz_drake.capability.plots import plot_capability_map, plot_confusion, plot_reliability
-from qz_drake.capability.trials import TrialConfig
-from qz_drake.cli.arguments import one_of, parse_names, terrain_names
+from qz_drake.cli.arguments import LazyText, one_of, parse_names, terrain_names, topology_names
 from qz_drake.errors import bad_value
-from qz_drake.robot.topology import TOPOLOGY_NAMES
 
+# qz_drake.capability.collect.PROTOCOLS, here so that building the parser does not import the
+# trials (pydrake); tests/test_cli_imports.py keeps the two the same.
+PROTOCOLS = ("moves", "episodes")
 SUMMARY_KEYS = ("topology", "kind", "n", "positives", "auc", "brier", "ece", "ece_floor", "accuracy")
+
+
+def _kinds() -> tuple[str, ...]:
+    from qz_drake.capability.patches import KINDS
+
+    return KINDS
 
 
 def run_collect(args) -> int:
@@ -55,10 +52,13 @@ def run_collect(args) -> int:
         raise bad_value("--headings", args.headings, "must be at least 1")
     if not args.log_every >= 0:
         raise bad_value("--log-every", args.log_every, "must be 0 (off) or a number of seconds")
+    from qz_drake.capability.collect import collect
+    from qz_drake.capability.trials import TrialConfig
+
     config = TrialConfig(headings_per_scene=args.headings)
     summary = collect(args.out, seed=args.seed, scenes=args.scenes,
-                      topologies=parse_names(args.topologies, "--topologies", TOPOLOGY_NAMES),
-                      kinds=parse_names(args.kinds, "--kinds", KINDS), config=config,
+                      topologies=parse_names(args.topologies, "--topologies", topology_names()),
+                      kinds=parse_names(args.kinds, "--kinds", _kinds()), config=config,
                       workers=args.workers, ray_address=args.ray_address, shard_size=args.shard_size,
                       progress=not args.json and sys.stderr.isatty() or args.progress,
                       command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
@@ -68,6 +68,8 @@ def run_collect(args) -> int:
 
 
 def run_stats(args) -> int:
+    from qz_drake.capability import stats
+
     summary = stats.dataset_stats(args.dataset)
     if args.against:
         summary["against"] = stats.paired_against(args.dataset, args.against)
@@ -99,6 +101,8 @@ def run_stats(args) -> int:
 
 
 def run_recertify(args) -> int:
+    from qz_drake.capability.collect import recertify
+
     result = recertify(args.dataset, sample=args.sample, workers=args.workers,
                        command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
                        reference_code=args.reference_code)
@@ -137,8 +141,10 @@ def register(subparsers) -> None:
     p.add_argument("--scenes", type=int, default=1000, help="number of scenes (paper 000: 1000)")
     p.add_argument("--headings", type=int, default=1, help="heading samples per scene (each in every topology and kind)")
     p.add_argument("--topologies", default=None,
-                   help=f"comma-separated topologies, each {one_of(TOPOLOGY_NAMES)} (default: all)")
-    p.add_argument("--kinds", default=None, help=f"comma-separated kinds, each {one_of(KINDS)} (default: all)")
+                   help=LazyText(lambda: f"comma-separated topologies, each {one_of(topology_names())} "
+                                         f"(default: all)"))
+    p.add_argument("--kinds", default=None,
+                   help=LazyText(lambda: f"comma-separated kinds, each {one_of(_kinds())} (default: all)"))
     p.add_argument("--protocol", default="moves", choices=PROTOCOLS,
                    help="moves: one-move trials from a standing start (paper 000), every topology and "
                         "kind per scene; episodes: per scene and topology a chain of the planner's "
@@ -183,6 +189,9 @@ def _fmt(value, spec=".3f") -> str:
 
 
 def _print_table(rows: list[dict], title: str, extra: tuple[tuple[str, str], ...] = ()) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
     table = Table(title=title)
     table.add_column("network", no_wrap=True, min_width=21)
     for column in ("n", "pos", "AUC", "Brier", "ECE", "ECE floor", "acc") + tuple(name for name, _ in extra):
@@ -197,12 +206,16 @@ def _print_table(rows: list[dict], title: str, extra: tuple[tuple[str, str], ...
 
 
 def _figures(entries: list[dict], out: Path, what: str) -> list[str]:
+    from qz_drake.capability.plots import plot_confusion, plot_reliability
+
     named = [dict(e, name=f"{e['topology']}/{e['kind']}") for e in entries if e.get("n")]
     return [str(plot_reliability(named, out / "reliability.png", title=f"Reliability, {what}")),
             str(plot_confusion(named, out / "confusion.png", title=f"Confusion at 0.5, {what}"))]
 
 
 def run_train(args) -> int:
+    from qz_drake.capability import model_commands, training
+
     # Looked up in their modules when the command runs (the tests replace them there).
     arrays, manifest = model_commands.load_dataset(args.dataset)
     config = training.TrainingConfig(seed=args.seed)
@@ -253,6 +266,10 @@ def run_train(args) -> int:
 
 
 def run_evaluate(args) -> int:
+    from qz_drake.capability import model_commands
+    from qz_drake.capability.evaluation import evaluate_model
+    from qz_drake.capability.model import CapabilityModel
+
     model = CapabilityModel.load(args.model)
     arrays, manifest = model_commands.load_dataset(args.dataset)
     results = evaluate_model(model, arrays, manifest)
@@ -271,8 +288,14 @@ def run_evaluate(args) -> int:
 
 
 def run_map(args) -> int:
-    if args.topology not in TOPOLOGY_NAMES:
-        raise bad_value("--topology", args.topology, f"expected one of {', '.join(TOPOLOGY_NAMES)}")
+    if args.topology not in topology_names():
+        raise bad_value("--topology", args.topology, f"expected one of {', '.join(topology_names())}")
+    import numpy as np
+
+    from qz_drake.capability import model_commands
+    from qz_drake.capability.model import CapabilityModel
+    from qz_drake.capability.plots import plot_capability_map
+
     model = CapabilityModel.load(args.model)
     heightmap = model_commands.load_terrain(args.terrain, args.terrain_param, args.seed)
     capability = model.map_success(heightmap, [args.topology])
@@ -310,10 +333,10 @@ def register_model_commands(subparsers) -> None:
     p = subparsers.add_parser("map", help="draw the predicted success of moving forward over a terrain")
     p.add_argument("--model", default=None, help="model folder (default: the shipped model)")
     p.add_argument("--terrain", required=True,
-                   help=f"a .npz / .yaml heightmap, or a terrain generator, {one_of(terrain_names())} "
-                        f"(parameters: qz terrain --help)")
+                   help=LazyText(lambda: f"a .npz / .yaml heightmap, or a terrain generator, "
+                                         f"{one_of(terrain_names())} (parameters: qz terrain --help)"))
     p.add_argument("--terrain-param", action="append", metavar="KEY=VALUE", help="generator parameter, seed included")
     p.add_argument("--seed", type=int, default=0, help="terrain generator seed")
-    p.add_argument("--topology", default="nominal", help=f"body topology, {one_of(TOPOLOGY_NAMES)}")
+    p.add_argument("--topology", default="nominal", help=LazyText(lambda: f"body topology, {one_of(topology_names())}"))
     p.add_argument("--out", required=True, help="PNG file to write")
     p.set_defaults(func=run_map, out_kind="file")

@@ -23,8 +23,8 @@ import json
 import math
 from pathlib import Path
 
+from qz_drake.cli.arguments import LazyText, one_of
 from qz_drake.errors import bad_value
-from qz_drake.state_layout import BASE_POS
 
 
 def _positive_list(text: str, field: str) -> list[float]:
@@ -79,6 +79,7 @@ def run_trot(args) -> int:
     from qz_drake.classification.runs import simulate_trot
     from qz_drake.cli.arguments import output_folder, positive_seconds, prepare_scenario
     from qz_drake.config import load_scenario
+    from qz_drake.state_layout import BASE_POS
     from qz_drake.viz.recording import recording_meshcat, save_recording
 
     scenario = load_scenario(args.scenario)
@@ -205,8 +206,14 @@ def run_stiffness_sweep(args) -> int:
 
 def register(subparsers) -> None:
     """Adds ``impedance-sweep``, ``trot`` and ``classify`` to the ``qz`` command."""
-    from qz_drake.cli.arguments import one_of
-    from qz_drake.terrain import MATERIALS
+    def materials(default: str) -> LazyText:
+        # The ground materials, looked up when the help page is shown.
+        def text() -> str:
+            from qz_drake.terrain import MATERIALS
+
+            return f"comma-separated materials, each {one_of(MATERIALS)} (default {default})"
+
+        return LazyText(text)
 
     p = subparsers.add_parser("impedance-sweep", help="leg impedance stiffness sweep (paper 002 Fig. 13)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
@@ -229,8 +236,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", default="out/classify", help="output folder (dataset.npz, runs/)")
     p.add_argument("--stances", type=int, default=None, help="stances per class and leg (default 200)")
     p.add_argument("--run-duration", type=float, default=None, help="simulated time per run [s] (default 20)")
-    p.add_argument("--materials", default=None,
-                   help=f"comma-separated materials, each {one_of(MATERIALS)} (default concrete,wood,foam)")
+    p.add_argument("--materials", default=None, help=materials("concrete,wood,foam"))
     p.add_argument("--mixed-runs", type=int, default=None,
                    help="extra runs over floors of random material patches (default 6)")
     p.add_argument("--seed", type=int, default=0)
@@ -248,8 +254,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run_train)
 
     p = sub.add_parser("stiffness-sweep", help="vibration of a trot at fixed stance stiffnesses, per material")
-    p.add_argument("--materials", default="foam,concrete",
-                   help=f"comma-separated materials, each {one_of(MATERIALS)} (default foam,concrete)")
+    p.add_argument("--materials", default="foam,concrete", help=materials("foam,concrete"))
     p.add_argument("--stiffness", default="7000,9000,11000", metavar="K1,K2,...",
                    help="stance stiffnesses [N/m] (default the paper's three)")
     p.add_argument("--speed", type=float, default=0.6, help="forward speed [m/s] (default 0.6)")

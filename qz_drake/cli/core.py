@@ -8,20 +8,19 @@ from functools import partial
 from pathlib import Path
 
 from qz_drake.bench import SUITES, run_suite
-from qz_drake.cli.arguments import (one_of, output_file, output_folder, parse_key_values, positive_seconds,
-                                    prepare_scenario, terrain_kinds_text, terrain_names)
-from qz_drake.cli.hardware import load_hardware_file
-from qz_drake.config import TerrainConfig, load_scenario
-from qz_drake.demo import run_demo
+from qz_drake.cli.arguments import (LazyText, one_of, output_file, output_folder, positive_seconds, prepare_scenario,
+                                    terrain_kinds_text, terrain_names)
 from qz_drake.errors import ConfigError
-from qz_drake.progress import ProgressReport, simulation_progress
-from qz_drake.planning.capplanner_route import route_source_for
-from qz_drake.simulation import simulate
-from qz_drake.scene import make_heightmap
-from qz_drake.station import make_station
 
 
 def _cmd_simulate(args) -> int:
+    from qz_drake.cli.hardware import load_hardware_file
+    from qz_drake.config import load_scenario
+    from qz_drake.planning.capplanner_route import route_source_for
+    from qz_drake.progress import ProgressReport, simulation_progress
+    from qz_drake.simulation import simulate
+    from qz_drake.station import make_station
+
     scenario = load_scenario(args.scenario)
     positive_seconds(args.duration, "--duration")
     output_folder(args.out, create=False)
@@ -53,6 +52,8 @@ _PICTURE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pdf", ".svg")
 
 
 def _cmd_terrain(args) -> int:
+    from qz_drake.config import TerrainConfig, parse_key_values
+    from qz_drake.scene import make_heightmap
     from qz_drake.viz.plots import plot_heightmap
 
     out = Path(args.out)
@@ -78,6 +79,8 @@ def _cmd_terrain(args) -> int:
 
 
 def _cmd_demo(args) -> int:
+    from qz_drake.demo import run_demo
+
     positive_seconds(args.duration, "--duration")
     output_folder(args.out)
     metrics = run_demo(args.out, duration=args.duration, progress=True)
@@ -108,9 +111,9 @@ def register(subparsers) -> None:
                    help="with --station lcm and a network URL: pacing, the same as the driver's")
     p.set_defaults(func=_cmd_simulate)
 
-    p = subparsers.add_parser("terrain", help="draw a generated terrain as a PNG", epilog=terrain_kinds_text(),
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("name", metavar="KIND", help=f"terrain kind, {one_of(terrain_names())}")
+    p = subparsers.add_parser("terrain", help="draw a generated terrain as a PNG", epilog=LazyText(terrain_kinds_text),
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("name", metavar="KIND", help=LazyText(lambda: f"terrain kind, {one_of(terrain_names())}"))
     p.add_argument("--out", required=True, help=f"picture file to write ({', '.join(_PICTURE_SUFFIXES)})")
     p.add_argument("--param", action="append", metavar="KEY=VALUE",
                    help="generator parameter (see below), seed included")

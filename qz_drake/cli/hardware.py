@@ -17,7 +17,6 @@ import signal
 from qz_drake.errors import bad_value
 from qz_drake.hardware.relay import DEFAULT_PORT as DEFAULT_RELAY_PORT
 from qz_drake.hardware.relay import connect_lcm, tcpq_url
-from qz_drake.state_layout import BASE_POS
 
 
 def load_hardware_file(path: str | None):
@@ -40,6 +39,7 @@ def run_robot_sim(args) -> int:
     from qz_drake.config import load_scenario
     from qz_drake.hardware.driver import QingzhuiRobotDriver
     from qz_drake.progress import ProgressReport
+    from qz_drake.state_layout import BASE_POS
 
     scenario = load_scenario(args.scenario)
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):

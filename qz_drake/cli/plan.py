@@ -97,19 +97,19 @@ def register(subparsers) -> None:
     """Adds ``plan`` to the ``qz`` command."""
     import argparse
 
-    from qz_drake.cli.arguments import one_of, terrain_kinds_text, terrain_names
-    from qz_drake.robot.topology import TOPOLOGY_NAMES
+    from qz_drake.cli.arguments import LazyText, one_of, terrain_kinds_text, terrain_names, topology_names
 
     p = subparsers.add_parser("plan", help="CapPlanner's TLC alone: utility map, guidance path, missions",
-                              epilog=terrain_kinds_text(), formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--terrain", required=True,
-                   help=f"a .npz / .yaml heightmap, or a terrain generator, {one_of(terrain_names())}")
+                              epilog=LazyText(terrain_kinds_text), formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--terrain", required=True, help=LazyText(
+        lambda: f"a .npz / .yaml heightmap, or a terrain generator, {one_of(terrain_names())}"))
     p.add_argument("--terrain-param", action="append", metavar="KEY=VALUE",
                    help="generator parameter (see below), seed included")
     p.add_argument("--seed", type=int, default=0, help="terrain seed")
     p.add_argument("--start", required=True, metavar="X,Y", help="start [m]")
     p.add_argument("--heading", type=int, default=0, help="start heading index k (yaw k * 45 deg)")
-    p.add_argument("--topology", default="nominal", help=f"the robot's topology at the start, {one_of(TOPOLOGY_NAMES)}")
+    p.add_argument("--topology", default="nominal",
+                   help=LazyText(lambda: f"the robot's topology at the start, {one_of(topology_names())}"))
     p.add_argument("--goal", required=True, metavar="X,Y", help="goal [m]")
     p.add_argument("--model", default=None, help="capability model folder (default: the shipped model)")
     p.add_argument("--min-success", type=float, default=0.05,

@@ -22,8 +22,6 @@ import json
 import math
 from pathlib import Path
 
-import numpy as np
-
 from qz_drake.cli.arguments import output_folder
 from qz_drake.errors import ConfigError, bad_value
 
@@ -66,6 +64,8 @@ def _load(args):
 
 
 def _summary(cost_map) -> dict:
+    import numpy as np
+
     finite = np.isfinite(cost_map.body_cost)
     body = cost_map.body_cost[finite]
     return {
@@ -82,6 +82,8 @@ def _summary(cost_map) -> dict:
 
 def save_cost_map_npz(cost_map, path: str | Path) -> Path:
     """The feature and cost arrays of a CostMap (inf = blocked) with resolution and origin."""
+    import numpy as np
+
     path = Path(path)
     np.savez_compressed(path, slope=cost_map.body.slope, roughness=cost_map.body.roughness,
                         step_height=cost_map.body.step_height, body_cost=cost_map.body_cost,
@@ -132,6 +134,8 @@ def blocked_because(cost_map, xy) -> str:
     (radius ``body_features.radius`` around it) exceeds ``body_cost.max_step_height``: a wall
     within reach of the trunk blocks the cell, also where the walker's feet could still find
     footholds beside it. A walk that reaches such a goal therefore does not contradict A*."""
+    import numpy as np
+
     row, col = cost_map.cell(*xy)
     heading = cost_map.heading_cost()[:, row, col]
     if np.isfinite(heading).any():
@@ -148,6 +152,8 @@ def blocked_because(cost_map, xy) -> str:
 
 
 def run_astar(args) -> int:
+    import numpy as np
+
     from qz_drake.planning.astar import AStarConfig, astar
     from qz_drake.terrain.features import build_cost_map
     from qz_drake.viz.costmap_plots import plot_cost_map_path
