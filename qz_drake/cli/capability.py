@@ -79,22 +79,22 @@ def run_stats(args) -> int:
     if args.markdown:
         print(stats.stats_markdown(summary))
         return 0
-    print(f"{stats['dataset']}: {stats['executed']} executed, {stats['invalid_starts']} invalid starts, "
-          f"{stats['errors']} errors, {stats['successes']} successes")
-    for row in stats["rows"]:
+    print(f"{summary['dataset']}: {summary['executed']} executed, {summary['invalid_starts']} invalid starts, "
+          f"{summary['errors']} errors, {summary['successes']} successes")
+    for row in summary["rows"]:
         rate = "-" if row["success_rate"] is None else f"{100 * row['success_rate']:.0f} %"
         print(f"  {row['topology']:>13} {row['kind']:>10}: {row['successes']}/{row['executed']} ({rate}), "
               f"BLC alone {row['blc_successes']}, errors {row['errors']}")
-    if stats["stairs_up"]:
+    if summary["stairs_up"]:
         print("  up stairs (orthogonal and diagonal moves), per rise and topology:")
-        for row in stats["stairs_up"]:
+        for row in summary["stairs_up"]:
             low, high = row["rise_m"]
             lo, hi = row["ci95"]
             print(f"    {low:.2f}-{high:.2f} m {row['topology']:>13}: {row['successes']}/{row['executed']} "
                   f"({100 * row['success_rate']:.0f} %, 95 % CI {100 * lo:.0f}-{100 * hi:.0f} %)")
-    if stats.get("against"):
-        print(f"  against {stats['against']['other']} (the trials executed in both):")
-        for row in stats["against"]["rows"]:
+    if summary.get("against"):
+        print(f"  against {summary['against']['other']} (the trials executed in both):")
+        for row in summary["against"]["rows"]:
             print(f"    {row['group']:>18}: {row['successes']}/{row['trials']} here, {row['other_successes']} there "
                   f"(only here {row['only_this']}, only there {row['only_other']}, McNemar p {row['p_value']:.2g})")
     return 0

@@ -118,6 +118,13 @@ def test_two_collections_of_the_same_trials_are_compared_pair_by_pair(monkeypatc
     assert "| all | 7 | 2 | 4 | 3 | 1 |" in capsys.readouterr().out
     assert main(["capability", "stats", "new", "--against", "seed1"]) == 2
     assert "--against" in capsys.readouterr().err
+    # Without --json or --markdown: the plain summary, the comparison included.
+    monkeypatch.setattr("qz_drake.capability.stats.dataset_stats", lambda path: {
+        "dataset": path, "trials": 8, "executed": 7, "invalid_starts": 1, "errors": 0, "successes": 4,
+        "fingerprint": "x", "rows": [], "scene_kinds": [], "kinds": [], "failure_reasons": {}, "stairs_up": []})
+    assert main(["capability", "stats", "new", "--against", "old"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("new: 7 executed, 1 invalid starts, 0 errors, 4 successes") and "all: 4/7 here" in out
 
 
 def test_topologies_are_compared_per_scene_kind_with_three_outcomes_and_switches_apart():
