@@ -64,6 +64,11 @@ def test_the_fig9_pipeline_runs_a_tiny_task_per_planner(synthetic_model_dir, tmp
         missions = r["mission_records"]
         assert len(missions) >= r["missions"] >= 1
         assert not r["success"] or all(m["outcome"] == "walked" for m in missions)
+        # The walked path, for the pictures of discordant tasks: from the start, about every
+        # 0.25 m, to where the walk ended.
+        path = np.asarray(r["path_xy"])
+        steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
+        assert len(path) >= 3 and steps.max() < 0.4 and abs(path[:, 0].max() - path[:, 0].min()) > 0.5
     rows = summary["rows"]
     assert {r["planner"] for r in rows} == {"astar", "capplanner"} and all(r["tasks"] == 1 for r in rows)
     for r in records:  # the first task of each planner is recorded
@@ -178,6 +183,46 @@ def test_a_run_is_compared_task_by_task_with_an_earlier_run_of_the_same_worlds(t
     assert "against" in capsys.readouterr().err
     assert main(["experiment", "report", str(new), "--against", str(tmp_path / "nothing")]) == 2
     assert "against" in capsys.readouterr().err
+
+
+def test_discordant_tasks_are_drawn_with_both_paths_and_where_the_failed_walk_stopped(tmp_path, capsys):
+    """`qz experiment report DIR --pictures`: a PNG per task that one planner walked and the other
+    did not (issue 38), listed in the report; concordant tasks and errors get none."""
+    import json
+
+    from qz_drake.cli import main
+    from qz_drake.experiments.fig9 import RESULTS, discordant_tasks, path_samples
+    from qz_drake.experiments.worlds import make_task
+
+    task = make_task("both", "hard", 3, scale=0.3)
+    (x0, y0), (x1, y1) = task.start, task.goal
+    line = np.column_stack([np.linspace(x0, x1, 400), np.linspace(y0, y1, 400)])
+    kept = path_samples(line, 0.25)
+    assert kept[0] == [round(x0, 2), round(y0, 2)] and kept[-1] == [round(x1, 2), round(y1, 2)]
+    assert abs(len(kept) - np.hypot(x1 - x0, y1 - y0) / 0.25) <= 2 and path_samples(np.zeros((0, 2))) == []
+
+    def record(seed, planner, success, reason="", path=None):
+        return {"key": f"both-hard-{seed}-{planner}", "terrain": "both", "difficulty": "hard", "seed": seed,
+                "planner": planner, "success": success, "reason": reason, "message": reason and f"{reason} here",
+                "displacement_ratio": 1.0 if success else None, "wall_time_s": 1.0, "path_xy": path or []}
+
+    half = kept[:len(kept) // 2]
+    records = [record(3, "capplanner", True, path=kept), record(3, "astar", False, "leg_contact", half),
+               record(4, "capplanner", False, "planner"), record(4, "astar", True, path=kept),
+               record(5, "capplanner", True, path=kept), record(5, "astar", True, path=kept),
+               record(6, "capplanner", False, "error"), record(6, "astar", True, path=kept)]
+    (tmp_path / RESULTS).write_text("".join(json.dumps(r) + "\n" for r in records))
+    (tmp_path / "settings.json").write_text(json.dumps({"scale": 0.3}))
+    found = discordant_tasks(records)
+    assert [(t["task"], t["walked"], t["failed"]) for t in found] == [
+        ("both-hard-3", "capplanner", "astar"), ("both-hard-4", "astar", "capplanner")]
+    assert main(["experiment", "report", str(tmp_path), "--pictures"]) == 0
+    text = capsys.readouterr().out
+    assert "Where each planner fails: 2 discordant tasks" in text
+    assert f"| both-hard-3 | CapPlanner | A* | leg_contact | {tmp_path / 'discordant' / 'both-hard-3.png'} |" in text
+    pictures = sorted(p.name for p in (tmp_path / "discordant").iterdir())
+    assert pictures == ["both-hard-3.png", "both-hard-4.png"]
+    assert all((tmp_path / "discordant" / p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pictures)
 
 
 def test_route_calibration_sets_predicted_against_walked_and_counts_declined_tasks(tmp_path, capsys):

@@ -47,6 +47,12 @@ def run_report(args) -> int:
 
         predict_routes(args.out, progress=not args.json)
     summary = report(args.out, against=args.against)
+    if args.pictures:
+        from qz_drake.experiments.fig9 import discordant_pictures
+
+        summary["discordant"] = [{"task": t["task"], "walked": t["walked"], "failed": t["failed"],
+                                  "reason": t["records"][t["failed"]]["reason"], "picture": t["picture"]}
+                                 for t in discordant_pictures(args.out)]
     print(json.dumps(summary) if args.json else report_markdown(summary))
     return 0
 
@@ -215,6 +221,9 @@ def register(subparsers) -> None:
     p.add_argument("--predict", action="store_true",
                    help="first replan every CapPlanner task from its start with the run's model and settings "
                         "(predictions.jsonl, resumable; minutes) to add the route calibration table")
+    p.add_argument("--pictures", action="store_true",
+                   help="draw every discordant task (one planner walked it, the other did not): both walked "
+                        "paths and where the failed one stopped, as OUT/discordant/<task>.png")
     # `out` names a folder to read here, not an output for qz's --out checks.
     p.set_defaults(func=run_report, out_kind=None)
 

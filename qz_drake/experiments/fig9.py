@@ -187,6 +187,7 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
             if len(result.states) > 1 else 0.0
         record.update(success=bool(m["success"]), reason=(m.get("reasons") or [""])[0],
                       message=str(m.get("reason", ""))[:300], walked_m=walked,
+                      path_xy=path_samples(result.states[:, BASE_XY]),
                       displacement_ratio=walked / task.distance if m["success"] else None,
                       missions=int(m.get("missions", 0)), topology_changes=int(m.get("topology_changes", 0)),
                       replans=int(m.get("replans", 0)), recoveries=int(m.get("tlc_recoveries", 0)))
@@ -199,6 +200,62 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
     finally:
         record["wall_time_s"] = time.perf_counter() - clock
     return record
+
+
+# Spacing of the walked path kept in each record (path_samples). [m]
+PATH_SPACING = 0.25
+
+
+def path_samples(xy, spacing: float = PATH_SPACING) -> list:
+    """The base's path [(x, y), ...] [m] at about ``spacing`` along it: the first point, every
+    point where the distance walked passes a multiple of ``spacing``, and the last (where a
+    failed walk stopped), to the centimetre; a 15 m walk keeps about 60 points."""
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    if len(xy) == 0:
+        return []
+    walked = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    steps = np.floor(walked / spacing)
+    keep = np.flatnonzero(np.concatenate([[True], steps[1:] != steps[:-1]]))
+    if keep[-1] != len(xy) - 1:
+        keep = np.append(keep, len(xy) - 1)
+    return np.round(xy[keep], 2).tolist()
+
+
+def discordant_tasks(records: list[dict], planner: str = "capplanner", baseline: str = "astar") -> list[dict]:
+    """The tasks one planner walked and the other did not (errors left out): per task its key
+    (without the planner), terrain, difficulty, seed, who walked it, and both records."""
+    by_task: dict[tuple, dict] = {}
+    for r in records:
+        if r.get("reason") != "error" and r["planner"] in (planner, baseline):
+            by_task.setdefault((r["terrain"], r["difficulty"], r["seed"]), {})[r["planner"]] = r
+    out = []
+    for (terrain, difficulty, seed), pair in sorted(by_task.items(), key=lambda kv: (
+            TERRAINS.index(kv[0][0]) if kv[0][0] in TERRAINS else 99,
+            DIFFICULTIES.index(kv[0][1]) if kv[0][1] in DIFFICULTIES else 99, kv[0][2])):
+        if len(pair) == 2 and pair[planner]["success"] != pair[baseline]["success"]:
+            winner = planner if pair[planner]["success"] else baseline
+            out.append({"task": f"{terrain}-{difficulty}-{seed}", "terrain": terrain, "difficulty": difficulty,
+                        "seed": seed, "walked": winner, "failed": baseline if winner == planner else planner,
+                        "records": pair})
+    return out
+
+
+def discordant_pictures(out, folder=None, scale: float | None = None) -> list[dict]:
+    """For every discordant task of a results folder, a PNG of its world with both walked
+    paths, the start, the goal and where the failed walk stopped with its reason
+    (``folder``, default ``out/discordant``). Returns the tasks (discordant_tasks) with the
+    picture's path in ``picture``. Walks recorded before paths were kept draw without one."""
+    from qz_drake.experiments.plots import plot_task_pair
+
+    out = Path(out)
+    records = read_results(out)
+    folder = Path(folder) if folder is not None else out / "discordant"
+    scale = float(_settings(out).get("scale", 1.0)) if scale is None else float(scale)
+    tasks = discordant_tasks(records)
+    for t in tasks:
+        task = make_task(t["terrain"], t["difficulty"], t["seed"], scale=scale)
+        t["picture"] = str(plot_task_pair(task, t["records"], folder / f"{t['task']}.png", title=t["task"]))
+    return tasks
 
 
 def _crashed(spec: TaskSpec, message: str, config) -> dict:
@@ -542,6 +599,13 @@ def report_markdown(summary: dict) -> str:
             lines.append(f"| {c['planner']} | {c['terrain']} | {c['difficulty']} | {c['tasks']} "
                          f"| {c['this_successes']} | {c['other_successes']} | {c['both']} | {c['only_this']} "
                          f"| {c['only_other']} | {c['neither']} | {c['p_value']:.2g} |")
+    if summary.get("discordant") is not None:
+        names = {"capplanner": "CapPlanner", "astar": "A*"}
+        lines += ["", f"Where each planner fails: {len(summary['discordant'])} discordant tasks", "",
+                  "| task | walked | failed | reason | picture |", "| --- | --- | --- | --- | --- |"]
+        for t in summary["discordant"]:
+            lines.append(f"| {t['task']} | {names.get(t['walked'], t['walked'])} | "
+                         f"{names.get(t['failed'], t['failed'])} | {t['reason']} | {t['picture']} |")
     if summary["failure_reasons"]:
         lines += ["", "| planner | failures by reason |", "| --- | --- |"]
         for planner, reasons in sorted(summary["failure_reasons"].items()):

@@ -48,3 +48,59 @@ def plot_fig9(rows: list[dict], path, *, title: str = "") -> Path:
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+# Colours of the planners in the pictures (others take matplotlib's cycle).
+PLANNER_COLOURS = {"capplanner": "tab:red", "astar": "tab:blue"}
+PLANNER_LABELS = {"capplanner": "CapPlanner", "astar": "A*"}
+# Line styles, so that two paths along the same route both show.
+PLANNER_STYLES = {"capplanner": ("-", 3.0), "astar": ("--", 2.0)}
+
+
+def plot_task_pair(task, records: dict, path, *, title: str = "") -> Path:
+    """One task's world (heights, hill-shaded) with each planner's walked path (a record's
+    ``path_xy``), the start (triangle), the goal (star) and, for a walk that failed, where it
+    stopped (a cross) with its reason; the legend says who walked."""
+    heightmap = task.heightmap
+    h = np.asarray(heightmap.heights)
+    xmin, xmax, ymin, ymax = heightmap.bounds
+    r = heightmap.resolution / 2
+    extent = (xmin - r, xmax + r, ymin - r, ymax + r)
+    fig, ax = plt.subplots(figsize=(9, 5.6))
+    gy, gx = np.gradient(h, heightmap.resolution)
+    shade = np.clip(0.5 + 0.5 * (-gx - gy) / np.sqrt(2), 0.0, 1.0)
+    im = ax.imshow(h, origin="lower", extent=extent, cmap="terrain", interpolation="nearest")
+    ax.imshow(shade, origin="lower", extent=extent, cmap="gray", alpha=0.25, interpolation="nearest")
+    fig.colorbar(im, ax=ax, label="height [m]", shrink=0.8)
+    for planner, record in sorted(records.items()):
+        colour = PLANNER_COLOURS.get(planner)
+        name = PLANNER_LABELS.get(planner, planner)
+        outcome = "walked" if record["success"] else f"failed: {record['reason'] or '?'}"
+        points = np.asarray(record.get("path_xy") or [], dtype=float).reshape(-1, 2)
+        if len(points):
+            style, width = PLANNER_STYLES.get(planner, ("-", 2.0))
+            line, = ax.plot(points[:, 0], points[:, 1], style, color=colour, lw=width, label=f"{name} ({outcome})")
+            if not record["success"]:
+                ax.plot(*points[-1], "x", color=line.get_color(), ms=14, mew=3)
+                ax.annotate(record["reason"], points[-1], textcoords="offset points", xytext=(8, 8),
+                            color=line.get_color(), fontsize=9, weight="bold")
+        else:
+            ax.plot([], [], "-", color=colour, lw=2,
+                    label=f"{name} ({outcome}; {'no route' if record['reason'] == 'planner' else 'path not recorded'})")
+    ax.plot(*task.start, "k^", ms=10, label="start")
+    ax.plot(*task.goal, "k*", ms=14, label="goal")
+    ax.set_xlim(extent[0], extent[1])
+    ax.set_ylim(extent[2], extent[3])
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_aspect("equal")
+    ax.legend(loc="upper left", fontsize=8, framealpha=0.85)
+    messages = [f"{PLANNER_LABELS.get(p, p)}: {rec['message'][:110]}" for p, rec in sorted(records.items())
+                if not rec["success"] and rec.get("message")]
+    ax.set_title(title + ("\n" + "\n".join(messages) if messages else ""), fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
