@@ -42,10 +42,14 @@ def plot_fig9(rows: list[dict], path, *, title: str = "") -> Path:
     axes[1].set_xticks(x, [f"{t}\n{d}" for t, d in groups], fontsize=8)
     if title:
         axes[0].set_title(title)
+    return _save(fig, path, dpi=120)
+
+
+def _save(fig, path, dpi: int) -> Path:
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path
 
@@ -61,17 +65,10 @@ def plot_task_pair(task, records: dict, path, *, title: str = "") -> Path:
     """One task's world (heights, hill-shaded) with each planner's walked path (a record's
     ``path_xy``), the start (triangle), the goal (star) and, for a walk that failed, where it
     stopped (a cross) with its reason; the legend says who walked."""
-    heightmap = task.heightmap
-    h = np.asarray(heightmap.heights)
-    xmin, xmax, ymin, ymax = heightmap.bounds
-    r = heightmap.resolution / 2
-    extent = (xmin - r, xmax + r, ymin - r, ymax + r)
+    from qz_drake.viz.plots import draw_heightmap
+
     fig, ax = plt.subplots(figsize=(9, 5.6))
-    gy, gx = np.gradient(h, heightmap.resolution)
-    shade = np.clip(0.5 + 0.5 * (-gx - gy) / np.sqrt(2), 0.0, 1.0)
-    im = ax.imshow(h, origin="lower", extent=extent, cmap="terrain", interpolation="nearest")
-    ax.imshow(shade, origin="lower", extent=extent, cmap="gray", alpha=0.25, interpolation="nearest")
-    fig.colorbar(im, ax=ax, label="height [m]", shrink=0.8)
+    extent = draw_heightmap(fig, ax, task.heightmap, shrink=0.8)
     for planner, record in sorted(records.items()):
         colour = PLANNER_COLOURS.get(planner)
         name = PLANNER_LABELS.get(planner, planner)
@@ -98,9 +95,4 @@ def plot_task_pair(task, records: dict, path, *, title: str = "") -> Path:
     messages = [f"{PLANNER_LABELS.get(p, p)}: {rec['message'][:110]}" for p, rec in sorted(records.items())
                 if not rec["success"] and rec.get("message")]
     ax.set_title(title + ("\n" + "\n".join(messages) if messages else ""), fontsize=9)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path, dpi=110)

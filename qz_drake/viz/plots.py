@@ -15,19 +15,27 @@ from qz_drake.robot.params import LEG_NAMES  # noqa: E402
 from qz_drake.state_layout import BASE_POS, BASE_XY, BASE_Z, JOINT_Q, base_pose, tilt_deg  # noqa: E402
 
 
-def plot_heightmap(heightmap, path: str | Path, *, title: str = "", path_xy: np.ndarray | None = None,
-                   start_xy=None) -> Path:
-    """Top view of a heightmap (colour = height, hill-shaded) with an optional path."""
+def draw_heightmap(fig, ax, heightmap, **colorbar) -> tuple:
+    """A heightmap's top view on ``ax`` (colour = height, hill-shaded) with its colour bar;
+    returns the image's extent (xmin, xmax, ymin, ymax) [m]."""
     h = np.asarray(heightmap.heights)
     xmin, xmax, ymin, ymax = heightmap.bounds
     r = heightmap.resolution / 2
     extent = (xmin - r, xmax + r, ymin - r, ymax + r)
-    fig, ax = plt.subplots(figsize=(7, 6))
     gy, gx = np.gradient(h, heightmap.resolution)
     shade = np.clip(0.5 + 0.5 * (-gx - gy) / np.sqrt(2), 0.0, 1.0)
     im = ax.imshow(h, origin="lower", extent=extent, cmap="terrain", interpolation="nearest")
     ax.imshow(shade, origin="lower", extent=extent, cmap="gray", alpha=0.25, interpolation="nearest")
-    fig.colorbar(im, ax=ax, label="height [m]")
+    fig.colorbar(im, ax=ax, label="height [m]", **colorbar)
+    return extent
+
+
+def plot_heightmap(heightmap, path: str | Path, *, title: str = "", path_xy: np.ndarray | None = None,
+                   start_xy=None) -> Path:
+    """Top view of a heightmap (colour = height, hill-shaded) with an optional path."""
+    h = np.asarray(heightmap.heights)
+    fig, ax = plt.subplots(figsize=(7, 6))
+    draw_heightmap(fig, ax, heightmap)
     if path_xy is not None:
         ax.plot(path_xy[:, 0], path_xy[:, 1], "r-", lw=2)
     if start_xy is not None:
