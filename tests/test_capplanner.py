@@ -560,10 +560,12 @@ _CROSSINGS: dict = {}
 
 def _crossing(seed: int, tmp_path_factory):
     from qz_drake.demo import demo_scenario
+    from qz_drake.planning.capplanner_route import route_source_for
 
     if seed not in _CROSSINGS:
         out = tmp_path_factory.mktemp(f"crossing{seed}")
-        _CROSSINGS[seed] = (walk(demo_scenario(seed=seed), out_dir=out).metrics, out)
+        scenario = demo_scenario(seed=seed)
+        _CROSSINGS[seed] = (walk(scenario, out_dir=out, route_source=route_source_for(scenario)).metrics, out)
     return _CROSSINGS[seed]
 
 

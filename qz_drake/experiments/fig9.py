@@ -193,6 +193,8 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
                       replans=int(m.get("replans", 0)), recoveries=int(m.get("tlc_recoveries", 0)))
         if spec.planner == "capplanner":
             record["planning_time_s"] = float(m.get("planning_time_s", 0.0))
+            # Replans that walked the most probable path (the MDP's policy did not reach the goal).
+            record["most_probable"] = int(m.get("tlc_most_probable", 0))
     except Exception as e:  # a crash of the run, not an outcome: recorded as an error
         import traceback
 

@@ -542,6 +542,53 @@ def most_likely_path(mdp: CapabilityMdp, solution: ValueIterationResult, start_s
     return steps, s == mdp.goal_state, probability
 
 
+def most_probable_path(mdp: CapabilityMdp, start_state: int) -> tuple[list[PathStep], bool, float]:
+    """The path from ``start_state`` to the goal whose actions all walk with the highest
+    probability (the largest product of their success: Dijkstra on -log p, the best action
+    between two states kept), as (steps, reaches_goal, that product); ([], False, 0) when no
+    path with p > 0 reaches the goal.
+
+    CapPlanner's TLC follows it where the MDP's policy does not reach the goal: there every
+    way to the goal is worth less to the MDP than turning in place for ever (a long or risky
+    route against the failure's reward), yet declining the task fails it for certain;
+    whether the path is worth walking is then the TLC's ``min_route_success``."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    grid = int(mdp.goal_state)
+    start_state = int(start_state)
+    if mdp.unravel(start_state)[:2] == mdp.goal_cell:
+        return [], True, 1.0
+    p = np.asarray(mdp.success[:, :grid], dtype=float)
+    nxt = np.asarray(mdp.next_state[:, :grid])
+    a_idx, s_idx = np.nonzero((p > 0.0) & (nxt <= grid) & (nxt != np.arange(grid)))
+    n_idx = nxt[a_idx, s_idx]
+    # Strictly positive weights: the graph keeps no explicit zeros.
+    weights = -np.log(np.minimum(p[a_idx, s_idx], 1.0)) + 1e-12
+    order = np.lexsort((weights, n_idx, s_idx))  # per (state, successor) the likeliest first
+    first = np.ones(len(order), bool)
+    first[1:] = (s_idx[order][1:] != s_idx[order][:-1]) | (n_idx[order][1:] != n_idx[order][:-1])
+    keep = order[first]
+    graph = csr_matrix((weights[keep], (s_idx[keep], n_idx[keep])), shape=(grid + 1, grid + 1))
+    distance, previous = dijkstra(graph, indices=start_state, return_predecessors=True)
+    if not np.isfinite(distance[grid]):
+        return [], False, 0.0
+    chain = [grid]
+    while chain[-1] != start_state:
+        chain.append(int(previous[chain[-1]]))
+    chain.reverse()
+    steps, probability = [], 1.0
+    for s, n in zip(chain[:-1], chain[1:]):
+        actions = np.flatnonzero(nxt[:, s] == n)
+        a = int(actions[np.argmax(p[actions, s])])
+        ix, iy, k, t = mdp.unravel(s)
+        action_topology, motion = mdp.action(a)
+        q = 0.0 if mdp.stand is None else float(mdp.stand[a, s])
+        steps.append(PathStep(float(mdp.xs[ix]), float(mdp.ys[iy]), k, t, action_topology, motion, float(p[a, s]), q))
+        probability *= float(p[a, s])
+    return steps, True, probability
+
+
 def solve_capability_mdp(mdp: CapabilityMdp, V0=None) -> ValueIterationResult:
     """Eq. 9-10 on the capability MDP, a planning failure's stay valued by the best *other*
     action from the same state (see the module docstring); returns the values, the greedy

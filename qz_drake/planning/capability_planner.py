@@ -9,10 +9,12 @@ it into BLC missions (qz_drake.planning.guidance). It hands the missions' local 
 topologies to TrajectoryOptimizationBLC one after the other, on the same ports as the fixed
 route's MissionTargetSequencer, and at every mission start replans from the *expected end* of
 the current mission (paper 000: "the next BLC mission is given by TLC according to current
-robot position and expected end position of current BLC mission"). When no path reaches the
-goal, or the best path's predicted chance of arriving without a fall (the TLC going round
-missions the BLC cannot plan: qz_drake.planning.capability_mdp) is below ``min_route_success``,
-it says so (``unreachable``) instead of walking into an obstacle.
+robot position and expected end position of current BLC mission"). Where the policy's path does
+not reach the goal (the MDP values turning in place above every way there), it takes the most
+probable path instead (capability_mdp.most_probable_path): declining would fail the task for
+certain. When no path reaches the goal, or the path's predicted chance of arriving without a
+fall (the TLC going round missions the BLC cannot plan: qz_drake.planning.capability_mdp) is
+below ``min_route_success``, it says so (``unreachable``) instead of walking into an obstacle.
 """
 
 from __future__ import annotations
@@ -38,6 +40,9 @@ class CapabilityPlannerLog(RecoveryLog):
     replans: list = dataclasses.field(default_factory=list)
     planning_time_s: float = 0.0
     value_iterations: int = 0
+    # Replans whose path is the most probable one because the policy's did not reach the goal
+    # (capability_mdp.most_probable_path).
+    most_probable: int = 0
 
 
 class CapabilityVIPlanner(RecoveringSequencer):
@@ -130,13 +135,19 @@ class CapabilityVIPlanner(RecoveringSequencer):
 
     # -- planning ------------------------------------------------------------------------------
     def _replan(self, t: float, x: float, y: float, yaw: float, topology: str) -> list:
-        from qz_drake.planning.capability_mdp import CapabilityPlan, fall_free_probability, most_likely_path
+        from qz_drake.planning.capability_mdp import (CapabilityPlan, fall_free_probability, most_likely_path,
+                                                      most_probable_path)
 
         clock = time.perf_counter()
         ix, iy = self.mdp.cell_of(x, y, field="start", margin=self.mdp.config.cell_size)
         k = int(round(yaw / HEADING_STEP)) % 8
         start = self.mdp.state(ix, iy, k, topology)
         steps, reaches, probability = most_likely_path(self.mdp, self.solution, start)
+        if not reaches:
+            # The policy prefers turning in place to every way there; declining fails the task
+            # for certain, so the likeliest way is walked if min_route_success allows it.
+            steps, reaches, probability = most_probable_path(self.mdp, start)
+            self.log.most_probable += int(reaches)
         if self.first_plan is None:
             self.first_plan = CapabilityPlan(self.mdp, self.solution, steps, reaches, probability)
         missions = split_missions(steps, self._split, start_yaw=yaw) if reaches else []
@@ -194,7 +205,7 @@ class CapabilityVIPlanner(RecoveringSequencer):
         """The planner's numbers for the walk's metrics."""
         return {"planning_time_s": self.log.planning_time_s, "value_iterations": self.log.value_iterations,
                 "replans": max(len(self.log.replans) - 1, 0), "unreachable": self.log.unreachable,
-                "tlc_recoveries": len(self.log.recoveries)}
+                "tlc_recoveries": len(self.log.recoveries), "tlc_most_probable": self.log.most_probable}
 
     # -- outputs -----------------------------------------------------------------------------
     def _calc_guidance(self, context, output):

@@ -5,6 +5,7 @@ is unreachable; and (slow) the whole CapPlanner walks a world in Drake."""
 import re
 
 import numpy as np
+import pytest
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
@@ -83,6 +84,39 @@ def test_a_goal_behind_walls_is_reported_unreachable():
     planner = _planner(_world(enclosed=True))
     assert "chance of no fall" in planner.log.unreachable or "no path" in planner.log.unreachable
     assert planner.done
+
+
+class LowWallModel(WallModel):
+    """The wall can be crossed: a move whose patch sees it walks half the time."""
+
+    def success(self, patches, feet, kind, topology, direction=None):
+        p = super().success(patches, feet, kind, topology, direction)
+        return np.where(p < 0.5, 0.5, p)
+
+
+def test_where_the_policy_turns_in_place_the_most_probable_path_is_walked():
+    """Round the goal a wall a move crosses half the time, and a failure worth -10 000: the MDP
+    values turning in place for ever (about -100) above crossing, so its policy never reaches
+    the goal; declining fails the task for certain, so the TLC walks the most probable path
+    (its chance of no fall 0.25 > min_route_success) and says so in its log."""
+    from qz_drake.planning.capability_mdp import most_likely_path, most_probable_path
+
+    planner = CapabilityVIPlanner(model=LowWallModel(), heightmap=_world(enclosed=True), goal=GOAL,
+                                  start=(*START, 0.0),
+                                  mdp_config=CapabilityMdpConfig(topologies=["nominal"], failure_reward=-10_000.0))
+    mdp, start = planner.mdp, planner.mdp.state(*planner.mdp.cell_of(*START), 0, "nominal")
+    assert not most_likely_path(mdp, planner.solution, start)[1]
+    steps, reaches, probability = most_probable_path(mdp, start)
+    assert reaches and probability == np.prod([s.success for s in steps])
+    crossings = [s for s in steps if s.success == 0.5]
+    assert 1 <= len(crossings) <= 2 and probability > 0.2  # through the wall once, not round about
+    assert not planner.log.unreachable and planner.log.most_probable == 1
+    (_, _, count, predicted), = planner.log.replans
+    assert count >= 2 and predicted == pytest.approx(probability)
+    assert planner.counts()["tlc_most_probable"] == 1
+    # Without a way through, still unreachable, with the reason.
+    walled = _planner(_world(enclosed=True))
+    assert walled.log.unreachable and walled.log.most_probable == 1 and walled.done
 
 
 def _standing(planner):
