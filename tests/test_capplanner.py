@@ -414,6 +414,16 @@ def test_results_written_before_a_setting_existed_still_resume(tmp_path):
     with pytest.raises(QzError, match="--out.*mission_length 1.0, this run's 1.5"):
         run_experiment(tmp_path, planners=("astar",), terrains=("obstacles",), difficulties=("simple",), tasks=1,
                        config=dataclasses.replace(config, mission_length=1.5), progress=False)
+    # A setting whose coming changed the walks: A* had no recovery before astar_max_recoveries
+    # existed, so a folder without it holds walks without recovery and today's A* does not
+    # resume there (it did, silently, with the default's 4).
+    older = {k: v for k, v in old.items() if k != "astar_max_recoveries"}
+    (tmp_path / "settings.json").write_text(json.dumps(older))
+    with pytest.raises(QzError, match="--out.*astar_max_recoveries 0, this run's 4"):
+        run_experiment(tmp_path, planners=("astar",), terrains=("obstacles",), difficulties=("simple",), tasks=1,
+                       config=config, progress=False)
+    assert run_experiment(tmp_path, planners=("astar",), terrains=("obstacles",), difficulties=("simple",), tasks=1,
+                          config=dataclasses.replace(config, astar_max_recoveries=0), progress=False)["ran"] == 0
 
 
 def test_one_planners_half_is_walked_before_the_other_is_tuned(synthetic_model_dir, tmp_path):

@@ -396,9 +396,16 @@ def compare_runs(records: list[dict], other: list[dict], planners=None) -> list[
     return rows
 
 
+# Settings whose coming changed what the walks do, with the value that results written before
+# them were walked with: a folder without the setting holds those walks, not today's default's.
+# A* had no recovery before issue 38.
+SETTINGS_BEFORE_THEY_EXISTED = {"astar_max_recoveries": 0}
+
+
 def _settings(out: Path) -> dict:
+    """The settings a results folder's walks had ({} without settings.json)."""
     path = out / "settings.json"
-    return json.loads(path.read_text()) if path.is_file() else {}
+    return {**SETTINGS_BEFORE_THEY_EXISTED, **json.loads(path.read_text())} if path.is_file() else {}
 
 
 def _against(out: Path, records: list[dict], against) -> dict:
@@ -673,8 +680,9 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
         mine[MODEL_IDENTITY] = model.identity
     stored = json.loads(settings.read_text()) if settings.is_file() else None
     if stored is not None:
-        # A setting added since those results were written reads as its default there.
-        theirs = {**dataclasses.asdict(ExperimentConfig()), **stored}
+        # A setting added since those results were written reads as its default there, unless
+        # its coming changed the walks (SETTINGS_BEFORE_THEY_EXISTED).
+        theirs = {**dataclasses.asdict(ExperimentConfig()), **SETTINGS_BEFORE_THEY_EXISTED, **stored}
         walked = {r.get("planner") for r in read_results(out) if r.get("reason") != "error"}
         for field in sorted(set(mine) | set(theirs)):
             owner = _setting_owner(field)
