@@ -457,6 +457,21 @@ def test_one_planners_half_is_walked_before_the_other_is_tuned(synthetic_model_d
     assert json.loads((tmp_path / "settings.json").read_text()) == settings
 
 
+def test_the_experiments_capplanner_sets_out_on_any_path_it_has():
+    """In Fig. 9 a declined task is a failed one, as A* never declines a route it has: the
+    experiment's CapPlanner sets out whatever its path's predicted chance (a setting, recorded
+    with the results); a bad threshold names the field."""
+    from qz_drake.errors import QzError
+    from qz_drake.experiments.fig9 import PLANNERS, ExperimentConfig
+    from qz_drake.experiments.worlds import make_task
+
+    task = make_task("stairs", "hard", 0, scale=0.3)
+    assert PLANNERS["capplanner"](task, ExperimentConfig())[3].min_route_success == 0.0
+    assert PLANNERS["capplanner"](task, ExperimentConfig(capplanner_min_route_success=0.05))[3].min_route_success == 0.05
+    with pytest.raises(QzError, match="min_route_success = 1.5"):
+        CapPlannerRoute(min_route_success=1.5)
+
+
 def test_a_walking_scenario_sets_capplanners_mdp_by_name():
     from qz_drake.errors import QzError
     from qz_drake.planning.capplanner_route import mdp_config

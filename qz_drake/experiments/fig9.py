@@ -69,6 +69,10 @@ class ExperimentConfig:
     # longest mission [m] and the least predicted success of a merged mission.
     capplanner_mission_length: float = 2.0
     capplanner_merge_min_success: float = 0.8
+    # The least predicted chance of arriving without a fall for which CapPlanner sets out
+    # (CapabilityVIPlanner's min_route_success). 0: it never declines a task it has a path for,
+    # as A* never declines one it has a route for; a declined task is a failed one here.
+    capplanner_min_route_success: float = 0.0
     # Keep every mission of every walk in its record (``missions``: where it started, its
     # target, its outcome; capability.walk_missions), for scoring a capability model on whole
     # walks (issue 37). Off for the experiment itself (the records stay small).
@@ -117,7 +121,7 @@ def _capplanner(task, config):
     split = MissionSplitConfig(max_length=config.capplanner_mission_length,
                                min_success=config.capplanner_merge_min_success)
     return (Route(True, "", [], 0.0, np.zeros((0, 2))), "capplanner", [(*task.goal, 0.0, "nominal")],
-            CapPlannerRoute(split))
+            CapPlannerRoute(split, min_route_success=config.capplanner_min_route_success))
 
 
 def _mdp_overrides(config: ExperimentConfig) -> dict:
@@ -398,8 +402,9 @@ def compare_runs(records: list[dict], other: list[dict], planners=None) -> list[
 
 # Settings whose coming changed what the walks do, with the value that results written before
 # them were walked with: a folder without the setting holds those walks, not today's default's.
-# A* had no recovery before issue 38.
-SETTINGS_BEFORE_THEY_EXISTED = {"astar_max_recoveries": 0}
+# A* had no recovery before issue 38; CapPlanner declined paths whose predicted chance of no
+# fall was below 0.05 (CapabilityVIPlanner's default).
+SETTINGS_BEFORE_THEY_EXISTED = {"astar_max_recoveries": 0, "capplanner_min_route_success": 0.05}
 
 
 def _settings(out: Path) -> dict:

@@ -50,14 +50,20 @@ class CapPlannerRoute(FixedRoute):
     the robot's start. The BLC solves as the capability model learned it (the trials'
     iteration budget) and retries a mission CAPPLANNER_MISSION_RETRIES times. ``split_config``
     (guidance.MissionSplitConfig: the longest mission, the merge threshold) is the planner's
-    split of its path into missions (None: the defaults)."""
+    split of its path into missions (None: the defaults); ``min_route_success`` the least
+    predicted chance of arriving without a fall for which it sets out (CapabilityVIPlanner)."""
 
     mission_retries = CAPPLANNER_MISSION_RETRIES
     chooses_goal_heading = True
     name = "CapPlanner"
 
-    def __init__(self, split_config: MissionSplitConfig | None = None):
+    def __init__(self, split_config: MissionSplitConfig | None = None, min_route_success: float = 0.05):
+        from qz_drake.errors import bad_value
+
         self._split = (split_config or MissionSplitConfig()).check()
+        if not 0.0 <= float(min_route_success) <= 1.0:
+            raise bad_value("min_route_success", min_route_success, "must be in [0, 1]")
+        self.min_route_success = float(min_route_success)
 
     def blc_parameters(self):
         # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt
@@ -82,7 +88,7 @@ class CapPlannerRoute(FixedRoute):
                                    start=(float(start_x), float(start_y), float(base_rpy(x0)[2])),
                                    initial_topology=info.topology.name, plan_ahead=control.plan_ahead,
                                    mdp_config=mdp_config(control.capability_mdp, topologies),
-                                   split_config=self._split)
+                                   split_config=self._split, min_route_success=self.min_route_success)
 
     def unreachable(self, source) -> str:
         return source.log.unreachable

@@ -114,9 +114,13 @@ def test_where_the_policy_turns_in_place_the_most_probable_path_is_walked():
     (_, _, count, predicted), = planner.log.replans
     assert count >= 2 and predicted == pytest.approx(probability)
     assert planner.counts()["tlc_most_probable"] == 1
-    # Without a way through, still unreachable, with the reason.
+    # Without a way through, still unreachable, with the reason; unless told to set out on any
+    # path (min_route_success 0, as in the Fig. 9 experiment, where a declined task is failed).
     walled = _planner(_world(enclosed=True))
     assert walled.log.unreachable and walled.log.most_probable == 1 and walled.done
+    bold = CapabilityVIPlanner(model=WallModel(), heightmap=_world(enclosed=True), goal=GOAL, start=(*START, 0.0),
+                               mdp_config=CapabilityMdpConfig(topologies=["nominal"]), min_route_success=0.0)
+    assert not bold.log.unreachable and bold.log.replans[0][2] >= 2 and bold.log.replans[0][3] < 0.01
 
 
 def _standing(planner):
