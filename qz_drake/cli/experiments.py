@@ -137,14 +137,15 @@ def _check_tasks(args) -> None:
 def run_tune_astar(args) -> int:
     from qz_drake.experiments.fig9 import (TUNING_BODY_RADII, TUNING_SLOPES_DEG, TUNING_STEP_HEIGHTS,
                                            ExperimentConfig, tune_astar)
-    from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS
+    from qz_drake.experiments.fig9 import TUNING_DIFFICULTIES
+    from qz_drake.experiments.worlds import TERRAINS
 
     _check_tasks(args)
     report = tune_astar(args.out, step_heights=_numbers(args.steps, "--steps") or TUNING_STEP_HEIGHTS,
                         slopes_deg=_numbers(args.slopes, "--slopes") or TUNING_SLOPES_DEG,
                         body_radii=_numbers(args.radii, "--radii") or TUNING_BODY_RADII,
                         terrains=_names(args.terrains, "--terrains", TERRAINS),
-                        difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
+                        difficulties=_names(args.difficulties, "--difficulties", TUNING_DIFFICULTIES),
                         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
                         config=ExperimentConfig(scale=args.scale), progress=not args.json)
     _print_tuning(report, args)
@@ -154,8 +155,8 @@ def run_tune_astar(args) -> int:
 def run_tune_capplanner(args) -> int:
     from qz_drake.experiments.fig9 import (TUNING_FAILURE_REWARDS, TUNING_MERGE_MIN_SUCCESS, TUNING_MISSION_LENGTHS,
                                            TUNING_PLAN_FAILURE_RISKS, TUNING_TOPOLOGY_CHANGE_COSTS, ExperimentConfig,
-                                           tune_capplanner)
-    from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS
+                                           TUNING_DIFFICULTIES, tune_capplanner)
+    from qz_drake.experiments.worlds import TERRAINS
 
     _check_tasks(args)
     report = tune_capplanner(
@@ -165,7 +166,7 @@ def run_tune_capplanner(args) -> int:
         mission_lengths=_numbers(args.mission_lengths, "--mission-lengths") or TUNING_MISSION_LENGTHS,
         merge_min_success=_numbers(args.merge_thresholds, "--merge-thresholds") or TUNING_MERGE_MIN_SUCCESS,
         terrains=_names(args.terrains, "--terrains", TERRAINS),
-        difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
+        difficulties=_names(args.difficulties, "--difficulties", TUNING_DIFFICULTIES),
         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
         config=ExperimentConfig(capability_model=args.model or "", scale=args.scale),
         progress=not args.json)
@@ -178,7 +179,8 @@ def _tuning_arguments(p) -> None:
     p.add_argument("--tasks", type=int, default=None,
                    help="tuning tasks per terrain and difficulty (default 4, fig9.TUNING_TASKS_PER_CELL)")
     p.add_argument("--terrains", default=None, help="comma-separated: stairs,obstacles,both")
-    p.add_argument("--difficulties", default=None, help="comma-separated: simple,medium,hard")
+    p.add_argument("--difficulties", default=None,
+                   help="comma-separated: simple,medium,hard (default medium,hard: fig9.TUNING_DIFFICULTIES)")
     p.add_argument("--scale", type=float, default=1.0, help="world scale (1: the experiment's worlds)")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--ray-address", default=None, help="run the tasks on this Ray cluster (host:port)")
