@@ -7,6 +7,11 @@ planning with two threads and 4.1-4.6 s with one, with the other core busy (BENC
 "plan", session 34). So torch gets the cores that are free when the model is loaded: the
 process's cores less the load average (its own work included), at least one.
 ``QZ_TORCH_THREADS`` sets the number instead.
+
+Where the networks run: the CPU unless asked (``--device`` of the commands that plan, or
+``QZ_TORCH_DEVICE`` for every model a process loads, walks and experiments included): ``cpu``,
+``cuda`` / ``cuda:N`` (refused with one line where torch sees no such device) or ``auto`` (the
+first CUDA device where there is one, else the CPU).
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import os
 from qz_drake.errors import ConfigError, bad_value
 
 ENV_VARIABLE = "QZ_TORCH_THREADS"
+DEVICE_VARIABLE = "QZ_TORCH_DEVICE"
 
 
 def available_cores() -> int:
@@ -58,3 +64,28 @@ def set_torch_threads() -> int:
     if torch.get_num_threads() != n:
         torch.set_num_threads(n)
     return n
+
+
+def torch_device(requested: str | None = None, field: str = "--device") -> str:
+    """The torch device for capability inference: ``requested``, else ``QZ_TORCH_DEVICE``, else
+    "cpu"; "auto" is "cuda" where torch sees a CUDA device, else "cpu". A device torch does
+    not have is refused (ConfigError naming ``field``, or the variable)."""
+    import re
+
+    if requested is None or requested == "":
+        requested, field = os.environ.get(DEVICE_VARIABLE) or "cpu", DEVICE_VARIABLE
+    value = str(requested).strip().lower()
+    if value == "cpu":
+        return "cpu"
+    if value != "auto" and not re.fullmatch(r"cuda(:\d+)?", value):
+        raise bad_value(field, requested, "expected cpu, cuda, cuda:N or auto", ConfigError)
+    import torch
+
+    count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    if value == "auto":
+        return "cuda" if count else "cpu"
+    index = int(value.partition(":")[2] or 0)
+    if index >= count:
+        build = f"torch {torch.__version__}, " + ("a CUDA build" if torch.version.cuda else "a CPU-only build")
+        raise bad_value(field, requested, f"torch sees {count} CUDA device(s) ({build})", ConfigError)
+    return value

@@ -36,3 +36,51 @@ def test_loading_a_model_sets_torchs_threads(monkeypatch):
         assert torch.get_num_threads() == 1
     finally:
         torch.set_num_threads(before)
+
+
+def test_the_device_is_the_cpu_unless_asked_and_a_missing_one_is_refused_by_name(monkeypatch):
+    """Capability inference runs on the CPU unless --device or QZ_TORCH_DEVICE asks for CUDA; a
+    CUDA device torch does not see is one line naming the field (this machine has none: the
+    check on a GPU is the device machine's)."""
+    import torch
+
+    monkeypatch.delenv(threads.DEVICE_VARIABLE, raising=False)
+    assert threads.torch_device() == "cpu" and threads.torch_device("CPU") == "cpu"
+    cuda = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    assert threads.torch_device("auto") == ("cuda" if cuda else "cpu")
+    with pytest.raises(QzError, match="--device = 'gpu'"):
+        threads.torch_device("gpu")
+    monkeypatch.setenv(threads.DEVICE_VARIABLE, "cuda:x")
+    with pytest.raises(QzError, match="QZ_TORCH_DEVICE = 'cuda:x'"):
+        threads.torch_device()
+    if not cuda:
+        with pytest.raises(QzError, match="--device = 'cuda'.*sees 0 CUDA device"):
+            threads.torch_device("cuda")
+        monkeypatch.setenv(threads.DEVICE_VARIABLE, "cuda")
+        with pytest.raises(QzError, match="QZ_TORCH_DEVICE = 'cuda'"):
+            from qz_drake.capability.model import CapabilityModel
+
+            CapabilityModel.random(seed=0)
+
+
+def test_a_model_answers_the_same_wherever_it_runs(monkeypatch):
+    """The networks on the device torch_device picks (the CPU here; a CUDA device where there
+    is one) answer what they answer on the CPU, through success and the stacked map."""
+    import numpy as np
+
+    from qz_drake.capability.model import CapabilityModel
+
+    monkeypatch.delenv(threads.DEVICE_VARIABLE, raising=False)
+    cpu = CapabilityModel.random(seed=1)
+    device = threads.torch_device("auto")
+    there = CapabilityModel.random(seed=1).to(device)
+    assert cpu.device == "cpu" and there.device == device
+    rng = np.random.default_rng(0)
+    patches = rng.normal(0.0, 0.05, (7, 20, 20))
+    feet = rng.normal(0.0, 0.3, (7, 6, 3))
+    np.testing.assert_allclose(there.success(patches, feet, "orthogonal", "nominal"),
+                               cpu.success(patches, feet, "orthogonal", "nominal"), atol=1e-5)
+    a = cpu.success_all(patches, {"nominal": feet, "split_up": feet}, "turn")
+    b = there.success_all(patches, {"nominal": feet, "split_up": feet}, "turn")
+    for t in a:
+        np.testing.assert_allclose(b[t][0], a[t][0], atol=1e-5)

@@ -23,7 +23,7 @@ import numpy as np
 from qz_drake.capability import patches as P
 from qz_drake.capability.dataset import robot_fingerprint
 from qz_drake.errors import QzError, bad_value
-from qz_drake.threads import set_torch_threads
+from qz_drake.threads import set_torch_threads, torch_device
 
 MODEL_FORMAT = "qz_drake.capability_model"
 NETWORK_FORMAT = "qz_drake.capability_network"
@@ -267,8 +267,8 @@ class _StackedMembers:
         self.count = len(nets)
         self.width = first.conv1.out_channels
         self.pad = first.conv1.weight.shape[-1] // 2
-        interior = [torch.conv2d(torch.ones(1, 1, P.PATCH_SIZE, P.PATCH_SIZE), n.conv1.weight, padding=self.pad)[0]
-                    for n in nets]
+        interior = [torch.conv2d(torch.ones(1, 1, P.PATCH_SIZE, P.PATCH_SIZE, device=n.conv1.weight.device),
+                                 n.conv1.weight, padding=self.pad)[0] for n in nets]
         self.kernels1 = torch.cat([n.conv1.weight / n.patch_scale for n in nets])
         self.offsets1 = torch.cat([interior[i] * (n.patch_mean / n.patch_scale) - n.conv1.bias[:, None, None]
                                    for i, n in enumerate(nets)])
@@ -321,22 +321,36 @@ class CapabilityModel:
     and heading of a map for the planner (qz_drake.planning.capability_mdp).
     """
 
-    def __init__(self, networks: dict, card: dict):
+    def __init__(self, networks: dict, card: dict, device: str | None = None):
         # (topology, kind) -> CapabilityNet, in eval mode.
         self._networks = dict(networks)
         self.card = card
         # Inference on the cores that are free now (qz_drake/threads.py): torch's default of
         # one thread per core made a plan 3x slower with the other core busy.
         set_torch_threads()
+        # Where the networks run (threads.torch_device: the CPU unless asked).
+        self.device = "cpu"
+        self.to(torch_device(device))
+
+    def to(self, device: str) -> "CapabilityModel":
+        """Moves every network to a torch device ("cpu", "cuda", "cuda:N"; see
+        threads.torch_device); inputs and answers stay numpy arrays on the host."""
+        if device != self.device:
+            for net in self._networks.values():
+                net.to(device)
+            self.device = device
+        return self
 
     # -- construction -------------------------------------------------------------------------
     @classmethod
-    def load(cls, path=None, *, fingerprint: str | None = None) -> "CapabilityModel":
+    def load(cls, path=None, *, fingerprint: str | None = None, device: str | None = None) -> "CapabilityModel":
         """Loads every network of a model directory (default: the shipped model).
 
         Args:
             path: a directory written by :func:`save_model` / ``qz capability train``.
             fingerprint: when given, the dataset fingerprint the model must have been trained on.
+            device: where the networks run (threads.torch_device; None: ``QZ_TORCH_DEVICE``,
+                else the CPU).
         """
         folder = Path(DEFAULT_MODEL_DIR if path is None else path)
         if not (folder / MODEL_CARD).is_file():
@@ -368,7 +382,7 @@ class CapabilityModel:
             topology, _, kind = name.partition("/")
             networks[(topology, kind)] = load_network(folder / entry["weights"], card, name)
             top.setdefault("cards", {})[name] = card
-        return cls(networks, top)
+        return cls(networks, top, device)
 
     @classmethod
     def from_training(cls, result) -> "CapabilityModel":
@@ -485,7 +499,8 @@ class CapabilityModel:
         with torch.inference_mode():
             for start in range(0, n, INFERENCE_BATCH):
                 stop = start + INFERENCE_BATCH
-                out[start:stop] = net.probability(x[start:stop], e[start:stop]).numpy()
+                out[start:stop] = net.probability(x[start:stop].to(self.device),
+                                                  e[start:stop].to(self.device)).cpu().numpy()
         return out.reshape(batch)
 
     def turn_success(self, patches, feet, topology: str) -> tuple[np.ndarray, np.ndarray]:
@@ -545,12 +560,13 @@ class CapabilityModel:
         first, inverse = distinct_rows(flat)
         order = np.argsort(inverse, kind="stable")  # queries grouped by their distinct patch
         bounds = np.searchsorted(inverse[order], np.arange(len(first) + 1))
-        x = torch.from_numpy(flat[first].reshape(len(first), 1, P.PATCH_SIZE, P.PATCH_SIZE))
-        by_topology = torch.stack(extras, dim=1) if extras else torch.zeros(n, 0, 18)  # (n, T, 18)
+        device = self.device
+        x = torch.from_numpy(flat[first].reshape(len(first), 1, P.PATCH_SIZE, P.PATCH_SIZE)).to(device)
+        by_topology = (torch.stack(extras, dim=1) if extras else torch.zeros(n, 0, 18)).to(device)  # (n, T, 18)
         directions = (P.TURN_LEFT, P.TURN_RIGHT) if kind == "turn" else (None,)
         out = np.empty((len(members), len(directions), n))
         plan = np.full((len(members), len(directions), n), np.nan)
-        owners = torch.as_tensor([i for i, _ in members])
+        owners = torch.as_tensor([i for i, _ in members], device=device)
         nets_m = [m for _, m in members]
         with torch.inference_mode():
             stacked = _StackedMembers(nets_m)
@@ -561,17 +577,17 @@ class CapabilityModel:
                 queries = order[bounds[start]:bounds[stop]]
                 for a in range(0, len(queries), chunk):
                     q = queries[a:a + chunk]
-                    qt = torch.from_numpy(q)
-                    f = features[torch.from_numpy(inverse[q] - start)]
+                    qt = torch.from_numpy(q).to(device)
+                    f = features[torch.from_numpy(inverse[q] - start).to(device)]
                     extra = by_topology[qt][:, owners]  # (B, M, 18)
                     for k, d in enumerate(directions):
                         e = extra
                         if d is not None:
-                            e = torch.cat([extra, torch.full(extra.shape[:2] + (1,), float(d))], dim=2)
+                            e = torch.cat([extra, torch.full(extra.shape[:2] + (1,), float(d), device=device)], dim=2)
                         success, planned = stacked.outputs(f, e)
-                        out[:, k, q] = success.T.numpy()
+                        out[:, k, q] = success.T.cpu().numpy()
                         if planned is not None:
-                            plan[:, k, q] = planned.T.numpy()
+                            plan[:, k, q] = planned.T.cpu().numpy()
         shape = (len(directions),) + batch if kind == "turn" else batch
         result = {}
         for i, t in enumerate(topologies):

@@ -296,7 +296,7 @@ def run_map(args) -> int:
     from qz_drake.capability.model import CapabilityModel
     from qz_drake.capability.plots import plot_capability_map
 
-    model = CapabilityModel.load(args.model)
+    model = CapabilityModel.load(args.model, device=args.device)
     heightmap = model_commands.load_terrain(args.terrain, args.terrain_param, args.seed)
     capability = model.map_success(heightmap, [args.topology])
     png = plot_capability_map(heightmap, capability, args.out, topology=args.topology,
@@ -332,6 +332,8 @@ def register_model_commands(subparsers) -> None:
 
     p = subparsers.add_parser("map", help="draw the predicted success of moving forward over a terrain")
     p.add_argument("--model", default=None, help="model folder (default: the shipped model)")
+    p.add_argument("--device", default=None,
+                   help="where the networks run: cpu, cuda, cuda:N or auto (default: QZ_TORCH_DEVICE, else cpu)")
     p.add_argument("--terrain", required=True,
                    help=LazyText(lambda: f"a .npz / .yaml heightmap, or a terrain generator, "
                                          f"{one_of(terrain_names())} (parameters: qz terrain --help)"))

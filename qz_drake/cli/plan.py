@@ -45,7 +45,7 @@ def run_plan(args) -> int:
                       position_value=args.start)
     check_standable(heightmap, start, args.topology, "--start")
     check_standable(heightmap, goal, args.topology, "--goal")
-    model = CapabilityModel.load(args.model)
+    model = CapabilityModel.load(args.model, device=args.device)
     topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
     if args.topology not in topologies:
         raise bad_value("--topology", args.topology, f"the model has no networks for it (it has "
@@ -112,6 +112,8 @@ def register(subparsers) -> None:
                    help=LazyText(lambda: f"the robot's topology at the start, {one_of(topology_names())}"))
     p.add_argument("--goal", required=True, metavar="X,Y", help="goal [m]")
     p.add_argument("--model", default=None, help="capability model folder (default: the shipped model)")
+    p.add_argument("--device", default=None,
+                   help="where the networks run: cpu, cuda, cuda:N or auto (default: QZ_TORCH_DEVICE, else cpu)")
     p.add_argument("--min-success", type=float, default=0.05,
                    help="least predicted chance of the path arriving without a fall to call the goal reachable")
     p.add_argument("--out", default="out/plan", help="output folder")
