@@ -65,49 +65,100 @@ class WalkWindows:
         return (float(x[BASE_XY][0]), float(x[BASE_XY][1]), float(base_rpy(x)[2])), self.feet_W[i]
 
 
+def mission_timeline(plans, solves, retried, switches, end: float) -> list[dict]:
+    """The missions of a walk in the order the BLC met them, from its logs alone: one entry per
+    mission (a solve that no retry followed), ``planned`` with its plan or refused, with
+    ``t0`` (when its plan starts or would have started), ``switch`` (the topology switch made
+    for it, or None), ``begin`` (the switch's start, else t0) and, for planned ones, ``t1``:
+    where its stretch ends, the first other mission's ``begin`` after its own t0 (else ``end``).
+
+    A switch belongs to the first mission planned from its end, refused or not: a mission the
+    BLC refused right after the switch made for it leaves the next one (solved from the same
+    end state) without a switch. A refused mission starts no stretch of its own unless it had a
+    switch (the robot reconfigured for it); one refused while the previous plan still ran
+    (solved from that plan's expected end) starts where that plan ends, so it cuts no plan short."""
+    retried = set(retried)
+    missions = [s for i, s in enumerate(solves) if i not in retried]
+    owner: dict[int, object] = {}
+    for switch in switches:
+        if not math.isfinite(switch.end_time):
+            continue
+        for j, s in enumerate(missions):
+            if j not in owner and abs(s.start_time - switch.end_time) < 1e-6:
+                owner[j] = switch
+                break
+    remaining = list(plans)
+    out = []
+    for j, s in enumerate(missions):
+        entry = {"solve": s, "planned": bool(s.success), "t0": float(s.start_time), "switch": owner.get(j), "plan": None}
+        if s.success and remaining:
+            # The plan of this solve: the next one logged (one plan per successful mission).
+            match = next((k for k, plan in enumerate(remaining) if abs(plan.start_time - s.start_time) < 1e-6), 0)
+            entry["plan"] = remaining.pop(match)
+            entry["t0"] = float(entry["plan"].start_time)
+        elif s.success:  # a plan the sequencer never saw (the walk ended first): not a mission walked
+            continue
+        entry["begin"] = float(entry["switch"].start_time) if entry["switch"] is not None else entry["t0"]
+        out.append(entry)
+    for e in out:
+        if e["planned"]:
+            later = [o["begin"] for o in out if o is not e and (o["planned"] or o["switch"] is not None)
+                     and o["begin"] > e["t0"] + 1e-9]
+            e["t1"] = min(later) if later else end
+    return out
+
+
 def walk_mission_records(built, run, result, criteria) -> list[dict]:
     """One record per mission the walk's BLC was given, in the order they started: planned
-    ones judged on their stretch (from the mission's start, or the topology switch before it,
-    to the next mission's), refused ones as "no plan" from the state the robot stood in. Each
-    record: ``start_time`` [s], ``start`` (x, y, yaw) and ``feet`` (6, 3) in the world where the
-    BLC planned it from [m, rad], ``target`` (x, y, yaw), ``topology``, ``switched_from`` (the
-    topology of a switch just before it, "" without), ``outcome`` (walked, no_plan, failed),
+    ones judged on their stretch (from the mission's start, or the topology switch made for it,
+    to the next mission's; :func:`mission_timeline`), refused ones as "no plan" from the state
+    the BLC planned them from (or "failed" when the switch made for them failed the verdict).
+    Each record: ``start_time`` [s], ``start`` (x, y, yaw) and ``feet`` (6, 3) in the world where
+    the BLC planned it from [m, rad], ``target`` (x, y, yaw), ``topology``, ``switched_from``
+    (the topology of a switch made for it, "" without), ``outcome`` (walked, no_plan, failed),
     ``reason`` (the verdict's first, or the BLC's failure code), ``message``, ``sim_time_s``.
     JSON-ready."""
     windows = WalkWindows(built, run, result, criteria)
     log = built.missions.log
     blc = built.missions.blc.log
-    switches = {round(s.end_time, 6): s for s in blc.switches if math.isfinite(s.end_time)}
-    planned = []
-    for i, plan in enumerate(log.plans):
-        t0 = float(plan.start_time)
-        switch = switches.get(round(t0, 6))
-        base, rpy = plan.base_position(t0), plan.base_rpy(t0)
-        target = log.targets[i] if i < len(log.targets) else (*np.asarray(plan.base_position(plan.end_time))[:2],
-                                                              float(plan.base_rpy(plan.end_time)[2]), "")
-        planned.append({"start_time": float(switch.start_time) if switch else t0,
-                        "start": [float(base[0]), float(base[1]), float(rpy[2])],
-                        "feet": np.asarray(plan.foot_positions(t0), dtype=float).round(5).tolist(),
-                        "target": [float(v) for v in target[:3]],
-                        "topology": log.topologies[i] if i < len(log.topologies) else "",
-                        "switched_from": switch.from_topology if switch else ""})
-    refused = []
-    for s in blc.failures:
-        pose, feet = windows.measured_at(float(s.start_time))
-        refused.append({"start_time": float(s.start_time), "start": list(pose),
-                        "feet": np.asarray(feet, dtype=float).round(5).tolist(),
-                        "target": [float(v) for v in s.target], "topology": s.topology, "switched_from": "",
-                        "outcome": NO_PLAN, "reason": blc_failure_code(s.reason), "message": s.reason[:200],
-                        "sim_time_s": 0.0})
-    starts = sorted([r["start_time"] for r in planned] + [r["start_time"] for r in refused])
-    for r in planned:
-        later = [t for t in starts if t > r["start_time"] + 1e-9]
-        t1 = later[0] if later else windows.end
-        verdict, seconds = windows.judge(r["start_time"], t1, tuple(r["target"]), last=windows.times[-1] < t1)
-        r.update(outcome=WALKED if verdict.success else FAILED,
-                 reason=verdict.reasons[0] if verdict.reasons else "", message="; ".join(verdict.messages)[:200],
-                 sim_time_s=seconds)
-    records = sorted(planned + refused, key=lambda r: r["start_time"])
+    timeline = mission_timeline(log.plans, blc.solves, blc.retried, blc.switches, windows.end)
+    targets = {id(plan): (log.targets[i] if i < len(log.targets) else None) for i, plan in enumerate(log.plans)}
+    topologies = {id(plan): (log.topologies[i] if i < len(log.topologies) else "") for i, plan in enumerate(log.plans)}
+    records = []
+    for e in timeline:
+        s, switch = e["solve"], e["switch"]
+        if e["planned"]:
+            plan, t0 = e["plan"], e["t0"]
+            base, rpy = plan.base_position(t0), plan.base_rpy(t0)
+            target = targets.get(id(plan)) or (*np.asarray(plan.base_position(plan.end_time))[:2],
+                                               float(plan.base_rpy(plan.end_time)[2]), "")
+            verdict, seconds = windows.judge(e["begin"], e["t1"], tuple(float(v) for v in target[:3]),
+                                             last=windows.times[-1] < e["t1"])
+            records.append({"start_time": e["begin"], "start": [float(base[0]), float(base[1]), float(rpy[2])],
+                            "feet": np.asarray(plan.foot_positions(t0), dtype=float).round(5).tolist(),
+                            "target": [float(v) for v in target[:3]],
+                            "topology": topologies.get(id(plan)) or s.topology,
+                            "switched_from": switch.from_topology if switch else "",
+                            "outcome": WALKED if verdict.success else FAILED,
+                            "reason": verdict.reasons[0] if verdict.reasons else "",
+                            "message": "; ".join(verdict.messages)[:200], "sim_time_s": seconds})
+            continue
+        pose, feet = windows.measured_at(e["t0"])
+        record = {"start_time": e["begin"], "start": list(pose), "feet": np.asarray(feet, dtype=float).round(5).tolist(),
+                  "target": [float(v) for v in s.target], "topology": s.topology,
+                  "switched_from": switch.from_topology if switch else "", "outcome": NO_PLAN,
+                  "reason": blc_failure_code(s.reason), "message": s.reason[:200], "sim_time_s": 0.0}
+        if switch is not None:  # the robot reconfigured for it: the switch itself judged
+            before, _ = windows.measured_at(switch.start_time)
+            later = [o["begin"] for o in timeline if o is not e and o["begin"] > switch.start_time + 1e-9]
+            t1 = min([switch.end_time, *later])
+            verdict, seconds = windows.judge(switch.start_time, t1, before, last=windows.times[-1] < t1)
+            record["sim_time_s"] = seconds
+            if not verdict.success and set(verdict.reasons) - {"missed_target"}:
+                record.update(outcome=FAILED, reason=next(r for r in verdict.reasons if r != "missed_target"),
+                              message="; ".join(verdict.messages)[:200])
+        records.append(record)
+    records.sort(key=lambda r: r["start_time"])
     for k, r in enumerate(records):
         r["index"] = k
     return records

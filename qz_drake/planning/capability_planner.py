@@ -193,8 +193,15 @@ class CapabilityVIPlanner(RecoveringSequencer):
             single = split_missions(failed.steps, dataclasses.replace(self._split, min_success=1.0))
             single[-1].target = (failed.target[0], failed.target[1], single[-1].target[2])
             return unwrapped_yaws(single + list(missions[index + 1:]), yaw), "split"
+        # The BLC refused the move in the action's topology from this cell and heading; which
+        # topology the robot stood in before (a switch first) does not change that, so the
+        # move goes from every topology's state there. (Forbidden from one state only, the TLC
+        # came back to the refused move from each other topology in turn, a switch and a
+        # refusal each time: CapPlanner's walk of obstacles-hard 501, session 36.)
         s, a = step_state_action(self.mdp, failed.steps[0])
-        forbid_action(self.mdp, s, a)
+        ix, iy, k, _ = self.mdp.unravel(s)
+        for t in self.mdp.topologies:
+            forbid_action(self.mdp, self.mdp.state(ix, iy, k, t), a)
         clock = time.perf_counter()
         self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
         self.log.planning_time_s += time.perf_counter() - clock

@@ -173,6 +173,29 @@ def test_a_mission_the_blc_cannot_plan_is_split_then_its_action_forbidden_and_th
     np.testing.assert_allclose(replanned[-1].target[:2], GOAL)
 
 
+def test_a_refused_move_is_forbidden_from_every_topology_the_robot_could_stand_in_there():
+    """The BLC refused a move in its topology from a cell and heading: the TLC does not come back
+    to it from another topology's state (a switch there first), as it did before, a switch and
+    a refusal at a time; other moves from there stay allowed."""
+    from qz_drake.planning.capability_mdp import step_state_action
+
+    planner = CapabilityVIPlanner(model=WallModel(), heightmap=_world(), goal=GOAL, start=(*START, 0.0),
+                                  mdp_config=CapabilityMdpConfig(topologies=["nominal", "front_bend"]))
+    simulator, context = _standing(planner)
+    while len(planner.GetOutputPort("guidance").Eval(context)[0].steps) > 1:  # split down to one action
+        _blc_fails(planner, simulator, context, len(planner.log.recoveries) + 1)
+    failed_step = planner.GetOutputPort("guidance").Eval(context)[0].steps[0]
+    s, a = step_state_action(planner.mdp, failed_step)
+    _blc_fails(planner, simulator, context, len(planner.log.recoveries) + 1)
+    assert planner.log.recoveries[-1][2] == "forbade"
+    ix, iy, k, _ = planner.mdp.unravel(s)
+    for t in ("nominal", "front_bend"):
+        there = planner.mdp.state(ix, iy, k, t)
+        assert planner.mdp.success[a, there] == 0.0 and planner.mdp.next_state[a, there] == planner.mdp.failure_state
+        others = [b for b in range(planner.mdp.success.shape[0]) if b != a]
+        assert (planner.mdp.success[others, there] > 0).all()
+
+
 def test_after_max_recoveries_the_goal_is_unreachable_with_the_reason():
     planner = CapabilityVIPlanner(model=WallModel(), heightmap=_world(), goal=GOAL, start=(*START, 0.0),
                                   mdp_config=CapabilityMdpConfig(topologies=["nominal"]), max_recoveries=1)
