@@ -86,6 +86,11 @@ def run_score_missions(args) -> int:
     print(f"{scores['missions']} missions of {scores['walks']} walks ({scores['walks_without_missions']} walks kept "
           f"none): walked {o['walked']}, no plan {o['no_plan']}, executed and failed {o['failed']}. ROC AUC of "
           f"P(executed and failed) {auc('failed')}, of P(no plan) {auc('no_plan')}, of P(walked) {auc('walked')}.")
+    base = scores["baseline_auc"]
+    print("The baseline (the largest height range of the mission's patches, no learning): ROC AUC "
+          + ", ".join(f"{label} {'-' if base[k] is None else f'{base[k]:.3f}'}"
+                      for k, label in (("failed", "executed and failed"), ("no_plan", "no plan"), ("walked", "walked")))
+          + ".")
     print("\n| planner | terrain | difficulty | walks | without an execution failure | predicted | missions "
           "| walked | predicted |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for c in scores["cells"]:

@@ -90,6 +90,17 @@ def predict_mission(model, heightmap, mission: dict) -> dict:
     return {"walked": walked, "no_plan": 1.0 - planned, "failed": max(planned - walked, 0.0)}
 
 
+def height_range(heightmap, mission: dict) -> float:
+    """The simple baseline a model must beat on walks: the largest height range (max - min) of
+    the patches of a mission's actions [m] (the taller the terrain the robot meets, the likelier
+    the BLC refuses or the walk fails); no learning, no feet."""
+    out = 0.0
+    for kind, _, x, y, yaw in mission_actions(mission["start"], mission["target"]):
+        patch = P.sample_patches(heightmap, x, y, yaw, kind, ground=float(P.ground_reference(heightmap, x, y)))
+        out = max(out, float(np.max(patch) - np.min(patch)))
+    return out
+
+
 def score_missions(records: list[dict], model, *, scale: float = 1.0) -> dict:
     """A model scored on the missions a Fig. 9 run kept (``record_missions``): every mission's
     predicted outcomes against its outcome, and the tables of module docstring. ``records``
@@ -107,7 +118,8 @@ def score_missions(records: list[dict], model, *, scale: float = 1.0) -> dict:
             skipped += 1
             continue
         task = make_task(r["terrain"], r["difficulty"], int(r["seed"]), scale=scale)
-        predicted = [predict_mission(model, task.heightmap, m) for m in missions]
+        predicted = [dict(predict_mission(model, task.heightmap, m), height_range=height_range(task.heightmap, m))
+                     for m in missions]
         rows.append((r, missions, predicted))
     if not rows:
         raise bad_value("results", f"{len(records)} records", "no walk kept its missions (run the experiment "
@@ -121,6 +133,10 @@ def score_missions(records: list[dict], model, *, scale: float = 1.0) -> dict:
     if has_split:
         scores["failed"] = binary_metrics(outcome == "failed", [p["failed"] for _, p in flat])
         scores["no_plan"] = binary_metrics(outcome == "no_plan", [p["no_plan"] for _, p in flat])
+    # The baseline (height_range), as a ranking: its ROC AUC for each outcome the model ranks.
+    scores["baseline_auc"] = {name: _auc(outcome == name, [p["height_range"] for _, p in flat])
+                              for name in ("no_plan", "failed")}
+    scores["baseline_auc"]["walked"] = _auc(outcome == "walked", [-p["height_range"] for _, p in flat])
     cells = {}
     for r, missions, predicted in rows:
         key = (r["planner"], r["terrain"], r["difficulty"])
@@ -142,3 +158,15 @@ def score_missions(records: list[dict], model, *, scale: float = 1.0) -> dict:
                         "predicted_walked": float(np.mean(c["mission_predicted"])) if c["mission_predicted"] else None}
                        for (planner, terrain, difficulty), c in sorted(cells.items())]
     return scores
+
+
+def _auc(labels, scores) -> float | None:
+    """ROC AUC (ties counted half), None without both classes."""
+    labels, scores = np.asarray(labels, dtype=bool), np.asarray(scores, dtype=float)
+    if labels.all() or not labels.any():
+        return None
+    from scipy.stats import rankdata
+
+    ranks = rankdata(scores)
+    positives = int(labels.sum())
+    return float((ranks[labels].sum() - positives * (positives + 1) / 2) / (positives * (len(labels) - positives)))

@@ -112,3 +112,24 @@ def test_the_command_scores_a_trained_model_on_a_runs_missions(synthetic_model_d
     assert "| astar | stairs | simple | 3 | 0.67 |" in text
     assert main(["experiment", "score-missions", str(tmp_path / "nothing")]) == 2
     assert "results" in capsys.readouterr().err
+
+
+def test_the_baseline_ranks_missions_by_the_tallest_terrain_they_meet():
+    """The simple baseline of score-missions: a mission's largest patch height range; it ranks
+    a mission over a 0.3 m box above missions on flat ground (AUC 1 when the refused one is the
+    box's), and _auc counts ties half."""
+    from qz_drake.experiments.walk_scores import _auc, height_range
+    from qz_drake.terrain import HeightMap
+
+    res = 0.05
+    X, Y = np.meshgrid(res * np.arange(120), res * np.arange(80))
+    world = HeightMap(np.where((X > 3.0) & (X < 3.5) & (Y > 1.5) & (Y < 2.5), 0.3, 0.0), res, (0.0, 0.0))
+
+    def mission(x0, y0, x1, y1):
+        return {"start": [x0, y0, 0.0], "target": [x1, y1, 0.0]}
+
+    flat = [height_range(world, mission(0.5, 2.0, 1.5, 2.0)), height_range(world, mission(1.0, 0.6, 2.0, 0.6))]
+    boxed = height_range(world, mission(2.6, 2.0, 3.6, 2.0))
+    assert max(flat) < 0.01 and boxed == pytest.approx(0.3, abs=0.01)
+    assert _auc([False, False, True], [*flat, boxed]) == 1.0
+    assert _auc([True, False], [0.2, 0.2]) == 0.5 and _auc([True, True], [0.1, 0.2]) is None
