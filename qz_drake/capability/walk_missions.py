@@ -91,13 +91,13 @@ def mission_timeline(plans, solves, retried, switches, end: float) -> list[dict]
     out = []
     for j, s in enumerate(missions):
         entry = {"solve": s, "planned": bool(s.success), "t0": float(s.start_time), "switch": owner.get(j), "plan": None}
-        if s.success and remaining:
-            # The plan of this solve: the next one logged (one plan per successful mission).
-            match = next((k for k, plan in enumerate(remaining) if abs(plan.start_time - s.start_time) < 1e-6), 0)
+        if s.success:
+            # The plan of this solve: the logged one that starts when it was to start. One the
+            # sequencer never saw (the walk ended first) is no mission walked.
+            match = next((k for k, plan in enumerate(remaining) if abs(plan.start_time - s.start_time) < 1e-6), None)
+            if match is None:
+                continue
             entry["plan"] = remaining.pop(match)
-            entry["t0"] = float(entry["plan"].start_time)
-        elif s.success:  # a plan the sequencer never saw (the walk ended first): not a mission walked
-            continue
         entry["begin"] = float(entry["switch"].start_time) if entry["switch"] is not None else entry["t0"]
         out.append(entry)
     for e in out:
