@@ -208,6 +208,8 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
     return record
 
 
+# The planners as a reader calls them.
+PLANNER_NAMES = {"capplanner": "CapPlanner", "astar": "A*"}
 # Spacing of the walked path kept in each record (path_samples). [m]
 PATH_SPACING = 0.25
 
@@ -614,7 +616,7 @@ def report_markdown(summary: dict) -> str:
                          f"| {c['this_successes']} | {c['other_successes']} | {c['both']} | {c['only_this']} "
                          f"| {c['only_other']} | {c['neither']} | {c['p_value']:.2g} |")
     if summary.get("discordant") is not None:
-        names = {"capplanner": "CapPlanner", "astar": "A*"}
+        names = PLANNER_NAMES
         lines += ["", f"Where each planner fails: {len(summary['discordant'])} discordant tasks", "",
                   "| task | walked | failed | reason | picture |", "| --- | --- | --- | --- | --- |"]
         for t in summary["discordant"]:

@@ -56,7 +56,6 @@ def _save(fig, path, dpi: int) -> Path:
 
 # Colours of the planners in the pictures (others take matplotlib's cycle).
 PLANNER_COLOURS = {"capplanner": "tab:red", "astar": "tab:blue"}
-PLANNER_LABELS = {"capplanner": "CapPlanner", "astar": "A*"}
 # Line styles, so that two paths along the same route both show.
 PLANNER_STYLES = {"capplanner": ("-", 3.0), "astar": ("--", 2.0)}
 
@@ -65,13 +64,14 @@ def plot_task_pair(task, records: dict, path, *, title: str = "") -> Path:
     """One task's world (heights, hill-shaded) with each planner's walked path (a record's
     ``path_xy``), the start (triangle), the goal (star) and, for a walk that failed, where it
     stopped (a cross) with its reason; the legend says who walked."""
+    from qz_drake.experiments.fig9 import PLANNER_NAMES
     from qz_drake.viz.plots import draw_heightmap
 
     fig, ax = plt.subplots(figsize=(9, 5.6))
     extent = draw_heightmap(fig, ax, task.heightmap, shrink=0.8)
     for planner, record in sorted(records.items()):
         colour = PLANNER_COLOURS.get(planner)
-        name = PLANNER_LABELS.get(planner, planner)
+        name = PLANNER_NAMES.get(planner, planner)
         outcome = "walked" if record["success"] else f"failed: {record['reason'] or '?'}"
         points = np.asarray(record.get("path_xy") or [], dtype=float).reshape(-1, 2)
         if len(points):
@@ -92,7 +92,7 @@ def plot_task_pair(task, records: dict, path, *, title: str = "") -> Path:
     ax.set_ylabel("y [m]")
     ax.set_aspect("equal")
     ax.legend(loc="upper left", fontsize=8, framealpha=0.85)
-    messages = [f"{PLANNER_LABELS.get(p, p)}: {rec['message'][:110]}" for p, rec in sorted(records.items())
+    messages = [f"{PLANNER_NAMES.get(p, p)}: {rec['message'][:110]}" for p, rec in sorted(records.items())
                 if not rec["success"] and rec.get("message")]
     ax.set_title(title + ("\n" + "\n".join(messages) if messages else ""), fontsize=9)
     return _save(fig, path, dpi=110)
