@@ -22,7 +22,7 @@ from qz_drake.config import MissionTiming
 from qz_drake.errors import bad_value
 from qz_drake.progress import ProgressReport
 from qz_drake.state_layout import BASE_XY
-from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS, TASKS_PER_CELL, make_task
+from qz_drake.experiments.worlds import DIFFICULTIES, PLANNER_NAMES, TERRAINS, TASKS_PER_CELL, make_task
 
 RESULTS = "results.jsonl"
 # settings.json's record of the capability model CapPlanner's walks used (CapabilityModel.identity).
@@ -208,8 +208,6 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
     return record
 
 
-# The planners as a reader calls them.
-PLANNER_NAMES = {"capplanner": "CapPlanner", "astar": "A*"}
 # Spacing of the walked path kept in each record (path_samples). [m]
 PATH_SPACING = 0.25
 

@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS  # noqa: E402
+from qz_drake.experiments.worlds import DIFFICULTIES, PLANNER_NAMES, TERRAINS  # noqa: E402
 
 
 def plot_fig9(rows: list[dict], path, *, title: str = "") -> Path:
@@ -64,7 +64,6 @@ def plot_task_pair(task, records: dict, path, *, title: str = "") -> Path:
     """One task's world (heights, hill-shaded) with each planner's walked path (a record's
     ``path_xy``), the start (triangle), the goal (star) and, for a walk that failed, where it
     stopped (a cross) with its reason; the legend says who walked."""
-    from qz_drake.experiments.fig9 import PLANNER_NAMES
     from qz_drake.viz.plots import draw_heightmap
 
     fig, ax = plt.subplots(figsize=(9, 5.6))
