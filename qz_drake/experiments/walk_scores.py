@@ -161,12 +161,10 @@ def score_missions(records: list[dict], model, *, scale: float = 1.0) -> dict:
 
 
 def _auc(labels, scores) -> float | None:
-    """ROC AUC (ties counted half), None without both classes."""
-    labels, scores = np.asarray(labels, dtype=bool), np.asarray(scores, dtype=float)
+    """ROC AUC (scikit-learn's; ties count half), None without both classes."""
+    from sklearn.metrics import roc_auc_score
+
+    labels = np.asarray(labels, dtype=bool)
     if labels.all() or not labels.any():
         return None
-    from scipy.stats import rankdata
-
-    ranks = rankdata(scores)
-    positives = int(labels.sum())
-    return float((ranks[labels].sum() - positives * (positives + 1) / 2) / (positives * (len(labels) - positives)))
+    return float(roc_auc_score(labels, np.asarray(scores, dtype=float)))
