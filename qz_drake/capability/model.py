@@ -54,6 +54,28 @@ def _error(field: str, value, why: str) -> CapabilityModelError:
     return bad_value(field, value, why, CapabilityModelError)
 
 
+def check_patches(patches) -> tuple[np.ndarray, tuple]:
+    """(patches as float32, batch shape) of (..., 20, 20) height patches; a QzError otherwise."""
+    patches = np.asarray(patches, dtype=np.float32)
+    if patches.shape[-2:] != (P.PATCH_SIZE, P.PATCH_SIZE):
+        raise _error("patches", f"array of shape {patches.shape}", f"expected (..., {P.PATCH_SIZE}, {P.PATCH_SIZE})")
+    return patches, patches.shape[:-2]
+
+
+def check_direction(kind: str, direction, batch: tuple) -> np.ndarray | None:
+    """A turn's d broadcast to the batch (0 left, 1 right); None for a move, which takes none."""
+    if kind == "turn":
+        if direction is None:
+            raise _error("direction", None, "the turn network needs d (0 left, 1 right)")
+        d = np.broadcast_to(np.asarray(direction), batch)
+        if not np.isin(d, (P.TURN_LEFT, P.TURN_RIGHT)).all():
+            raise _error("direction", np.unique(d).tolist(), "expected 0 (left) or 1 (right)")
+        return d
+    if direction is not None:
+        raise _error("direction", direction, f"only the turn network takes a direction, not {kind}")
+    return None
+
+
 def file_stem(topology: str, kind: str) -> str:
     return f"{topology}_{kind}"
 
@@ -370,6 +392,10 @@ class CapabilityModel:
         robot = top.get("fingerprints", {}).get("robot")
         if robot is not None and robot != robot_fingerprint():
             raise _error("model.fingerprints.robot", robot, "the model was trained on another robot configuration")
+        if top.get("learner") == "boosted":  # one boosted ensemble for every network (capability/boosted.py)
+            from qz_drake.capability.boosted import BoostedCapabilityModel
+
+            return BoostedCapabilityModel.load_folder(folder, top, device)
         networks = {}
         for name, entry in top.get("networks", {}).items():
             card = _read_json(folder / entry["card"], f"model.networks.{name}.card")
@@ -474,25 +500,15 @@ class CapabilityModel:
         import torch
 
         net = self.network(topology, kind)
-        patches = np.asarray(patches, dtype=np.float32)
+        patches, batch = check_patches(patches)
         feet = np.asarray(feet, dtype=np.float32)
-        if patches.shape[-2:] != (P.PATCH_SIZE, P.PATCH_SIZE):
-            raise _error("patches", f"array of shape {patches.shape}",
-                         f"expected (..., {P.PATCH_SIZE}, {P.PATCH_SIZE})")
-        batch = patches.shape[:-2]
         if feet.shape != batch + (6, 3):
             raise _error("feet", f"array of shape {feet.shape}", f"expected {batch + (6, 3)} to match the patches")
         n = int(np.prod(batch, dtype=np.int64))
         extra = feet.reshape(n, 18)
-        if kind == "turn":
-            if direction is None:
-                raise _error("direction", None, "the turn network needs d (0 left, 1 right)")
-            d = np.broadcast_to(np.asarray(direction), batch).reshape(n)
-            if not np.isin(d, (P.TURN_LEFT, P.TURN_RIGHT)).all():
-                raise _error("direction", np.unique(d).tolist(), "expected 0 (left) or 1 (right)")
-            extra = np.column_stack([extra, d.astype(np.float32)])
-        elif direction is not None:
-            raise _error("direction", direction, f"only the turn network takes a direction, not {kind}")
+        d = check_direction(kind, direction, batch)
+        if d is not None:
+            extra = np.column_stack([extra, d.reshape(n).astype(np.float32)])
         out = np.empty(n, dtype=np.float64)
         x = torch.from_numpy(np.ascontiguousarray(patches.reshape(n, P.PATCH_SIZE, P.PATCH_SIZE)))
         e = torch.from_numpy(np.ascontiguousarray(extra))
@@ -541,11 +557,7 @@ class CapabilityModel:
         nets = [self.network(t, kind) for t in topologies]
         # Every member of every topology's network, with the topology it answers for.
         members = [(i, m) for i, net in enumerate(nets) for m in getattr(net, "members", [net])]
-        patches = np.asarray(patches, dtype=np.float32)
-        if patches.shape[-2:] != (P.PATCH_SIZE, P.PATCH_SIZE):
-            raise _error("patches", f"array of shape {patches.shape}",
-                         f"expected (..., {P.PATCH_SIZE}, {P.PATCH_SIZE})")
-        batch = patches.shape[:-2]
+        patches, batch = check_patches(patches)
         n = int(np.prod(batch, dtype=np.int64))
         extras = []
         for t in topologies:

@@ -9,7 +9,9 @@ only if every record comes out identical.
 dataset (split by scene), writes the model directory (safetensors + JSON cards) with
 ``reliability.png`` and ``confusion.png`` of the test scenes, and prints the metrics table (or
 one JSON line). Each network is kept as soon as it is trained: after Ctrl-C the same command
-trains only the missing ones.
+trains only the missing ones. ``--learner boosted [--members N]`` trains instead one
+gradient-boosted ensemble for every topology and kind (qz_drake.capability.boosted: three
+outcomes, ``boosted.npz`` + ``model.json``) and prints its test scores per network.
 
 ``evaluate [--model DIR] --dataset DIR [--json] [--out DIR]`` scores a model on every trial of
 a dataset whose fingerprints are the model's; the JSON has one entry per network with
@@ -34,6 +36,7 @@ from qz_drake.errors import bad_value
 # qz_drake.capability.collect.PROTOCOLS, here so that building the parser does not import the
 # trials (pydrake); tests/test_cli_imports.py keeps the two the same.
 PROTOCOLS = ("moves", "episodes")
+LEARNERS = ("cnn", "boosted")
 SUMMARY_KEYS = ("topology", "kind", "n", "positives", "auc", "brier", "ece", "ece_floor", "accuracy")
 
 
@@ -214,6 +217,10 @@ def _figures(entries: list[dict], out: Path, what: str) -> list[str]:
 
 
 def run_train(args) -> int:
+    if args.learner == "boosted":
+        return run_train_boosted(args)
+    if args.members is not None:
+        raise bad_value("--members", args.members, "only the boosted learner has members (--learner boosted)")
     from qz_drake.capability import model_commands, training
 
     # Looked up in their modules when the command runs (the tests replace them there).
@@ -262,6 +269,52 @@ def run_train(args) -> int:
         if resumed:
             print(f"resumed: {', '.join(summary['resumed'])} came from the interrupted training")
         print("figures: " + ", ".join(figures))
+    return 0
+
+
+def run_train_boosted(args) -> int:
+    for name in ("max_epochs", "network"):
+        if getattr(args, name):
+            raise bad_value(f"--{name.replace('_', '-')}", getattr(args, name),
+                            "the boosted learner trains one ensemble for every network, without epochs")
+    if args.members is not None and args.members < 1:
+        raise bad_value("--members", args.members, "must be a positive whole number")
+    from qz_drake.capability import model_commands
+    from qz_drake.capability.boosted import OUTCOMES, BoostedConfig, save_boosted, train_boosted
+
+    arrays, manifest = model_commands.load_dataset(args.dataset)
+    config = BoostedConfig(seed=args.seed)
+    if args.members is not None:
+        config.members = args.members
+    result = train_boosted(arrays, fingerprint=manifest.get("fingerprint"), fingerprints=manifest.get("fingerprints"),
+                           config=config, progress=not args.json)
+    out = save_boosted(result, args.out)
+    test = result.card["test"]
+    rows = [{"network": name, "n": scores["n"], **{o: scores["counts"][o] for o in OUTCOMES},
+             **{f"{o}_auc": scores[o]["auc"] for o in OUTCOMES}, "brier": scores["model"]["brier"],
+             "base_rate_brier": scores["base_rate"]["brier"]}
+            for name, scores in [("all", test["all"])] + sorted(test["networks"].items())]
+    summary = {"model": str(out), "learner": "boosted", "fingerprint": result.card["fingerprint"],
+               "members": result.card["members"], "split_scenes": {k: len(v) for k, v in result.card["split"].items()},
+               "test": rows}
+    (out / "report.json").write_text(json.dumps(summary, indent=2))
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"Test scenes ({summary['split_scenes']['test']}), boosted model {out}")
+    for column in ("network", "n", "walked", "no plan", "failed", "AUC walked", "AUC no plan", "AUC failed",
+                   "Brier", "rate Brier"):
+        table.add_column(column, justify="left" if column == "network" else "right", no_wrap=True)
+    for r in rows:
+        table.add_row(r["network"], str(r["n"]), *(str(r[o]) for o in OUTCOMES),
+                      *(_fmt(r[f"{o}_auc"]) for o in OUTCOMES), _fmt(r["brier"]), _fmt(r["base_rate_brier"]))
+    console = Console()
+    Console(width=max(console.width, 120) if not console.is_terminal else None).print(table)
+    print("Brier: the three outcomes' (multi-class) Brier score; rate: the training outcome frequencies as a "
+          f"constant; learners: {', '.join(str(m['iterations']) for m in result.card['members'])} iterations")
     return 0
 
 
@@ -321,6 +374,11 @@ def register_model_commands(subparsers) -> None:
     p.add_argument("--restart", action="store_true",
                    help="discard the networks an interrupted training left in --out and train all again "
                         "(without it, the same command goes on where the training stopped)")
+    p.add_argument("--learner", default="cnn", choices=LEARNERS,
+                   help="cnn: the paper's 18 networks; boosted: one gradient-boosted ensemble for every "
+                        "topology and kind (qz_drake.capability.boosted; three outcomes)")
+    p.add_argument("--members", type=int, default=None,
+                   help="learners in the boosted ensemble (default 5); only with --learner boosted")
     p.set_defaults(func=run_train)
 
     p = subparsers.add_parser("evaluate", help="score a capability model on a trial dataset")

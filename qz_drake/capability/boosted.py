@@ -1,0 +1,550 @@
+"""The capability as gradient-boosted trees: one learner for every topology and kind (issue 37).
+
+Why trees and not the paper's 18 CNNs, measured on the episode dataset (BENCHMARKS
+"capability-networks"): a mission's refusal ("the BLC found no plan") is mostly how the robot
+stands when it starts (how many feet stand level with the ground under the body, a foot down a
+step) and the terrain it meets; on held-out episode scenes, gradient boosting on simple patch
+and feet features ranks the refusals at ROC AUC 0.96, a pooled CNN with the same topology and
+kind inputs at 0.89, an MLP on the boosting's own features at 0.88: the trees cut single foot
+heights at thresholds, which the networks smooth over. Each of the 18 networks saw 1/18 of the
+data; here one learner sees all of it, with the topology and kind as inputs.
+
+Inputs of a query (``features``): the height patch as 4 x 4 block means and its range, max, min
+and standard deviation; the kind and topology one-hot; the turn direction d (0 for moves); the
+start feet in the heading frame (18 numbers), as the networks take them.
+
+Outputs: three outcomes as one softmax, walked / no plan / executed and failed (the order of
+training.OUTCOMES), fitted with the multinomial log loss (a proper score). The iteration count
+is chosen on the validation scenes' log loss.
+
+Ensemble: ``members`` learners, each on a bootstrap of the training scenes (whole scenes, so
+that a member never sees half of a scene's correlated records) from its own seed; the model's
+outcomes are the members' mean and its spread the standard deviation of their P(walked), read
+by the planner as the networks' ensemble spread (capability_mdp, ``pessimism``).
+
+Storage without pickle: the trees are exported from scikit-learn's HistGradientBoostingClassifier
+into flat arrays (feature, threshold, children, leaf value) saved as one ``.npz`` with a JSON
+card, and evaluated by a compiled loop of our own (:func:`_raw_scores`; numba), tested equal to
+scikit-learn's ``predict_proba``. Loading needs numpy and numba only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from qz_drake.capability import patches as P
+from qz_drake.errors import ConfigError, bad_value
+from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+LEARNER = "boosted"
+WEIGHTS_FILE = "boosted.npz"
+BLOCKS = 4
+# Feature names, in the column order of ``features``.
+FEATURE_NAMES = tuple([f"block_{i}_{j}" for i in range(BLOCKS) for j in range(BLOCKS)]
+                      + ["patch_range", "patch_max", "patch_min", "patch_std"]
+                      + [f"kind_{k}" for k in P.KINDS] + [f"topology_{t}" for t in TOPOLOGY_NAMES]
+                      + ["direction"] + [f"foot_{leg}_{c}" for leg in range(6) for c in "xyz"])
+# The order of the three outcomes (training.OUTCOMES).
+OUTCOMES = ("walked", "no_plan", "failed")
+_ARRAYS = ("feature", "threshold", "left", "right", "leaf", "value", "missing_left")
+
+
+def features(patches, feet, kind, topology, direction=None) -> np.ndarray:
+    """(n, len(FEATURE_NAMES)) float64 inputs of n queries.
+
+    Args:
+        patches: (n, 20, 20) height patches relative to the standing ground [m].
+        feet: (n, 6, 3) start feet in the heading frame [m].
+        kind, topology: one name for every query, or (n,) arrays of names.
+        direction: turns' d (0 left, 1 right), scalar or (n,); None or -1 for moves (0 here).
+    """
+    patches = np.asarray(patches, dtype=np.float64)
+    n = patches.shape[0]
+    if patches.shape[1:] != (P.PATCH_SIZE, P.PATCH_SIZE):
+        raise bad_value("patches", f"array of shape {patches.shape}", f"expected (n, {P.PATCH_SIZE}, {P.PATCH_SIZE})")
+    feet = np.asarray(feet, dtype=np.float64)
+    if feet.shape != (n, 6, 3):
+        raise bad_value("feet", f"array of shape {feet.shape}", f"expected ({n}, 6, 3) to match the patches")
+    side = P.PATCH_SIZE // BLOCKS
+    blocks = patches.reshape(n, BLOCKS, side, BLOCKS, side).mean(axis=(2, 4)).reshape(n, -1)
+    top, bottom = patches.max(axis=(1, 2)), patches.min(axis=(1, 2))
+    kind = np.broadcast_to(np.asarray(kind).astype(str), (n,))
+    topology = np.broadcast_to(np.asarray(topology).astype(str), (n,))
+    for name, values, allowed in (("kind", kind, P.KINDS), ("topology", topology, TOPOLOGY_NAMES)):
+        unknown = sorted(set(np.unique(values)) - set(allowed))
+        if unknown:
+            raise bad_value(name, unknown, f"expected one of {', '.join(allowed)}")
+    d = np.zeros(n) if direction is None else np.maximum(np.broadcast_to(np.asarray(direction, float), (n,)), 0.0)
+    return np.column_stack([blocks, top - bottom, top, bottom, patches.std(axis=(1, 2)),
+                            kind[:, None] == np.asarray(P.KINDS)[None],
+                            topology[:, None] == np.asarray(TOPOLOGY_NAMES)[None],
+                            d, feet.reshape(n, 18)]).astype(np.float64)
+
+
+# -- the trees as arrays -------------------------------------------------------------------------
+@dataclasses.dataclass
+class Trees:
+    """One boosted learner's trees as flat arrays (every tree's nodes one after the other).
+
+    ``roots`` (iterations, classes) is each tree's first node; a node is a leaf (``leaf``) with
+    its ``value``, or splits on ``feature`` at ``threshold`` (x <= threshold goes ``left``,
+    NaN goes left where ``missing_left``). The raw score of class c is ``baseline[c]`` plus the
+    leaves reached in the trees of column c; the outcomes are their softmax.
+    """
+
+    baseline: np.ndarray  # (classes,)
+    roots: np.ndarray  # (iterations, classes) int64
+    feature: np.ndarray  # (nodes,) int64
+    threshold: np.ndarray  # (nodes,) float64
+    left: np.ndarray  # (nodes,) int64, global node index
+    right: np.ndarray  # (nodes,) int64
+    leaf: np.ndarray  # (nodes,) bool
+    value: np.ndarray  # (nodes,) float64
+    missing_left: np.ndarray  # (nodes,) bool
+
+    @classmethod
+    def from_sklearn(cls, model, iterations: int | None = None) -> "Trees":
+        """The first ``iterations`` (default all) of a fitted HistGradientBoostingClassifier with
+        numerical features only."""
+        predictors = getattr(model, "_predictors", None)
+        baseline = getattr(model, "_baseline_prediction", None)
+        if predictors is None or baseline is None:
+            raise ConfigError("scikit-learn's HistGradientBoostingClassifier no longer exposes _predictors and "
+                              "_baseline_prediction: this scikit-learn cannot be exported (boosted.Trees)")
+        predictors = predictors[: len(predictors) if iterations is None else int(iterations)]
+        parts, roots, offset = [], np.zeros((len(predictors), len(predictors[0]) if predictors else 0), np.int64), 0
+        for i, per_class in enumerate(predictors):
+            for c, tree in enumerate(per_class):
+                nodes = tree.nodes
+                if np.any(nodes["is_categorical"]):
+                    raise ConfigError("boosted.Trees exports numerical splits only")
+                roots[i, c] = offset
+                parts.append((nodes, offset))
+                offset += len(nodes)
+        if not parts:
+            raise ConfigError("boosted.Trees: the learner has no trees")
+        cat = np.concatenate([n for n, _ in parts])
+        shift = np.concatenate([np.full(len(n), o, np.int64) for n, o in parts])
+        leaf = cat["is_leaf"].astype(bool)
+        return cls(baseline=np.asarray(baseline, np.float64).reshape(-1), roots=roots,
+                   feature=cat["feature_idx"].astype(np.int64), threshold=cat["num_threshold"].astype(np.float64),
+                   left=np.where(leaf, -1, cat["left"].astype(np.int64) + shift),
+                   right=np.where(leaf, -1, cat["right"].astype(np.int64) + shift), leaf=leaf,
+                   value=cat["value"].astype(np.float64), missing_left=cat["missing_go_to_left"].astype(bool))
+
+    def arrays(self, prefix: str = "") -> dict:
+        out = {f"{prefix}baseline": self.baseline, f"{prefix}roots": self.roots}
+        out.update({f"{prefix}{name}": getattr(self, name) for name in _ARRAYS})
+        return out
+
+    @classmethod
+    def from_arrays(cls, arrays, prefix: str = "") -> "Trees":
+        trees = cls(**{name: np.asarray(arrays[f"{prefix}{name}"]) for name in ("baseline", "roots") + _ARRAYS})
+        n = len(trees.feature)
+        if (any(len(getattr(trees, a)) != n for a in _ARRAYS) or trees.roots.ndim != 2
+                or trees.roots.shape[1] != len(trees.baseline) or trees.roots.size == 0
+                or trees.roots.min() < 0 or trees.roots.max() >= n
+                or np.any(trees.left[~trees.leaf] < 0) or np.any(trees.left >= n) or np.any(trees.right >= n)):
+            raise ConfigError(f"boosted trees {prefix or ''}: inconsistent arrays (not a file this code wrote)")
+        return trees
+
+    @property
+    def iterations(self) -> int:
+        return int(self.roots.shape[0])
+
+    def raw(self, X: np.ndarray) -> np.ndarray:
+        """(n, classes) raw scores of inputs X (n, features)."""
+        X = np.ascontiguousarray(X, dtype=np.float64)
+        return _raw_scores(X, self.baseline, self.roots, self.feature, self.threshold, self.left, self.right,
+                           self.leaf, self.value, self.missing_left)
+
+    def probabilities(self, X: np.ndarray) -> np.ndarray:
+        """(n, classes) softmax of the raw scores."""
+        return softmax(self.raw(X))
+
+
+def softmax(raw: np.ndarray) -> np.ndarray:
+    z = raw - raw.max(axis=1, keepdims=True)
+    e = np.exp(z)
+    return e / e.sum(axis=1, keepdims=True)
+
+
+def _raw_scores_py(X, baseline, roots, feature, threshold, left, right, leaf, value, missing_left):
+    out = np.empty((X.shape[0], roots.shape[1]))
+    for s in range(X.shape[0]):
+        for c in range(roots.shape[1]):
+            total = baseline[c]
+            for i in range(roots.shape[0]):
+                node = roots[i, c]
+                while not leaf[node]:
+                    x = X[s, feature[node]]
+                    if x != x:  # NaN
+                        node = left[node] if missing_left[node] else right[node]
+                    elif x <= threshold[node]:
+                        node = left[node]
+                    else:
+                        node = right[node]
+                total += value[node]
+            out[s, c] = total
+    return out
+
+
+try:  # compiled: ~1 us per tree and query against ~1 ms in Python
+    import numba
+
+    _raw_scores = numba.njit(cache=True, nogil=True)(_raw_scores_py)
+except ImportError:  # pragma: no cover - numba is a dependency
+    _raw_scores = _raw_scores_py
+
+
+# -- training ------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class BoostedConfig:
+    """How the boosted capability model is trained; saved in its card."""
+
+    # Seed of the scene split (training.split_scenes), the bootstraps and the learners.
+    seed: int = 0
+    # Train / validation / test fractions of the scenes.
+    split: list[float] = dataclasses.field(default_factory=lambda: [0.70, 0.15, 0.15])
+    # Learners in the ensemble, each on a bootstrap of the training scenes (1: one learner on
+    # all of them).
+    members: int = 5
+    # Most boosting iterations; the kept count is the one with the lowest validation log loss.
+    max_iter: int = 400
+    learning_rate: float = 0.05
+    max_leaf_nodes: int = 31
+    min_samples_leaf: int = 20
+    l2_regularization: float = 1.0
+    # Train on every training record and its mirror image (patches.mirror_inputs), as the
+    # networks do: the robot and gait are symmetric about the sagittal plane.
+    mirror: bool = True
+
+    def check(self) -> "BoostedConfig":
+        if len(self.split) != 3 or any(not (f >= 0) for f in self.split) or not math.isclose(sum(self.split), 1.0):
+            raise bad_value("boosted.split", self.split, "expected three fractions >= 0 summing to 1")
+        if min(self.split[:2]) <= 0:
+            raise bad_value("boosted.split", self.split, "train and validation fractions must be positive")
+        for name in ("members", "max_iter", "max_leaf_nodes", "min_samples_leaf"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise bad_value(f"boosted.{name}", value, "must be a positive whole number")
+        if self.max_leaf_nodes < 2:
+            raise bad_value("boosted.max_leaf_nodes", self.max_leaf_nodes, "must be at least 2")
+        if not (self.learning_rate > 0 and self.l2_regularization >= 0):
+            raise bad_value("boosted.learning_rate", self.learning_rate, "must be positive (l2_regularization >= 0)")
+        if not isinstance(self.mirror, bool):
+            raise bad_value("boosted.mirror", self.mirror, "expected true or false")
+        return self
+
+
+def record_features(arrays: dict, rows: np.ndarray, mirror: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(X, outcome index) of dataset rows; with ``mirror``, followed by their mirror images."""
+    from qz_drake.capability.training import outcome_classes
+
+    rows = np.asarray(rows, dtype=np.int64)
+    kind = np.asarray(arrays["kind"]).astype(str)[rows]
+    topology = np.asarray(arrays["topology"]).astype(str)[rows]
+    direction = np.asarray(arrays["direction"])[rows]
+    patch, feet = np.asarray(arrays["patch"])[rows], np.asarray(arrays["feet"])[rows]
+    y = outcome_classes(np.asarray(arrays["success"])[rows], np.asarray(arrays["blc_success"])[rows])
+    X = [features(patch, feet, kind, topology, direction)]
+    labels = [y]
+    if mirror:
+        for k in np.unique(kind):
+            m = kind == k
+            mp, mf, md = P.mirror_inputs(patch[m], feet[m], direction[m], k)
+            X.append(features(mp, mf, k, topology[m], md))
+            labels.append(y[m])
+    return np.concatenate(X), np.concatenate(labels)
+
+
+def _fit_member(X, y, Xv, yv, config: BoostedConfig, seed: int):
+    """One learner: fitted for max_iter iterations, cut at the best validation log loss.
+    Returns (Trees, best iteration, validation log loss)."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    if len(np.unique(y)) < 3:
+        missing = sorted(set(OUTCOMES) - {OUTCOMES[i] for i in np.unique(y)})
+        raise ConfigError(f"dataset: the training records have no {' and no '.join(missing)} outcome; "
+                          "the three-outcome model needs all three")
+    model = HistGradientBoostingClassifier(
+        loss="log_loss", max_iter=config.max_iter, learning_rate=config.learning_rate,
+        max_leaf_nodes=config.max_leaf_nodes, min_samples_leaf=config.min_samples_leaf,
+        l2_regularization=config.l2_regularization, early_stopping=False, random_state=seed)
+    model.fit(X, y)
+    losses = [float(-np.mean(np.log(np.clip(p[np.arange(len(yv)), yv], 1e-12, 1.0))))
+              for p in model.staged_predict_proba(Xv)]
+    best = int(np.argmin(losses)) + 1
+    return Trees.from_sklearn(model, best), best, losses[best - 1]
+
+
+@dataclasses.dataclass
+class BoostedTrainingResult:
+    members: list  # [Trees]
+    card: dict
+
+
+def train_boosted(arrays: dict, *, fingerprint: str, fingerprints: dict | None = None,
+                  config: BoostedConfig | None = None, progress: bool = False) -> BoostedTrainingResult:
+    """Trains the boosted capability model on a dataset's arrays (one row per executed trial;
+    topology switches are left out, as for the networks) and scores it on the test scenes."""
+    from qz_drake.capability.dataset import check_arrays
+    from qz_drake.capability.training import split_scenes
+    from qz_drake.progress import ProgressReport
+
+    config = (config or BoostedConfig()).check()
+    if not isinstance(fingerprint, str) or not fingerprint:
+        raise bad_value("dataset.manifest.fingerprint", fingerprint, "expected a non-empty string")
+    check_arrays(arrays)
+    keep = np.asarray(arrays["kind"]).astype(str) != "switch"
+    arrays = {key: (np.asarray(v)[keep] if np.ndim(v) and len(v) == len(keep) else v) for key, v in arrays.items()}
+    split = split_scenes(arrays["scene"], config.split, config.seed)
+    scene = np.asarray(arrays["scene"], dtype=np.int64)
+    rows = {name: np.flatnonzero(np.isin(scene, ids)) for name, ids in split.items()}
+    Xv, yv = record_features(arrays, rows["validation"])
+    rng = np.random.default_rng(config.seed)
+    members, info = [], []
+    start = time.perf_counter()
+    with ProgressReport("training boosted learners", config.members, unit="learners", enabled=progress) as report:
+        for m in range(config.members):
+            if config.members == 1:
+                train_rows = rows["train"]
+            else:  # a bootstrap of whole training scenes
+                drawn = rng.choice(split["train"], size=len(split["train"]), replace=True)
+                by_scene = {s: np.flatnonzero(scene == s) for s in np.unique(drawn)}
+                train_rows = np.concatenate([by_scene[s] for s in drawn])
+            X, y = record_features(arrays, train_rows, mirror=config.mirror)
+            trees, best, loss = _fit_member(X, y, Xv, yv, config, config.seed + 7919 * m)
+            members.append(trees)
+            info.append({"iterations": best, "validation_log_loss": loss, "train_rows": int(len(y))})
+            report.update(advance=1, status=f"learner {m + 1}: {best} iterations")
+    model = BoostedCapabilityModel(members, {"fingerprint": fingerprint})
+    card = {"learner": LEARNER, "fingerprint": fingerprint, "fingerprints": dict(fingerprints or {}),
+            "config": dataclasses.asdict(config), "split": {k: v.tolist() for k, v in split.items()},
+            "features": list(FEATURE_NAMES), "outcomes": list(OUTCOMES), "members": info,
+            "train_seconds": time.perf_counter() - start,
+            "n": {name: int(len(r)) for name, r in rows.items()}}
+    card["test"] = test_scores(model, arrays, rows)
+    card["cards"] = network_cards(arrays, rows)
+    return BoostedTrainingResult(members, card)
+
+
+def network_cards(arrays: dict, rows: dict) -> dict:
+    """Per (topology, kind) of the data: the training rows' counts and failures (what
+    CapabilityModel.plan_failure_share reads)."""
+    from qz_drake.capability.training import _failure_counts, network_name
+
+    topology, kind = np.asarray(arrays["topology"]).astype(str), np.asarray(arrays["kind"]).astype(str)
+    out = {}
+    for t in TOPOLOGY_NAMES:
+        for k in P.KINDS:
+            train = rows["train"][(topology[rows["train"]] == t) & (kind[rows["train"]] == k)]
+            if len(train):
+                out[network_name(t, k)] = {"topology": t, "kind": k, "n": {"train": int(len(train))},
+                                           "failures": _failure_counts(arrays, train)}
+    return out
+
+
+def test_scores(model, arrays: dict, rows: dict, bins: int = 10) -> dict:
+    """The model on the test rows: the three outcomes' Brier score and log loss against the
+    training rows' frequencies, and each outcome ranked (ROC AUC) and calibrated (ECE), overall
+    and per (topology, kind)."""
+    from qz_drake.capability.evaluation import binary_metrics
+    from qz_drake.capability.training import network_name, outcome_classes
+
+    test = rows["test"]
+    if len(test) == 0:
+        return {}
+    X, y = record_features(arrays, test)
+    probs = model.outcomes_of_features(X)
+    prior_y = outcome_classes(np.asarray(arrays["success"])[rows["train"]],
+                              np.asarray(arrays["blc_success"])[rows["train"]])
+    prior = (np.bincount(prior_y, minlength=3) + 0.5) / (len(prior_y) + 1.5)
+
+    def proper(p, labels):
+        onehot = np.eye(3)[labels]
+        return {"brier": float(np.mean(np.sum((p - onehot) ** 2, axis=1))),
+                "log_loss": float(-np.mean(np.log(np.clip(p[np.arange(len(labels)), labels], 1e-12, 1.0))))}
+
+    def scores(p, labels):
+        out = {"n": int(len(labels)), "counts": {o: int(np.sum(labels == i)) for i, o in enumerate(OUTCOMES)},
+               "model": proper(p, labels), "base_rate": proper(np.broadcast_to(prior, p.shape), labels)}
+        for i, o in enumerate(OUTCOMES):
+            out[o] = binary_metrics(labels == i, p[:, i], bins=bins)
+        return out
+
+    result = {"all": scores(probs, y), "networks": {}}
+    topology = np.asarray(arrays["topology"]).astype(str)[test]
+    kind = np.asarray(arrays["kind"]).astype(str)[test]
+    for t in TOPOLOGY_NAMES:
+        for k in P.KINDS:
+            m = (topology == t) & (kind == k)
+            if m.any():
+                result["networks"][network_name(t, k)] = scores(probs[m], y[m])
+    return result
+
+
+# -- the model -----------------------------------------------------------------------------------
+def _model_base():
+    from qz_drake.capability.model import CapabilityModel
+
+    return CapabilityModel
+
+
+class BoostedCapabilityModel(_model_base()):
+    """The capability of every topology and kind from one boosted ensemble; answers what
+    CapabilityModel answers (``success``, ``success_all``, ``map_success``,
+    ``plan_failure_share``, ``outcomes``), and loads from a folder whose ``model.json`` says
+    ``"learner": "boosted"`` (CapabilityModel.load dispatches here)."""
+
+    def __init__(self, members: list, card: dict, device: str | None = None):
+        if not members:
+            raise ConfigError("a boosted capability model needs at least one learner")
+        self._members = list(members)
+        self.card = dict(card)
+        self.device = "cpu"
+        covered = self.card.get("cards")
+        keys = ([tuple(name.split("/")) for name in covered] if covered
+                else [(t, k) for t in TOPOLOGY_NAMES for k in P.KINDS])
+        self._networks = {key: None for key in keys}
+        if device not in (None, "cpu"):
+            raise bad_value("device", device, "the boosted capability model runs on the CPU")
+
+    def to(self, device: str) -> "BoostedCapabilityModel":
+        if device != "cpu":
+            raise bad_value("device", device, "the boosted capability model runs on the CPU")
+        return self
+
+    @classmethod
+    def load_folder(cls, folder: Path, top: dict, device: str | None = None) -> "BoostedCapabilityModel":
+        from qz_drake.capability.model import _error, _sha256
+
+        weights = folder / top.get("weights", WEIGHTS_FILE)
+        if not weights.is_file():
+            raise _error("model.weights", str(weights), "missing")
+        if top.get("weights_sha256") != _sha256(weights):
+            raise _error("model.weights", str(weights), "its SHA-256 differs from the card's (changed or foreign)")
+        with np.load(weights, allow_pickle=False) as data:
+            count = int(top.get("members_count", 0))
+            if count < 1:
+                raise _error("model.members_count", top.get("members_count"), "expected a positive count")
+            members = [Trees.from_arrays(data, f"m{m}_") for m in range(count)]
+        if list(top.get("features", [])) != list(FEATURE_NAMES):
+            raise _error("model.features", top.get("features"), "this code computes other features")
+        return cls(members, top, device=None if device in (None, "cpu") else device)
+
+    @property
+    def identity(self) -> str:
+        digest = self.card.get("weights_sha256")
+        return digest[:16] if digest else self.fingerprint
+
+    @property
+    def members(self) -> list:
+        return list(self._members)
+
+    def network(self, topology: str, kind: str):
+        """(topology, kind) if the model covers it; the model's error naming it otherwise."""
+        from qz_drake.capability.model import _error
+
+        P.check_kind(kind)
+        if (topology, kind) not in self._networks:
+            raise _error("model.networks", f"{topology}/{kind}", "this model has no data for it")
+        return (topology, kind)
+
+    # -- inference ---------------------------------------------------------------------------
+    def member_outcomes(self, X: np.ndarray) -> np.ndarray:
+        """(members, n, 3) outcome probabilities of every learner; each distinct row of X is
+        evaluated once (a map's flat ground repeats one query from cell to cell)."""
+        from qz_drake.capability.model import distinct_rows
+
+        first, inverse = distinct_rows(np.asarray(X, dtype=np.float64))
+        unique = np.ascontiguousarray(np.asarray(X, dtype=np.float64)[first])
+        return np.stack([m.probabilities(unique) for m in self._members])[:, inverse]
+
+    def outcomes_of_features(self, X: np.ndarray) -> np.ndarray:
+        return self.member_outcomes(X).mean(axis=0)
+
+    def outcomes(self, patches, feet, kind: str, topology: str, direction=None) -> np.ndarray:
+        """(..., 3) P(walked), P(no plan), P(executed and failed) of queries shaped as for
+        ``success``."""
+        from qz_drake.capability.model import _error, check_direction, check_patches
+
+        self.network(topology, kind)
+        patches, batch = check_patches(patches)
+        feet = np.asarray(feet, dtype=np.float32)
+        if feet.shape != batch + (6, 3):
+            raise _error("feet", f"array of shape {feet.shape}", f"expected {batch + (6, 3)} to match the patches")
+        n = int(np.prod(batch, dtype=np.int64))
+        d = check_direction(kind, direction, batch)
+        X = features(patches.reshape(n, P.PATCH_SIZE, P.PATCH_SIZE), feet.reshape(n, 6, 3), kind, topology,
+                     None if d is None else d.reshape(n))
+        return self.outcomes_of_features(X).reshape(batch + (3,))
+
+    def success(self, patches, feet, kind: str, topology: str, direction=None) -> np.ndarray:
+        """P(walked) of queries: (..., 20, 20) patches, (..., 6, 3) feet, d for turns."""
+        return self.outcomes(patches, feet, kind, topology, direction)[..., 0]
+
+    def success_all(self, patches, feet: dict, kind: str) -> dict:
+        """topology -> (success, plan, spread) as CapabilityModel.success_all: every topology
+        on the same patches with its own feet; turns (2, ...) left, right."""
+        from qz_drake.capability.model import _error, check_patches
+
+        P.check_kind(kind)
+        patches, batch = check_patches(patches)
+        n = int(np.prod(batch, dtype=np.int64))
+        flat = patches.reshape(n, P.PATCH_SIZE, P.PATCH_SIZE)
+        directions = (P.TURN_LEFT, P.TURN_RIGHT) if kind == "turn" else (None,)
+        shape = (len(directions),) + batch if kind == "turn" else batch
+        result = {}
+        for t, f in feet.items():
+            self.network(t, kind)
+            f = np.asarray(f, dtype=np.float32)
+            if f.shape != batch + (6, 3):
+                raise _error(f"feet[{t}]", f"array of shape {f.shape}", f"expected {batch + (6, 3)} to match the patches")
+            per = [self.member_outcomes(features(flat, f.reshape(n, 6, 3), kind, t, d)) for d in directions]
+            probs = np.stack(per, axis=1)  # (members, directions, n, 3)
+            walked = probs[..., 0]
+            success = walked.mean(axis=0).reshape(shape)
+            plan = (1.0 - probs[..., 1]).mean(axis=0).reshape(shape)
+            spread = walked.std(axis=0).reshape(shape) if len(self._members) > 1 else None
+            result[t] = (success, plan, spread)
+        return result
+
+
+def save_boosted(result: BoostedTrainingResult, out_dir) -> Path:
+    """Writes ``boosted.npz`` (the learners' arrays, no pickle) and ``model.json`` (the card,
+    with the weights' SHA-256); returns the folder."""
+    from qz_drake.capability.model import FORMAT_VERSION, MODEL_CARD, MODEL_FORMAT, _replace, _sha256
+
+    folder = Path(out_dir)
+    folder.mkdir(parents=True, exist_ok=True)
+    arrays = {}
+    for m, trees in enumerate(result.members):
+        arrays.update(trees.arrays(f"m{m}_"))
+    def write(path):
+        with open(path, "wb") as f:  # a file object: numpy would add ".npz" to the aside name
+            np.savez_compressed(f, **arrays)
+
+    _replace(folder / WEIGHTS_FILE, write)
+    card = dict(result.card, format=MODEL_FORMAT, version=FORMAT_VERSION, weights=WEIGHTS_FILE,
+                members_count=len(result.members), weights_sha256=_sha256(folder / WEIGHTS_FILE))
+    text = json.dumps(card, indent=1, sort_keys=True, default=_plain) + "\n"
+    _replace(folder / MODEL_CARD, lambda path: Path(path).write_text(text))
+    return folder
+
+
+def _plain(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if dataclasses.is_dataclass(value):
+        return dataclasses.asdict(value)
+    raise TypeError(type(value).__name__)

@@ -1,0 +1,173 @@
+"""The boosted capability model (qz_drake.capability.boosted): its exported trees answer what
+scikit-learn answers, it learns three outcomes of a known rule, and it loads, plans a map and
+refuses bad input as the networks' model does."""
+
+import json
+
+import numpy as np
+import pytest
+
+from qz_drake.capability import boosted as B
+from qz_drake.capability import patches as P
+from qz_drake.capability.model import CapabilityModel, CapabilityModelError
+from qz_drake.capability.synthetic import SYNTHETIC_MAX_STEP, synthetic_arrays
+from qz_drake.errors import QzError
+
+
+def test_exported_trees_answer_as_scikit_learn():
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(600, 6))
+    X[rng.random(X.shape) < 0.02] = np.nan  # missing values take the learned side
+    y = (np.nan_to_num(X[:, 0]) > 0.3).astype(int) + (np.nan_to_num(X[:, 1]) > 0.8).astype(int)
+    model = HistGradientBoostingClassifier(max_iter=30, max_leaf_nodes=15, random_state=0).fit(X, y)
+    Xq = rng.normal(size=(300, 6))
+    Xq[:5, 2] = np.nan
+    trees = B.Trees.from_sklearn(model)
+    assert trees.iterations == 30
+    np.testing.assert_allclose(trees.probabilities(Xq), model.predict_proba(Xq), rtol=0, atol=1e-12)
+    # Cut at an iteration: the staged prediction of that iteration.
+    cut = B.Trees.from_sklearn(model, 7)
+    staged = list(model.staged_predict_proba(Xq))[6]
+    np.testing.assert_allclose(cut.probabilities(Xq), staged, rtol=0, atol=1e-12)
+    # Arrays round trip, and inconsistent ones are refused.
+    again = B.Trees.from_arrays(trees.arrays("m0_"), "m0_")
+    np.testing.assert_array_equal(again.raw(Xq), trees.raw(Xq))
+    broken = trees.arrays()
+    broken["left"] = broken["left"][:-1]
+    with pytest.raises(QzError, match="inconsistent"):
+        B.Trees.from_arrays(broken)
+
+
+def _three_outcome_data(seed=0):
+    arrays, manifest = synthetic_arrays(scenes=60, headings=6, topologies=("nominal", "split_up"),
+                                        kinds=("orthogonal", "diagonal", "turn"), failure_band=0.06, label_noise=0.0, seed=seed)
+    # A rule on the feet and the topology as well: a start with the first foot down a 0.1 m
+    # step is not planned in split_up, whatever the terrain; nominal copes with it.
+    stepped = np.arange(len(arrays["scene"])) % 3 == 0
+    arrays["feet"][stepped, 0, 2] -= 0.1
+    down = stepped & (arrays["topology"] == "split_up")
+    arrays["success"][down], arrays["blc_success"][down] = False, False
+    arrays["direction"] = np.asarray(arrays["direction"])
+    return arrays, manifest, down
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    arrays, manifest, down = _three_outcome_data()
+    result = B.train_boosted(arrays, fingerprint=manifest["fingerprint"], fingerprints=manifest["fingerprints"],
+                             config=B.BoostedConfig(members=3, max_iter=60, learning_rate=0.2))
+    folder = B.save_boosted(result, tmp_path_factory.mktemp("boosted"))
+    return arrays, manifest, down, result, folder
+
+
+def test_learns_three_outcomes_of_a_known_rule(trained):
+    arrays, _, down, result, _ = trained
+    test = result.card["test"]["all"]
+    # Every outcome is ranked well on the held-out scenes, and the probabilities beat the
+    # training frequencies as a constant.
+    for outcome in B.OUTCOMES:
+        assert test[outcome]["auc"] > 0.9, (outcome, test[outcome])
+    assert test["model"]["brier"] < 0.5 * test["base_rate"]["brier"]
+    model = B.BoostedCapabilityModel(result.members, result.card)
+    rows = np.flatnonzero(np.isin(arrays["scene"], result.card["split"]["test"]))
+    X, y = B.record_features(arrays, rows)
+    p = model.outcomes_of_features(X)
+    np.testing.assert_allclose(p.sum(axis=1), 1.0, atol=1e-12)
+    # The foot rule: the same flat patches, split_up's first foot down a step is "no plan".
+    height = arrays["patch"][rows].max(axis=(1, 2)) - arrays["patch"][rows].min(axis=(1, 2))
+    flat = rows[(height < SYNTHETIC_MAX_STEP - 0.02) & (np.arange(len(arrays["scene"])) % 3 != 0)[rows]
+                & (arrays["kind"][rows] == "orthogonal")]
+    assert len(flat) > 10
+    feet = arrays["feet"][flat].copy()
+    stands = model.outcomes(arrays["patch"][flat], feet, "orthogonal", "split_up")
+    feet[:, 0, 2] -= 0.1
+    stepped = model.outcomes(arrays["patch"][flat], feet, "orthogonal", "split_up")
+    assert stands[:, 1].mean() < 0.2 and stepped[:, 1].mean() > 0.8
+    assert model.outcomes(arrays["patch"][flat], feet, "orthogonal", "nominal")[:, 1].mean() < 0.2
+
+
+def test_saved_model_loads_and_answers_as_trained(trained):
+    arrays, manifest, _, result, folder = trained
+    model = CapabilityModel.load(folder, fingerprint=manifest["fingerprint"])
+    assert isinstance(model, B.BoostedCapabilityModel) and isinstance(model, CapabilityModel)
+    assert model.networks == sorted((t, k) for t in ("nominal", "split_up") for k in P.KINDS)
+    rows = np.flatnonzero((arrays["kind"] == "turn") & (arrays["topology"] == "nominal"))[:40]
+    patches, feet = arrays["patch"][rows], arrays["feet"][rows]
+    left = model.success(patches, feet, "turn", "nominal", direction=0)
+    fresh = B.BoostedCapabilityModel(result.members, result.card)
+    np.testing.assert_array_equal(left, fresh.success(patches, feet, "turn", "nominal", direction=0))
+    # success_all: each topology with its own feet, turns as (left, right), the members' spread.
+    both = model.success_all(patches, {"nominal": feet, "split_up": feet}, "turn")
+    (l, r), plan, spread = both["nominal"]
+    np.testing.assert_allclose(l, left)
+    np.testing.assert_allclose(r, model.success(patches, feet, "turn", "nominal", direction=1))
+    assert plan.shape == (2, len(rows)) and np.all(plan >= l - 1e-12)
+    assert spread.shape == (2, len(rows)) and np.all(spread >= 0)
+    # The planner reads the share of failures that were refusals from the cards.
+    share = model.plan_failure_share("nominal", "orthogonal")
+    assert share is not None and 0.0 <= share <= 1.0
+
+
+def test_refuses_tampered_or_foreign_files_and_bad_queries(trained, tmp_path):
+    _, manifest, _, result, folder = trained
+    copy = B.save_boosted(result, tmp_path / "m")
+    with np.load(copy / B.WEIGHTS_FILE) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays["m0_value"] = arrays["m0_value"] + 0.1
+    with open(copy / B.WEIGHTS_FILE, "wb") as f:
+        np.savez_compressed(f, **arrays)
+    with pytest.raises(CapabilityModelError, match="SHA-256"):
+        CapabilityModel.load(copy)
+    card = json.loads((folder / "model.json").read_text())
+    with pytest.raises(CapabilityModelError, match="fingerprint"):
+        CapabilityModel.load(folder, fingerprint="another")
+    model = CapabilityModel.load(folder)
+    patch, feet = np.zeros((2, 20, 20), np.float32), np.zeros((2, 6, 3), np.float32)
+    with pytest.raises(CapabilityModelError, match="tripod"):
+        model.success(patch, feet, "orthogonal", "tripod")
+    with pytest.raises(QzError, match="direction"):
+        model.success(patch, feet, "turn", "nominal")
+    with pytest.raises(QzError, match="feet"):
+        model.success(patch, feet[:1], "orthogonal", "nominal")
+    with pytest.raises(QzError, match="device"):
+        CapabilityModel.load(folder, device="cuda")
+    assert card["learner"] == "boosted" and card["members_count"] == 3
+    with pytest.raises(QzError, match="boosted.members"):
+        B.BoostedConfig(members=0).check()
+
+
+def test_plans_a_capability_map(trained):
+    _, _, _, _, folder = trained
+    from qz_drake.terrain import HeightMap
+
+    model = CapabilityModel.load(folder)
+    heights = np.zeros((60, 60))
+    heights[:, 30:] = 0.25  # a riser the synthetic robot cannot climb
+    terrain = HeightMap(heights, 0.1, origin=(0.0, 0.0))
+    capability = model.map_success(terrain, ["nominal", "split_up"])
+    assert capability.forward.shape[:2] == (2, 8)
+    assert capability.forward_plan is not None and capability.forward_spread is not None
+    xs = capability.xs
+    # Heading 0 (+x) from the cell just before the riser is worse than on the flat far from it.
+    near, far = int(np.argmin(np.abs(xs - 2.5))), int(np.argmin(np.abs(xs - 0.5)))
+    assert capability.forward[0, 0, :, near].mean() < capability.forward[0, 0, :, far].mean() - 0.3
+
+
+def test_cli_trains_a_boosted_model(tmp_path, monkeypatch, capsys):
+    from qz_drake.capability import model_commands
+    from qz_drake.cli import main
+
+    arrays, manifest, _ = _three_outcome_data(seed=1)
+    monkeypatch.setattr(model_commands, "load_dataset", lambda path: (arrays, manifest))
+    out = tmp_path / "model"
+    assert main(["capability", "train", "--dataset", "unused", "--out", str(out), "--learner", "boosted",
+                 "--members", "1", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["learner"] == "boosted" and summary["test"][0]["network"] == "all"
+    assert isinstance(CapabilityModel.load(out), B.BoostedCapabilityModel)
+    assert main(["capability", "train", "--dataset", "unused", "--out", str(out), "--learner", "boosted",
+                 "--members", "0"]) == 2
+    assert "--members" in capsys.readouterr().err
+    assert main(["capability", "train", "--dataset", "unused", "--out", str(out), "--members", "2"]) == 2
