@@ -53,6 +53,8 @@ FEATURE_NAMES = tuple([f"block_{i}_{j}" for i in range(BLOCKS) for j in range(BL
                       + ["direction"] + [f"foot_{leg}_{c}" for leg in range(6) for c in "xyz"])
 # The order of the three outcomes (training.OUTCOMES).
 OUTCOMES = ("walked", "no_plan", "failed")
+# Iterations a learner grows between two looks at its validation loss.
+BOOST_CHUNK = 25
 _ARRAYS = ("feature", "threshold", "left", "right", "leaf", "value", "missing_left")
 
 
@@ -216,8 +218,10 @@ class BoostedConfig:
     # Learners in the ensemble, each on a bootstrap of the training scenes (1: one learner on
     # all of them).
     members: int = 5
-    # Most boosting iterations; the kept count is the one with the lowest validation log loss.
+    # Most boosting iterations; the kept count is the one with the lowest validation log loss,
+    # and growing stops once that loss has not improved for ``patience`` iterations.
     max_iter: int = 400
+    patience: int = 50
     learning_rate: float = 0.05
     max_leaf_nodes: int = 31
     min_samples_leaf: int = 20
@@ -231,7 +235,7 @@ class BoostedConfig:
             raise bad_value("boosted.split", self.split, "expected three fractions >= 0 summing to 1")
         if min(self.split[:2]) <= 0:
             raise bad_value("boosted.split", self.split, "train and validation fractions must be positive")
-        for name in ("members", "max_iter", "max_leaf_nodes", "min_samples_leaf"):
+        for name in ("members", "max_iter", "patience", "max_leaf_nodes", "min_samples_leaf"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise bad_value(f"boosted.{name}", value, "must be a positive whole number")
@@ -266,8 +270,9 @@ def record_features(arrays: dict, rows: np.ndarray, mirror: bool = False) -> tup
 
 
 def _fit_member(X, y, Xv, yv, config: BoostedConfig, seed: int):
-    """One learner: fitted for max_iter iterations, cut at the best validation log loss.
-    Returns (Trees, best iteration, validation log loss)."""
+    """One learner, grown ``BOOST_CHUNK`` iterations at a time until the validation log loss has
+    not improved for ``config.patience`` iterations (or ``max_iter``), then cut at its best
+    iteration. Returns (Trees, best iteration, validation log loss)."""
     from sklearn.ensemble import HistGradientBoostingClassifier
 
     if len(np.unique(y)) < 3:
@@ -275,12 +280,17 @@ def _fit_member(X, y, Xv, yv, config: BoostedConfig, seed: int):
         raise ConfigError(f"dataset: the training records have no {' and no '.join(missing)} outcome; "
                           "the three-outcome model needs all three")
     model = HistGradientBoostingClassifier(
-        loss="log_loss", max_iter=config.max_iter, learning_rate=config.learning_rate,
+        loss="log_loss", max_iter=0, learning_rate=config.learning_rate,
         max_leaf_nodes=config.max_leaf_nodes, min_samples_leaf=config.min_samples_leaf,
-        l2_regularization=config.l2_regularization, early_stopping=False, random_state=seed)
-    model.fit(X, y)
-    losses = [float(-np.mean(np.log(np.clip(p[np.arange(len(yv)), yv], 1e-12, 1.0))))
-              for p in model.staged_predict_proba(Xv)]
+        l2_regularization=config.l2_regularization, early_stopping=False, random_state=seed, warm_start=True)
+    losses: list[float] = []
+    while model.max_iter < config.max_iter:
+        model.max_iter = min(model.max_iter + BOOST_CHUNK, config.max_iter)
+        model.fit(X, y)
+        staged = list(model.staged_predict_proba(Xv))[len(losses):]
+        losses += [float(-np.mean(np.log(np.clip(p[np.arange(len(yv)), yv], 1e-12, 1.0)))) for p in staged]
+        if len(losses) - (int(np.argmin(losses)) + 1) >= config.patience:
+            break
     best = int(np.argmin(losses)) + 1
     return Trees.from_sklearn(model, best), best, losses[best - 1]
 

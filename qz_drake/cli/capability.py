@@ -219,8 +219,10 @@ def _figures(entries: list[dict], out: Path, what: str) -> list[str]:
 def run_train(args) -> int:
     if args.learner == "boosted":
         return run_train_boosted(args)
-    if args.members is not None:
-        raise bad_value("--members", args.members, "only the boosted learner has members (--learner boosted)")
+    for name in ("members", "max_iter"):
+        if getattr(args, name) is not None:
+            raise bad_value(f"--{name.replace('_', '-')}", getattr(args, name),
+                            "only the boosted learner takes it (--learner boosted)")
     from qz_drake.capability import model_commands, training
 
     # Looked up in their modules when the command runs (the tests replace them there).
@@ -277,8 +279,9 @@ def run_train_boosted(args) -> int:
         if getattr(args, name):
             raise bad_value(f"--{name.replace('_', '-')}", getattr(args, name),
                             "the boosted learner trains one ensemble for every network, without epochs")
-    if args.members is not None and args.members < 1:
-        raise bad_value("--members", args.members, "must be a positive whole number")
+    for name in ("members", "max_iter"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            raise bad_value(f"--{name.replace('_', '-')}", getattr(args, name), "must be a positive whole number")
     from qz_drake.capability import model_commands
     from qz_drake.capability.boosted import OUTCOMES, BoostedConfig, save_boosted, train_boosted
 
@@ -286,6 +289,8 @@ def run_train_boosted(args) -> int:
     config = BoostedConfig(seed=args.seed)
     if args.members is not None:
         config.members = args.members
+    if args.max_iter is not None:
+        config.max_iter = args.max_iter
     result = train_boosted(arrays, fingerprint=manifest.get("fingerprint"), fingerprints=manifest.get("fingerprints"),
                            config=config, progress=not args.json)
     out = save_boosted(result, args.out)
@@ -379,6 +384,9 @@ def register_model_commands(subparsers) -> None:
                         "topology and kind (qz_drake.capability.boosted; three outcomes)")
     p.add_argument("--members", type=int, default=None,
                    help="learners in the boosted ensemble (default 5); only with --learner boosted")
+    p.add_argument("--max-iter", type=int, default=None,
+                   help="most boosting iterations of each learner (default 400; each stops sooner when its "
+                        "validation loss stops improving); only with --learner boosted")
     p.set_defaults(func=run_train)
 
     p = subparsers.add_parser("evaluate", help="score a capability model on a trial dataset")

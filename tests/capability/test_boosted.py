@@ -163,7 +163,7 @@ def test_cli_trains_a_boosted_model(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(model_commands, "load_dataset", lambda path: (arrays, manifest))
     out = tmp_path / "model"
     assert main(["capability", "train", "--dataset", "unused", "--out", str(out), "--learner", "boosted",
-                 "--members", "1", "--json"]) == 0
+                 "--members", "1", "--max-iter", "30", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["learner"] == "boosted" and summary["test"][0]["network"] == "all"
     assert isinstance(CapabilityModel.load(out), B.BoostedCapabilityModel)
@@ -171,3 +171,4 @@ def test_cli_trains_a_boosted_model(tmp_path, monkeypatch, capsys):
                  "--members", "0"]) == 2
     assert "--members" in capsys.readouterr().err
     assert main(["capability", "train", "--dataset", "unused", "--out", str(out), "--members", "2"]) == 2
+    assert "only the boosted learner" in capsys.readouterr().err
