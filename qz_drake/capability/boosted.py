@@ -58,7 +58,7 @@ BOOST_CHUNK = 25
 _ARRAYS = ("feature", "threshold", "left", "right", "leaf", "value", "missing_left")
 
 
-def features(patches, feet, kind, topology, direction=None) -> np.ndarray:
+def features(patches, feet, kind, topology, direction=None, *, patch_part=None) -> np.ndarray:
     """(n, len(FEATURE_NAMES)) float64 inputs of n queries.
 
     Args:
@@ -66,17 +66,15 @@ def features(patches, feet, kind, topology, direction=None) -> np.ndarray:
         feet: (n, 6, 3) start feet in the heading frame [m].
         kind, topology: one name for every query, or (n,) arrays of names.
         direction: turns' d (0 left, 1 right), scalar or (n,); None or -1 for moves (0 here).
+        patch_part: :func:`patch_features` of the patches, when the caller has them already
+            (the same patches asked for several topologies).
     """
-    patches = np.asarray(patches, dtype=np.float64)
+    patches = np.asarray(patches)
     n = patches.shape[0]
-    if patches.shape[1:] != (P.PATCH_SIZE, P.PATCH_SIZE):
-        raise bad_value("patches", f"array of shape {patches.shape}", f"expected (n, {P.PATCH_SIZE}, {P.PATCH_SIZE})")
+    part = patch_features(patches) if patch_part is None else patch_part
     feet = np.asarray(feet, dtype=np.float64)
     if feet.shape != (n, 6, 3):
         raise bad_value("feet", f"array of shape {feet.shape}", f"expected ({n}, 6, 3) to match the patches")
-    side = P.PATCH_SIZE // BLOCKS
-    blocks = patches.reshape(n, BLOCKS, side, BLOCKS, side).mean(axis=(2, 4)).reshape(n, -1)
-    top, bottom = patches.max(axis=(1, 2)), patches.min(axis=(1, 2))
     kind = np.broadcast_to(np.asarray(kind).astype(str), (n,))
     topology = np.broadcast_to(np.asarray(topology).astype(str), (n,))
     for name, values, allowed in (("kind", kind, P.KINDS), ("topology", topology, TOPOLOGY_NAMES)):
@@ -84,10 +82,21 @@ def features(patches, feet, kind, topology, direction=None) -> np.ndarray:
         if unknown:
             raise bad_value(name, unknown, f"expected one of {', '.join(allowed)}")
     d = np.zeros(n) if direction is None else np.maximum(np.broadcast_to(np.asarray(direction, float), (n,)), 0.0)
-    return np.column_stack([blocks, top - bottom, top, bottom, patches.std(axis=(1, 2)),
-                            kind[:, None] == np.asarray(P.KINDS)[None],
+    return np.column_stack([part, kind[:, None] == np.asarray(P.KINDS)[None],
                             topology[:, None] == np.asarray(TOPOLOGY_NAMES)[None],
                             d, feet.reshape(n, 18)]).astype(np.float64)
+
+
+def patch_features(patches) -> np.ndarray:
+    """(n, 20) the patch's columns of :func:`features`: 4 x 4 block means, range, max, min, std."""
+    patches = np.asarray(patches, dtype=np.float64)
+    n = patches.shape[0]
+    if patches.shape[1:] != (P.PATCH_SIZE, P.PATCH_SIZE):
+        raise bad_value("patches", f"array of shape {patches.shape}", f"expected (n, {P.PATCH_SIZE}, {P.PATCH_SIZE})")
+    side = P.PATCH_SIZE // BLOCKS
+    blocks = patches.reshape(n, BLOCKS, side, BLOCKS, side).mean(axis=(2, 4)).reshape(n, -1)
+    top, bottom = patches.max(axis=(1, 2)), patches.min(axis=(1, 2))
+    return np.column_stack([blocks, top - bottom, top, bottom, patches.std(axis=(1, 2))])
 
 
 # -- the trees as arrays -------------------------------------------------------------------------
@@ -512,13 +521,15 @@ class BoostedCapabilityModel(_model_base()):
         flat = patches.reshape(n, P.PATCH_SIZE, P.PATCH_SIZE)
         directions = (P.TURN_LEFT, P.TURN_RIGHT) if kind == "turn" else (None,)
         shape = (len(directions),) + batch if kind == "turn" else batch
+        part = patch_features(flat)  # the same patches for every topology
         result = {}
         for t, f in feet.items():
             self.network(t, kind)
             f = np.asarray(f, dtype=np.float32)
             if f.shape != batch + (6, 3):
                 raise _error(f"feet[{t}]", f"array of shape {f.shape}", f"expected {batch + (6, 3)} to match the patches")
-            per = [self.member_outcomes(features(flat, f.reshape(n, 6, 3), kind, t, d)) for d in directions]
+            per = [self.member_outcomes(features(flat, f.reshape(n, 6, 3), kind, t, d, patch_part=part))
+                   for d in directions]
             probs = np.stack(per, axis=1)  # (members, directions, n, 3)
             walked = probs[..., 0]
             success = walked.mean(axis=0).reshape(shape)
