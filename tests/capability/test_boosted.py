@@ -57,7 +57,7 @@ def _three_outcome_data(seed=0):
 def trained(tmp_path_factory):
     arrays, manifest, down = _three_outcome_data()
     result = B.train_boosted(arrays, fingerprint=manifest["fingerprint"], fingerprints=manifest["fingerprints"],
-                             config=B.BoostedConfig(members=3, max_iter=60, learning_rate=0.2))
+                             config=B.BoostedConfig(members=2, max_iter=40, learning_rate=0.25))
     folder = B.save_boosted(result, tmp_path_factory.mktemp("boosted"))
     return arrays, manifest, down, result, folder
 
@@ -133,7 +133,7 @@ def test_refuses_tampered_or_foreign_files_and_bad_queries(trained, tmp_path):
         model.success(patch, feet[:1], "orthogonal", "nominal")
     with pytest.raises(QzError, match="device"):
         CapabilityModel.load(folder, device="cuda")
-    assert card["learner"] == "boosted" and card["members_count"] == 3
+    assert card["learner"] == "boosted" and card["members_count"] == 2
     with pytest.raises(QzError, match="boosted.members"):
         B.BoostedConfig(members=0).check()
 
