@@ -40,6 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from qz_drake.capability import patches as P
+from qz_drake.capability.model_base import (FORMAT_VERSION, MODEL_CARD, MODEL_FORMAT, CapabilityModelBase, _error,
+                                            _replace, _sha256, check_direction, check_patches, distinct_rows)
 from qz_drake.errors import ConfigError, bad_value
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 
@@ -411,16 +413,10 @@ def test_scores(model, arrays: dict, rows: dict, bins: int = 10) -> dict:
 
 
 # -- the model -----------------------------------------------------------------------------------
-def _model_base():
-    from qz_drake.capability.model import CapabilityModel
-
-    return CapabilityModel
-
-
-class BoostedCapabilityModel(_model_base()):
+class BoostedCapabilityModel(CapabilityModelBase):
     """The capability of every topology and kind from one boosted ensemble; answers what
     CapabilityModel answers (``success``, ``success_all``, ``map_success``,
-    ``plan_failure_share``, ``outcomes``), and loads from a folder whose ``model.json`` says
+    ``plan_failure_share``; and ``outcomes``), and loads from a folder whose ``model.json`` says
     ``"learner": "boosted"`` (CapabilityModel.load dispatches here)."""
 
     def __init__(self, members: list, card: dict, device: str | None = None):
@@ -443,8 +439,6 @@ class BoostedCapabilityModel(_model_base()):
 
     @classmethod
     def load_folder(cls, folder: Path, top: dict, device: str | None = None) -> "BoostedCapabilityModel":
-        from qz_drake.capability.model import _error, _sha256
-
         weights = folder / top.get("weights", WEIGHTS_FILE)
         if not weights.is_file():
             raise _error("model.weights", str(weights), "missing")
@@ -470,7 +464,6 @@ class BoostedCapabilityModel(_model_base()):
 
     def network(self, topology: str, kind: str):
         """(topology, kind) if the model covers it; the model's error naming it otherwise."""
-        from qz_drake.capability.model import _error
 
         P.check_kind(kind)
         if (topology, kind) not in self._networks:
@@ -481,7 +474,6 @@ class BoostedCapabilityModel(_model_base()):
     def member_outcomes(self, X: np.ndarray) -> np.ndarray:
         """(members, n, 3) outcome probabilities of every learner; each distinct row of X is
         evaluated once (a map's flat ground repeats one query from cell to cell)."""
-        from qz_drake.capability.model import distinct_rows
 
         first, inverse = distinct_rows(np.asarray(X, dtype=np.float64))
         unique = np.ascontiguousarray(np.asarray(X, dtype=np.float64)[first])
@@ -493,7 +485,6 @@ class BoostedCapabilityModel(_model_base()):
     def outcomes(self, patches, feet, kind: str, topology: str, direction=None) -> np.ndarray:
         """(..., 3) P(walked), P(no plan), P(executed and failed) of queries shaped as for
         ``success``."""
-        from qz_drake.capability.model import _error, check_direction, check_patches
 
         self.network(topology, kind)
         patches, batch = check_patches(patches)
@@ -513,7 +504,6 @@ class BoostedCapabilityModel(_model_base()):
     def success_all(self, patches, feet: dict, kind: str) -> dict:
         """topology -> (success, plan, spread) as CapabilityModel.success_all: every topology
         on the same patches with its own feet; turns (2, ...) left, right."""
-        from qz_drake.capability.model import _error, check_patches
 
         P.check_kind(kind)
         patches, batch = check_patches(patches)
@@ -542,7 +532,6 @@ class BoostedCapabilityModel(_model_base()):
 def save_boosted(result: BoostedTrainingResult, out_dir) -> Path:
     """Writes ``boosted.npz`` (the learners' arrays, no pickle) and ``model.json`` (the card,
     with the weights' SHA-256); returns the folder."""
-    from qz_drake.capability.model import FORMAT_VERSION, MODEL_CARD, MODEL_FORMAT, _replace, _sha256
 
     folder = Path(out_dir)
     folder.mkdir(parents=True, exist_ok=True)

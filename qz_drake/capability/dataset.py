@@ -48,7 +48,8 @@ FINGERPRINT_ROOTS = ("qz_drake.capability.trials", "qz_drake.capability.episodes
 UNFINGERPRINTED = ("qz_drake.viz", "qz_drake.cli", "qz_drake.bench", "qz_drake.hardware",
                    "qz_drake.planning",
                    "qz_drake.capability.collect", "qz_drake.capability.stats",
-                   "qz_drake.capability.model", "qz_drake.capability.model_commands",
+                   "qz_drake.capability.model", "qz_drake.capability.model_base",
+                   "qz_drake.capability.boosted", "qz_drake.capability.model_commands",
                    "qz_drake.capability.networks", "qz_drake.capability.training",
                    "qz_drake.capability.evaluation", "qz_drake.capability.plots",
                    "qz_drake.capability.dataset")
