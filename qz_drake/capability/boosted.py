@@ -317,7 +317,7 @@ def train_boosted(arrays: dict, *, fingerprint: str, fingerprints: dict | None =
     """Trains the boosted capability model on a dataset's arrays (one row per executed trial;
     topology switches are left out, as for the networks) and scores it on the test scenes."""
     from qz_drake.capability.dataset import check_arrays
-    from qz_drake.capability.training import split_scenes
+    from qz_drake.capability.training import ENSEMBLE_SEED_STEP, split_scenes
     from qz_drake.progress import ProgressReport
 
     config = (config or BoostedConfig()).check()
@@ -342,7 +342,7 @@ def train_boosted(arrays: dict, *, fingerprint: str, fingerprints: dict | None =
                 by_scene = {s: np.flatnonzero(scene == s) for s in np.unique(drawn)}
                 train_rows = np.concatenate([by_scene[s] for s in drawn])
             X, y = record_features(arrays, train_rows, mirror=config.mirror)
-            trees, best, loss = _fit_member(X, y, Xv, yv, config, config.seed + 7919 * m)
+            trees, best, loss = _fit_member(X, y, Xv, yv, config, config.seed + ENSEMBLE_SEED_STEP * m)
             members.append(trees)
             info.append({"iterations": best, "validation_log_loss": loss, "train_rows": int(len(y))})
             report.update(advance=1, status=f"learner {m + 1}: {best} iterations")
@@ -417,7 +417,8 @@ class BoostedCapabilityModel(CapabilityModelBase):
     """The capability of every topology and kind from one boosted ensemble; answers what
     CapabilityModel answers (``success``, ``success_all``, ``map_success``,
     ``plan_failure_share``; and ``outcomes``), and loads from a folder whose ``model.json`` says
-    ``"learner": "boosted"`` (CapabilityModel.load dispatches here)."""
+    ``"learner": "boosted"`` (CapabilityModel.load dispatches here). It runs on the CPU (no
+    torch): ``QZ_TORCH_DEVICE`` does not apply, and an explicit other device is refused."""
 
     def __init__(self, members: list, card: dict, device: str | None = None):
         if not members:
@@ -451,7 +452,7 @@ class BoostedCapabilityModel(CapabilityModelBase):
             members = [Trees.from_arrays(data, f"m{m}_") for m in range(count)]
         if list(top.get("features", [])) != list(FEATURE_NAMES):
             raise _error("model.features", top.get("features"), "this code computes other features")
-        return cls(members, top, device=None if device in (None, "cpu") else device)
+        return cls(members, top, device=device)
 
     @property
     def identity(self) -> str:
@@ -464,7 +465,6 @@ class BoostedCapabilityModel(CapabilityModelBase):
 
     def network(self, topology: str, kind: str):
         """(topology, kind) if the model covers it; the model's error naming it otherwise."""
-
         P.check_kind(kind)
         if (topology, kind) not in self._networks:
             raise _error("model.networks", f"{topology}/{kind}", "this model has no data for it")
