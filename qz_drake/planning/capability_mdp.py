@@ -108,6 +108,15 @@ class CapabilityMdpConfig:
     # probability taken from success goes to the failure state. A topology the networks are
     # unsure of is then chosen only where its gain exceeds that doubt. 0: the mean alone.
     pessimism: float = 1.0
+    # Doubt about a topology change (issue 37): an action of another topology than nominal is
+    # planned with nominal's (pessimistic) success of the same action plus only the part of its
+    # advantage that exceeds pessimism * sqrt(s_t^2 + s_nominal^2), the ensemble's doubt about
+    # the difference (members' errors taken as independent: more doubt than correlated ones);
+    # a disadvantage counts in full. Without it each topology is doubted by its own spread
+    # alone, and where nominal's spread is the larger the doubt itself favoured a switch (the
+    # boosted model on medium validation worlds: switches for 0.01 a move; BENCHMARKS "fig9").
+    # Needs a map with spreads and nominal among the topologies; else it does nothing.
+    topology_doubt: bool = False
     # Cost of a planning failure: the robot stood while the BLC searched, and the TLC replans;
     # about one action's time.
     plan_failure_cost: float = 1.0
@@ -184,6 +193,8 @@ class CapabilityMdpConfig:
                             "(the model's measured shares)")
         if not (np.isfinite(self.plan_failure_risk) and 0.0 <= self.plan_failure_risk <= 1.0):
             raise bad_value("capability_mdp.plan_failure_risk", self.plan_failure_risk, "must be in [0, 1]")
+        if not isinstance(self.topology_doubt, bool):
+            raise bad_value("capability_mdp.topology_doubt", self.topology_doubt, "expected true or false")
         if not (0.0 < self.discount < 1.0):
             raise bad_value("capability_mdp.discount", self.discount, "must be in (0, 1)")
         for t in self.topologies:
@@ -350,6 +361,7 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
     mdp.plan_failure_source = ("config" if config.plan_failure_share is not None else
                                "model, per state" if getattr(capability_map, "forward_plan", None) is not None
                                else "model cards' shares")
+    reference = _reference_motions(capability_map, config, topologies, k, iy, ix)
     for t in range(T):
         # Grid state of the same cell and heading in topology t (the action's).
         same = np.ravel_multi_index((np.full(grid, t), k, iy, ix), (T, K, ny, nx))
@@ -370,7 +382,14 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
         for m, (p, nxt) in enumerate(motions):
             a = 3 * t + m
             if spreads is not None and config.pessimism > 0:
-                p = np.asarray(p, dtype=float) - config.pessimism * spreads[m]
+                doubted = np.asarray(p, dtype=float) - config.pessimism * spreads[m]
+                if reference is not None and topologies[t] != REFERENCE_TOPOLOGY:
+                    p_ref, s_ref = reference[m]
+                    base = p_ref - config.pessimism * s_ref
+                    gain = np.asarray(p, dtype=float) - p_ref
+                    doubt = config.pessimism * np.sqrt(spreads[m] ** 2 + s_ref ** 2)
+                    doubted = np.where(gain > 0.0, base + np.maximum(gain - doubt, 0.0), np.minimum(doubted, base))
+                p = doubted
             p = np.clip(np.asarray(p, dtype=float), 0.0, 1.0)
             # What the BLC could not plan leaves the robot standing; a forward move off the grid
             # and a refused topology change are not the BLC's and fail outright.
@@ -392,6 +411,27 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
             R[:grid, a] = np.where(at_goal, 0.0, reward)
     mdp.R, mdp.success, mdp.next_state, mdp.stand = R, success, next_state, stand
     return mdp
+
+
+# The topology a change must be clearly better than (CapabilityMdpConfig.topology_doubt).
+REFERENCE_TOPOLOGY = "nominal"
+
+
+def _reference_motions(capability_map, config: CapabilityMdpConfig, topologies, k, iy, ix):
+    """((p, spread) of forward, turn left, turn right) of the reference topology per grid
+    state, for ``topology_doubt``; None when it does not apply."""
+    if not config.topology_doubt or config.pessimism <= 0 or REFERENCE_TOPOLOGY not in topologies:
+        return None
+    r = topologies.index(REFERENCE_TOPOLOGY)
+    spreads = _spreads(capability_map, r, k, iy, ix)
+    if spreads is None:
+        return None
+    fx, fy = ix + HEADING_STEPS[k, 0], iy + HEADING_STEPS[k, 1]
+    ny, nx = capability_map.forward.shape[2:]
+    on_grid = (fx >= 0) & (fx < nx) & (fy >= 0) & (fy < ny)
+    p = (capability_map.forward[r, k, iy, ix] * on_grid, capability_map.turn_left[r, k, iy, ix],
+         capability_map.turn_right[r, k, iy, ix])
+    return tuple((np.asarray(pm, dtype=float), sm) for pm, sm in zip(p, spreads))
 
 
 def _plan_probabilities(capability_map, config: CapabilityMdpConfig, t: int, k, iy, ix):

@@ -445,3 +445,36 @@ def test_an_ensembles_disagreement_stops_a_switch_that_gains_less():
     assert route(np.where(spread > 0, 0.01, 0.0)).topology_changes == 1
     with pytest.raises(QzError, match=r"capability_mdp.pessimism"):
         route(spread, pessimism=-1.0)
+
+
+def test_topology_doubt_weighs_a_switch_by_the_doubt_about_the_difference():
+    """split_up 0.955 per move against nominal's 0.94, nominal's members spread 0.02 and
+    split_up's 0.003: doubting each topology by its own spread makes split_up look 0.032 better
+    and the robot changes; with ``topology_doubt`` the 0.015 gain is within the doubt about the
+    difference (sqrt(0.02^2 + 0.003^2) = 0.020) and it stays nominal. A gain of 0.05 exceeds it
+    and it changes; a topology that is worse is not made better by its smaller spread."""
+    from qz_drake.capability.model import CapabilityMap
+
+    nx, ny = 12, 3
+    shape = (2, 8, ny, nx)
+    turn = np.full(shape, 0.99)
+    spread = np.zeros(shape)
+    spread[0], spread[1] = 0.02, 0.003
+
+    def route(other, **config):
+        forward = np.empty(shape)
+        forward[0], forward[1] = 0.94, other
+        capability_map = CapabilityMap(xs=0.5 + np.arange(nx), ys=0.5 + np.arange(ny),
+                                       topologies=("nominal", "split_up"), forward=forward, turn_left=turn,
+                                       turn_right=turn.copy(), forward_spread=spread, turn_left_spread=spread,
+                                       turn_right_spread=spread)
+        return plan_on_map(capability_map, (0.5, 1.5), 0, (11.5, 1.5),
+                           config=CapabilityMdpConfig(topology_change_cost=0.5, **config))
+
+    assert route(0.955).topology_changes == 1
+    stays = route(0.955, topology_doubt=True)
+    assert stays.reaches_goal and stays.topology_changes == 0
+    assert route(0.99, topology_doubt=True).topology_changes == 1
+    assert route(0.93, topology_doubt=True).topology_changes == 0
+    with pytest.raises(QzError, match=r"capability_mdp.topology_doubt"):
+        route(0.955, topology_doubt="yes")
