@@ -416,28 +416,35 @@ def test_a_greedy_policy_is_valued_exactly_along_its_chains_and_cycles():
     assert np.all(values[grid:] == 0.0)
 
 
-def test_an_ensembles_disagreement_stops_a_switch_that_gains_less():
-    """Two topologies on open ground: split_up's networks say 0.97 per move against nominal's
-    0.93, but its ensemble's members disagree by 0.08. With the members' mean alone the robot
-    changes to split_up; planned pessimistically (p - spread) it stays nominal, and where the
-    members agree (spread 0.01) the gain exceeds the doubt and it changes again."""
+def _open_ground_route(nominal: float, split_up: float, spread, **config):
+    """The plan across 12 x 3 cells of open ground in two topologies whose forward moves succeed
+    with ``nominal`` and ``split_up`` (turns 0.99), every action's ensemble spread ``spread``
+    (2, 8, 3, 12), a topology change costing 0.5."""
     from qz_drake.capability.model import CapabilityMap
 
     nx, ny = 12, 3
     shape = (2, 8, ny, nx)
     forward = np.empty(shape)
-    forward[0], forward[1] = 0.93, 0.97
+    forward[0], forward[1] = nominal, split_up
     turn = np.full(shape, 0.99)
-    spread = np.zeros(shape)
+    capability_map = CapabilityMap(xs=0.5 + np.arange(nx), ys=0.5 + np.arange(ny),
+                                   topologies=("nominal", "split_up"), forward=forward, turn_left=turn,
+                                   turn_right=turn.copy(), forward_spread=spread, turn_left_spread=spread,
+                                   turn_right_spread=spread)
+    return plan_on_map(capability_map, (0.5, 1.5), 0, (11.5, 1.5),
+                       config=CapabilityMdpConfig(topology_change_cost=0.5, **config))
+
+
+def test_an_ensembles_disagreement_stops_a_switch_that_gains_less():
+    """Two topologies on open ground: split_up's networks say 0.97 per move against nominal's
+    0.93, but its ensemble's members disagree by 0.08. With the members' mean alone the robot
+    changes to split_up; planned pessimistically (p - spread) it stays nominal, and where the
+    members agree (spread 0.01) the gain exceeds the doubt and it changes again."""
+    spread = np.zeros((2, 8, 3, 12))
     spread[1] = 0.08
 
     def route(spread, **config):
-        capability_map = CapabilityMap(xs=0.5 + np.arange(nx), ys=0.5 + np.arange(ny),
-                                       topologies=("nominal", "split_up"), forward=forward, turn_left=turn,
-                                       turn_right=turn.copy(), forward_spread=spread, turn_left_spread=spread,
-                                       turn_right_spread=spread)
-        return plan_on_map(capability_map, (0.5, 1.5), 0, (11.5, 1.5),
-                           config=CapabilityMdpConfig(topology_change_cost=0.5, **config))
+        return _open_ground_route(0.93, 0.97, spread, **config)
 
     assert route(spread, pessimism=0.0).topology_changes == 1
     doubtful = route(spread)
@@ -453,23 +460,11 @@ def test_topology_doubt_weighs_a_switch_by_the_doubt_about_the_difference():
     and the robot changes; with ``topology_doubt`` the 0.015 gain is within the doubt about the
     difference (sqrt(0.02^2 + 0.003^2) = 0.020) and it stays nominal. A gain of 0.05 exceeds it
     and it changes; a topology that is worse is not made better by its smaller spread."""
-    from qz_drake.capability.model import CapabilityMap
-
-    nx, ny = 12, 3
-    shape = (2, 8, ny, nx)
-    turn = np.full(shape, 0.99)
-    spread = np.zeros(shape)
+    spread = np.zeros((2, 8, 3, 12))
     spread[0], spread[1] = 0.02, 0.003
 
     def route(other, **config):
-        forward = np.empty(shape)
-        forward[0], forward[1] = 0.94, other
-        capability_map = CapabilityMap(xs=0.5 + np.arange(nx), ys=0.5 + np.arange(ny),
-                                       topologies=("nominal", "split_up"), forward=forward, turn_left=turn,
-                                       turn_right=turn.copy(), forward_spread=spread, turn_left_spread=spread,
-                                       turn_right_spread=spread)
-        return plan_on_map(capability_map, (0.5, 1.5), 0, (11.5, 1.5),
-                           config=CapabilityMdpConfig(topology_change_cost=0.5, **config))
+        return _open_ground_route(0.94, other, spread, **config)
 
     assert route(0.955).topology_changes == 1
     stays = route(0.955, topology_doubt=True)
