@@ -293,6 +293,11 @@ class CapabilityMdp:
         return (int(np.clip(np.floor(fx), 0, len(self.xs) - 1)), int(np.clip(np.floor(fy), 0, len(self.ys) - 1)))
 
 
+# How far the robot's feet reach from its body centre: the farthest nominal foothold (split_up,
+# 0.83 m) and the foot. A robot in a cell closer to the heightmap's edge stands with feet off the
+# terrain: two CapPlanner walks on simple validation worlds walked along the row of cells 0.5 m
+# from the world's edge and fell off it (issue 38). [m]
+MAP_EDGE_REACH = 0.9
 # The ground a topology switch needs level: Qingzhui's trunk half-diagonal. [m]
 SWITCH_RADIUS = 0.7
 # The ground its legs sweep: the farthest nominal foothold (split_up, 0.83 m) and the foot's
@@ -335,11 +340,22 @@ def switchable_cells(heightmap, xs, ys, config: CapabilityMdpConfig | None = Non
             & (step <= config.switch_max_step))
 
 
+def cells_on_map(heightmap, xs, ys) -> np.ndarray:
+    """(ny, nx) True where a robot at the cell centre (xs, ys) has all its feet on the heightmap:
+    the centre at least MAP_EDGE_REACH inside the map's edges."""
+    xmin, xmax, ymin, ymax = heightmap.bounds
+    X, Y = np.meshgrid(np.asarray(xs, dtype=float), np.asarray(ys, dtype=float))
+    return ((X - MAP_EDGE_REACH >= xmin) & (X + MAP_EDGE_REACH <= xmax)
+            & (Y - MAP_EDGE_REACH >= ymin) & (Y + MAP_EDGE_REACH <= ymax))
+
+
 def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | None = None,
-                         switchable: np.ndarray | None = None) -> CapabilityMdp:
+                         switchable: np.ndarray | None = None, on_map: np.ndarray | None = None) -> CapabilityMdp:
     """The MDP of a CapabilityMap (qz_drake.capability.model.predict_map) and a goal position;
     ``switchable`` (ny, nx): where a topology change can succeed (:func:`switchable_cells`;
-    None: everywhere)."""
+    None: everywhere); ``on_map`` (ny, nx): the cells a robot may stand in (:func:`cells_on_map`;
+    None: all): a move into another fails, as a move off the grid does (the goal's cell is
+    always allowed)."""
     T, K, ny, nx = capability_map.forward.shape
     config = (config or CapabilityMdpConfig()).check().for_grid(nx, ny)
     topologies = tuple(capability_map.topologies)
@@ -353,6 +369,10 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
     goal, failure = grid, grid + 1
     t0, k, iy, ix = np.unravel_index(np.arange(grid), (T, K, ny, nx))
     at_goal = (ix == mdp.goal_cell[0]) & (iy == mdp.goal_cell[1])
+    allowed = np.ones((ny, nx), dtype=bool) if on_map is None else np.array(on_map, dtype=bool)
+    if allowed.shape != (ny, nx):
+        raise bad_value("on_map", f"array of shape {allowed.shape}", f"expected ({ny}, {nx}), the map's cells")
+    allowed[mdp.goal_cell[1], mdp.goal_cell[0]] = True
     success = np.zeros((A, S))
     stand = np.zeros((A, S))
     next_state = np.tile(np.arange(S), (A, 1))
@@ -361,12 +381,11 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
     mdp.plan_failure_source = ("config" if config.plan_failure_share is not None else
                                "model, per state" if getattr(capability_map, "forward_plan", None) is not None
                                else "model cards' shares")
-    reference = _reference_motions(capability_map, config, topologies, k, iy, ix)
+    reference = _reference_motions(capability_map, config, topologies, k, iy, ix, allowed)
     for t in range(T):
         # Grid state of the same cell and heading in topology t (the action's).
         same = np.ravel_multi_index((np.full(grid, t), k, iy, ix), (T, K, ny, nx))
-        fx, fy = ix + HEADING_STEPS[k, 0], iy + HEADING_STEPS[k, 1]
-        on_grid = (fx >= 0) & (fx < nx) & (fy >= 0) & (fy < ny)
+        on_grid, fx, fy = _forward_cell(k, iy, ix, allowed)
         forward_next = np.where(on_grid, np.ravel_multi_index((np.full(grid, t), k, np.clip(fy, 0, ny - 1),
                                                                np.clip(fx, 0, nx - 1)), (T, K, ny, nx)), failure)
         forward_goal = on_grid & (fx == mdp.goal_cell[0]) & (fy == mdp.goal_cell[1])
@@ -417,7 +436,16 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
 REFERENCE_TOPOLOGY = "nominal"
 
 
-def _reference_motions(capability_map, config: CapabilityMdpConfig, topologies, k, iy, ix):
+def _forward_cell(k, iy, ix, allowed):
+    """(whether a forward move from each grid state lands in an allowed cell of the grid, the
+    cell's ix, iy)."""
+    ny, nx = allowed.shape
+    fx, fy = ix + HEADING_STEPS[k, 0], iy + HEADING_STEPS[k, 1]
+    on_grid = (fx >= 0) & (fx < nx) & (fy >= 0) & (fy < ny)
+    return on_grid & allowed[np.clip(fy, 0, ny - 1), np.clip(fx, 0, nx - 1)], fx, fy
+
+
+def _reference_motions(capability_map, config: CapabilityMdpConfig, topologies, k, iy, ix, allowed):
     """((p, spread) of forward, turn left, turn right) of the reference topology per grid
     state, for ``topology_doubt``; None when it does not apply."""
     if not config.topology_doubt or config.pessimism <= 0 or REFERENCE_TOPOLOGY not in topologies:
@@ -426,9 +454,7 @@ def _reference_motions(capability_map, config: CapabilityMdpConfig, topologies, 
     spreads = _spreads(capability_map, r, k, iy, ix)
     if spreads is None:
         return None
-    fx, fy = ix + HEADING_STEPS[k, 0], iy + HEADING_STEPS[k, 1]
-    ny, nx = capability_map.forward.shape[2:]
-    on_grid = (fx >= 0) & (fx < nx) & (fy >= 0) & (fy < ny)
+    on_grid, _, _ = _forward_cell(k, iy, ix, allowed)
     p = (capability_map.forward[r, k, iy, ix] * on_grid, capability_map.turn_left[r, k, iy, ix],
          capability_map.turn_right[r, k, iy, ix])
     return tuple((np.asarray(pm, dtype=float), sm) for pm, sm in zip(p, spreads))
@@ -826,10 +852,11 @@ def _compile_kernels():
 
 
 def plan_on_map(capability_map, start_xy, start_heading: int, goal_xy, *, start_topology: str = "nominal",
-                config: CapabilityMdpConfig | None = None, switchable: np.ndarray | None = None) -> CapabilityPlan:
+                config: CapabilityMdpConfig | None = None, switchable: np.ndarray | None = None,
+                on_map: np.ndarray | None = None) -> CapabilityPlan:
     """Builds the MDP of a CapabilityMap, solves it by value iteration and extracts the most
     likely path from the start (x, y, heading index, topology) to the goal."""
-    mdp = build_capability_mdp(capability_map, goal_xy, config, switchable)
+    mdp = build_capability_mdp(capability_map, goal_xy, config, switchable, on_map)
     if start_topology not in mdp.topologies:
         raise bad_value("start_topology", start_topology, f"expected one of {', '.join(mdp.topologies)}")
     ix, iy = mdp.cell_of(*start_xy, field="start")
@@ -851,4 +878,5 @@ def plan(model, heightmap, start_xy, start_heading: int, goal_xy, *, start_topol
                                  anchor=start_xy)
     return plan_on_map(capability_map, start_xy, start_heading, goal_xy, start_topology=start_topology,
                        config=config, switchable=switchable_cells(heightmap, capability_map.xs,
-                                                                  capability_map.ys, config))
+                                                                  capability_map.ys, config),
+                       on_map=cells_on_map(heightmap, capability_map.xs, capability_map.ys))

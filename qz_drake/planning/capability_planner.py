@@ -104,8 +104,8 @@ class CapabilityVIPlanner(RecoveringSequencer):
                  plan_ahead: float = 0.0, check_period: float = 0.05, max_recoveries: int = 4):
         super().__init__(log=CapabilityPlannerLog(), max_recoveries=max_recoveries, plan_ahead=plan_ahead)
         from qz_drake.capability.model import predict_map
-        from qz_drake.planning.capability_mdp import (CapabilityMdpConfig, build_capability_mdp, solve_capability_mdp,
-                                                      switchable_cells)
+        from qz_drake.planning.capability_mdp import (CapabilityMdpConfig, build_capability_mdp, cells_on_map,
+                                                      solve_capability_mdp, switchable_cells)
 
         # The plan from the start (a CapabilityPlan, for drawing: capability.plots.plot_plan).
         self.first_plan = None
@@ -116,9 +116,9 @@ class CapabilityVIPlanner(RecoveringSequencer):
         # The grid is anchored on the start: the robot starts at a cell centre.
         self.capability_map = predict_map(model, heightmap, config.topologies or None, cell_size=config.cell_size,
                                           anchor=start[:2])
-        self.mdp = build_capability_mdp(self.capability_map, goal, config,
-                                        switchable_cells(heightmap, self.capability_map.xs,
-                                                         self.capability_map.ys, config))
+        xs, ys = self.capability_map.xs, self.capability_map.ys
+        self.mdp = build_capability_mdp(self.capability_map, goal, config, switchable_cells(heightmap, xs, ys, config),
+                                        cells_on_map(heightmap, xs, ys))
         self.solution = solve_capability_mdp(self.mdp)
         self.log.planning_time_s = time.perf_counter() - clock
         self.log.value_iterations = int(self.solution.iterations)

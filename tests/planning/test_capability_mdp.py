@@ -473,3 +473,20 @@ def test_topology_doubt_weighs_a_switch_by_the_doubt_about_the_difference():
     assert route(0.93, topology_doubt=True).topology_changes == 0
     with pytest.raises(QzError, match=r"capability_mdp.topology_doubt"):
         route(0.955, topology_doubt="yes")
+
+
+def test_the_plan_keeps_the_feet_on_the_map():
+    """A flat 10 m x 5 m world, start and goal in the row of cells 0.5 m from its lower edge:
+    Qingzhui's feet reach 0.83 m from its centre, so that row would walk them off the world (two
+    validation walks did). The plan goes along the row inside, back to the goal's cell at the
+    end; every cell it passes but the goal's is MAP_EDGE_REACH inside the edges."""
+    from qz_drake.planning.capability_mdp import MAP_EDGE_REACH, cells_on_map, plan
+    from qz_drake.terrain import HeightMap
+
+    heightmap = HeightMap(np.zeros((100, 200)), 0.05, origin=(0.0, 0.0))  # x 0-9.95, y 0-4.95
+    result = plan(FlatStub(), heightmap, (1.5, 0.5), 0, (8.5, 0.5), config=CapabilityMdpConfig(topologies=["nominal"]))
+    assert result.reaches_goal
+    inside = cells_on_map(heightmap, result.mdp.xs, result.mdp.ys)
+    visited = result.cells[1:-1]
+    assert len(visited) and all(y - MAP_EDGE_REACH >= 0.0 for _, y in visited)
+    assert not inside[0].any() and inside[1, 1:-1].all()
