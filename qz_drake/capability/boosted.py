@@ -31,7 +31,6 @@ scikit-learn's ``predict_proba``. Loading needs numpy and numba only.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import math
 import time
@@ -378,7 +377,7 @@ def test_scores(model, arrays: dict, rows: dict, bins: int = 10) -> dict:
     training rows' frequencies, and each outcome ranked (ROC AUC) and calibrated (ECE), overall
     and per (topology, kind)."""
     from qz_drake.capability.evaluation import binary_metrics
-    from qz_drake.capability.training import network_name, outcome_classes
+    from qz_drake.capability.training import network_name, outcome_classes, outcome_scores
 
     test = rows["test"]
     if len(test) == 0:
@@ -389,14 +388,10 @@ def test_scores(model, arrays: dict, rows: dict, bins: int = 10) -> dict:
                               np.asarray(arrays["blc_success"])[rows["train"]])
     prior = (np.bincount(prior_y, minlength=3) + 0.5) / (len(prior_y) + 1.5)
 
-    def proper(p, labels):
-        onehot = np.eye(3)[labels]
-        return {"brier": float(np.mean(np.sum((p - onehot) ** 2, axis=1))),
-                "log_loss": float(-np.mean(np.log(np.clip(p[np.arange(len(labels)), labels], 1e-12, 1.0))))}
-
     def scores(p, labels):
         out = {"n": int(len(labels)), "counts": {o: int(np.sum(labels == i)) for i, o in enumerate(OUTCOMES)},
-               "model": proper(p, labels), "base_rate": proper(np.broadcast_to(prior, p.shape), labels)}
+               "model": outcome_scores(p, labels),
+               "base_rate": outcome_scores(np.broadcast_to(prior, p.shape), labels)}
         for i, o in enumerate(OUTCOMES):
             out[o] = binary_metrics(labels == i, p[:, i], bins=bins)
         return out

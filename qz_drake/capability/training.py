@@ -418,14 +418,18 @@ def outcome_metrics(net, data, arrays: dict, rows: dict, bins: int) -> dict:
     train = outcome_classes(arrays["success"][rows["train"]], arrays["blc_success"][rows["train"]])
     prior = (np.bincount(train, minlength=3) + 0.5) / (len(train) + 1.5)
 
-    def scores(p):
-        onehot = np.eye(3)[test]
-        return {"brier": float(np.mean(np.sum((p - onehot) ** 2, axis=1))),
-                "log_loss": float(-np.mean(np.log(np.clip(p[np.arange(len(test)), test], 1e-12, 1.0))))}
-
     return {"counts": {name: int(np.sum(test == i)) for i, name in enumerate(OUTCOMES)},
-            "network": scores(probs), "base_rate": scores(np.broadcast_to(prior, probs.shape)),
+            "network": outcome_scores(probs, test),
+            "base_rate": outcome_scores(np.broadcast_to(prior, probs.shape), test),
             "failed": binary_metrics(test == 2, probs[:, 2], bins=bins)}
+
+
+def outcome_scores(probs, labels) -> dict:
+    """Proper scores of three-outcome probabilities (n, 3) against outcome indices (n,): the
+    multi-class Brier score and the log loss."""
+    onehot = np.eye(3)[labels]
+    return {"brier": float(np.mean(np.sum((probs - onehot) ** 2, axis=1))),
+            "log_loss": float(-np.mean(np.log(np.clip(probs[np.arange(len(labels)), labels], 1e-12, 1.0))))}
 
 
 def _failure_counts(arrays: dict, rows: np.ndarray) -> dict[str, int]:
