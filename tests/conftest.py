@@ -40,3 +40,34 @@ def synthetic_model_dir(tmp_path_factory):
             p = network.net.probability(torch.as_tensor(arrays["patch"][rows]), torch.as_tensor(extra)).numpy()
         assert roc_auc_score(synthetic_rule(arrays["patch"][rows]), p) > 0.95, (kind, network.card["test"])
     return save_model(result, tmp_path_factory.mktemp("synthetic_model"))
+
+
+class StraightPlan:
+    """A walked mission's plan, as the BLC system's ``plan`` output gives it to a route
+    sequencer: a straight walk from ``start`` to ``end`` (x, y) at yaw 0 and base height ``z``
+    between times t0 and t1."""
+
+    is_mission = True
+
+    def __init__(self, start, end, t0, t1, z=0.55):
+        import numpy as np
+
+        self._start, self._end = np.asarray(start, float), np.asarray(end, float)
+        self.start_time, self.end_time, self._z = float(t0), float(t1), float(z)
+
+    def base_position(self, t):
+        import numpy as np
+
+        s = np.clip((t - self.start_time) / (self.end_time - self.start_time), 0.0, 1.0)
+        return np.array([*(self._start + s * (self._end - self._start)), self._z])
+
+    def base_rpy(self, t):
+        import numpy as np
+
+        return np.zeros(3)
+
+
+@pytest.fixture
+def straight_plan():
+    """StraightPlan, for tests of the sequencers that follow the BLC's plans."""
+    return StraightPlan

@@ -341,10 +341,11 @@ def test_capplanner_is_tuned_on_the_same_tuning_worlds_as_astar(synthetic_model_
     """Each (failure reward, topology-change cost, longest mission, merge threshold) walks the
     tuning tasks with those settings in CapPlanner's MDP and mission split; the experiment then
     takes the chosen setting."""
+    from qz_drake.errors import QzError
     from qz_drake.experiments.fig9 import ExperimentConfig, capplanner_settings, read_results, tune_capplanner
 
     report = tune_capplanner(tmp_path, failure_rewards=(-100.0, -300.0), topology_change_costs=(2.0,),
-                             mission_lengths=(1.5,), merge_min_success=(0.95,),
+                             mission_lengths=(1.5,), merge_min_success=(0.95,), topology_doubts=(True,),
                              terrains=("obstacles",), difficulties=("simple",), tasks=1,
                              config=ExperimentConfig(capability_model=str(synthetic_model_dir), scale=0.3),
                              progress=False)
@@ -356,13 +357,17 @@ def test_capplanner_is_tuned_on_the_same_tuning_worlds_as_astar(synthetic_model_
         settings = json.loads((Path(g["folder"]) / "settings.json").read_text())
         assert settings["capplanner_failure_reward"] == g["failure_reward"]
         assert (settings["capplanner_mission_length"], settings["capplanner_merge_min_success"]) == (1.5, 0.95)
-        assert Path(g["folder"]).name.endswith("_missions1.5_merge0.95")
+        assert settings["capplanner_topology_doubt"] is True and g["topology_doubt"] is True
+        assert Path(g["folder"]).name.endswith("_missions1.5_merge0.95_doubt")
     assert report["chosen"]["failure_reward"] in (-100.0, -300.0)
     assert capplanner_settings(tmp_path) == {"capplanner_failure_reward": report["chosen"]["failure_reward"],
                                              "capplanner_topology_change_cost": 2.0,
                                              "capplanner_plan_failure_risk": 0.0,
                                              "capplanner_mission_length": 1.5,
-                                             "capplanner_merge_min_success": 0.95}
+                                             "capplanner_merge_min_success": 0.95,
+                                             "capplanner_topology_doubt": True}
+    with pytest.raises(QzError, match="--topology-doubts"):
+        tune_capplanner(tmp_path, topology_doubts=(1.0,), progress=False)
 
 
 def test_capplanner_results_are_not_resumed_with_another_model(synthetic_model_dir, tmp_path):
@@ -484,6 +489,11 @@ def test_a_walking_scenario_sets_capplanners_mdp_by_name():
         mdp_config({"failure_rewad": -250}, ["nominal"])
     with pytest.raises(QzError, match="capability_mdp.failure_reward"):
         mdp_config({"failure_reward": 50}, ["nominal"])  # a failure is not rewarded
+    # A switch is a number there: 1 on, 0 off, anything else named.
+    assert mdp_config({"topology_doubt": 1.0}, ["nominal"]).topology_doubt is True
+    assert mdp_config({"topology_doubt": 0}, ["nominal"]).topology_doubt is False
+    with pytest.raises(QzError, match=r"capability_mdp.topology_doubt = 0.5.*1 \(on\) or 0"):
+        mdp_config({"topology_doubt": 0.5}, ["nominal"])
     # In a scenario file.
     from qz_drake.config import load_scenario_text
 
@@ -499,7 +509,9 @@ def test_a_walking_scenario_sets_capplanners_mdp_by_name():
     ("tune-astar", ["--radii", "0"], "--radii"), ("tune-astar", ["--tasks", "0"], "--tasks"),
     ("tune-capplanner", ["--failure-rewards", "-100,x"], "--failure-rewards"),
     ("tune-capplanner", ["--failure-rewards", "100"], "--failure-rewards"),
-    ("tune-capplanner", ["--switch-costs", "-1"], "--switch-costs"), ("tune-capplanner", ["--tasks", "0"], "--tasks")])
+    ("tune-capplanner", ["--switch-costs", "-1"], "--switch-costs"),
+    ("tune-capplanner", ["--topology-doubts", "on,maybe"], "--topology-doubts"),
+    ("tune-capplanner", ["--tasks", "0"], "--tasks")])
 def test_tuning_bad_input_is_one_line_exit_2(tmp_path, command, args, field):
     run = subprocess.run(QZ + ["experiment", command, "--out", str(tmp_path)] + args,
                          capture_output=True, text=True, timeout=120)
@@ -530,7 +542,8 @@ def test_experiment_takes_a_tuning_and_refuses_a_missing_or_foreign_one(tmp_path
                                                                  "capplanner_topology_change_cost": 6.0,
                                                                  "capplanner_plan_failure_risk": 0.0,
                                                                  "capplanner_mission_length": 2.0,
-                                                                 "capplanner_merge_min_success": 0.8}
+                                                                 "capplanner_merge_min_success": 0.8,
+                                                                 "capplanner_topology_doubt": False}
     with pytest.raises(QzError, match="--astar-tuning"):
         astar_settings(tmp_path / "capplanner.json")
     with pytest.raises(QzError, match="--capplanner-tuning"):

@@ -8,6 +8,19 @@ from __future__ import annotations
 import json
 
 
+def _switches(text: str | None, flag: str) -> tuple[bool, ...] | None:
+    """A comma-separated list of on/off values (on, off, true, false, 1, 0)."""
+    from qz_drake.errors import bad_value
+
+    if text is None:
+        return None
+    values = {"on": True, "true": True, "1": True, "off": False, "false": False, "0": False}
+    words = [w.strip().lower() for w in text.split(",") if w.strip()]
+    if not words or any(w not in values for w in words):
+        raise bad_value(flag, text, "expected comma-separated on/off values")
+    return tuple(values[w] for w in words)
+
+
 def _names(text, field, valid) -> tuple[str, ...]:
     from qz_drake.cli.arguments import parse_names
 
@@ -27,7 +40,8 @@ def run_fig9(args) -> int:
     tuned = astar_settings(args.astar_tuning) if args.astar_tuning else {}
     if args.capplanner_tuning:
         tuned.update(capplanner_settings(args.capplanner_tuning))
-    config = ExperimentConfig(capability_model=args.model or "", scale=args.scale, **tuned)
+    config = ExperimentConfig(capability_model=args.model or "", scale=args.scale,
+                              recovery_back_out=not args.no_back_out, **tuned)
     summary = run_experiment(args.out, planners=_names(args.planners, "--planners", tuple(PLANNERS)),
                              terrains=_names(args.terrains, "--terrains", TERRAINS),
                              difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
@@ -152,14 +166,16 @@ def run_tune_astar(args) -> int:
                         terrains=_names(args.terrains, "--terrains", TERRAINS),
                         difficulties=_names(args.difficulties, "--difficulties", TUNING_DIFFICULTIES),
                         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
-                        config=ExperimentConfig(scale=args.scale), progress=not args.json)
+                        config=ExperimentConfig(scale=args.scale, recovery_back_out=not args.no_back_out),
+                        progress=not args.json)
     _print_tuning(report, args)
     return 0
 
 
 def run_tune_capplanner(args) -> int:
     from qz_drake.experiments.fig9 import (TUNING_FAILURE_REWARDS, TUNING_MERGE_MIN_SUCCESS, TUNING_MISSION_LENGTHS,
-                                           TUNING_PLAN_FAILURE_RISKS, TUNING_TOPOLOGY_CHANGE_COSTS, ExperimentConfig,
+                                           TUNING_PLAN_FAILURE_RISKS, TUNING_TOPOLOGY_CHANGE_COSTS,
+                                           TUNING_TOPOLOGY_DOUBTS, ExperimentConfig,
                                            TUNING_DIFFICULTIES, tune_capplanner)
     from qz_drake.experiments.worlds import TERRAINS
 
@@ -170,10 +186,12 @@ def run_tune_capplanner(args) -> int:
         plan_failure_risks=_numbers(args.plan_failure_risks, "--plan-failure-risks") or TUNING_PLAN_FAILURE_RISKS,
         mission_lengths=_numbers(args.mission_lengths, "--mission-lengths") or TUNING_MISSION_LENGTHS,
         merge_min_success=_numbers(args.merge_thresholds, "--merge-thresholds") or TUNING_MERGE_MIN_SUCCESS,
+        topology_doubts=_switches(args.topology_doubts, "--topology-doubts") or TUNING_TOPOLOGY_DOUBTS,
         terrains=_names(args.terrains, "--terrains", TERRAINS),
         difficulties=_names(args.difficulties, "--difficulties", TUNING_DIFFICULTIES),
         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
-        config=ExperimentConfig(capability_model=args.model or "", scale=args.scale),
+        config=ExperimentConfig(capability_model=args.model or "", scale=args.scale,
+                                recovery_back_out=not args.no_back_out),
         progress=not args.json)
     _print_tuning(report, args)
     return 0
@@ -190,6 +208,13 @@ def _tuning_arguments(p) -> None:
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--ray-address", default=None, help="run the tasks on this Ray cluster (host:port)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
+    _back_out_argument(p)
+
+
+def _back_out_argument(p) -> None:
+    p.add_argument("--no-back-out", action="store_true",
+                   help="neither planner backs out of a dead end (walks as before session 38; "
+                        "qz_drake.planning.back_out)")
 
 
 def register(subparsers) -> None:
@@ -217,6 +242,7 @@ def register(subparsers) -> None:
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--ray-address", default=None, help="run the tasks on this Ray cluster (host:port)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
+    _back_out_argument(p)
     p.set_defaults(func=run_fig9)
 
     p = sub.add_parser("report", help="the tables of a capplanner-vs-astar results folder (a run in progress too)")
@@ -250,18 +276,21 @@ def register(subparsers) -> None:
                    help="comma-separated body-disc radii of the cost map [m] (default 0.7,0.9)")
     p.set_defaults(func=run_tune_astar)
 
-    p = sub.add_parser("tune-capplanner", help="choose CapPlanner's failure reward, topology-change cost, longest "
-                                               "mission and merge threshold on the same tuning worlds as A*'s")
+    p = sub.add_parser("tune-capplanner", help="choose CapPlanner's failure reward, refusal risk, longest mission "
+                                               "and merge threshold on the same tuning worlds as A*'s")
     _tuning_arguments(p)
     p.add_argument("--failure-rewards", default=None,
                    help="comma-separated failure rewards, negative (default -100,-200; the goal is +100)")
-    p.add_argument("--switch-costs", default=None, help="comma-separated topology-change costs (default 2,6)")
+    p.add_argument("--switch-costs", default=None, help="comma-separated topology-change costs (default 2)")
     p.add_argument("--plan-failure-risks", default=None,
                    help="comma-separated shares of predicted planning failures counted as falls, in [0, 1] "
-                        "(default 0: the model's split)")
+                        "(default 0,1: the model's split, every refusal a fall)")
     p.add_argument("--mission-lengths", default=None,
                    help="comma-separated longest missions of CapPlanner's split [m] (default 1.5,2)")
     p.add_argument("--merge-thresholds", default=None,
                    help="comma-separated least predicted success of a merged mission (default 0.8,0.95)")
+    p.add_argument("--topology-doubts", default=None,
+                   help="comma-separated on/off: doubt a topology change by the ensemble's disagreement about the "
+                        "difference (default on)")
     p.add_argument("--model", default=None, help="CapPlanner's capability model folder (default: shipped)")
     p.set_defaults(func=run_tune_capplanner)

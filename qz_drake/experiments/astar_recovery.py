@@ -14,7 +14,10 @@ planning failures). Both now answer a refused mission the same two ways, with th
   way out) and A* plans again from the robot's measured position to the goal (CapPlanner
   forbids the action from that state and solves value iteration again).
 
-After ``max_recoveries`` refused missions, or when A* finds no route, the goal is unreachable,
+When A* finds no route from where the robot stands, the robot backs out of the dead end to where
+the last walked mission started and A* routes from there (qz_drake.planning.back_out; CapPlanner
+does the same when no way on is left). After ``max_recoveries`` refused missions, or when A*
+finds no route from there either, the goal is unreachable,
 with the reason, and the robot stands (the refused mission is held on the outputs, so that
 the BLC system, which does not solve one mission twice, leaves it where it is).
 """
@@ -26,6 +29,7 @@ import math
 
 from qz_drake.errors import ConfigError, bad_value
 from qz_drake.experiments.astar_baseline import AStarBaseline
+from qz_drake.planning.back_out import BackOut
 from qz_drake.simulation import FixedRoute
 from qz_drake.state_layout import BASE_XY, base_rpy
 from qz_drake.systems.mission_sequencer import RecoveringSequencer, RecoveryLog, split_route, unwrapped_yaws
@@ -45,6 +49,8 @@ class AStarRecoveryLog(RecoveryLog):
     # A* routes planned after a refusal: (time, start (x, y), found).
     replans: list = dataclasses.field(default_factory=list)
     planning_time_s: float = 0.0
+    # Ways back out of a dead end handed out (qz_drake.planning.back_out).
+    back_outs: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,13 +90,15 @@ class AStarRecoverySequencer(RecoveringSequencer):
             is blocked (None: half the mission length). [m]
         block_radius: radius blocked around a refused short mission's target. [m]
         max_recoveries: refused missions gone round before the goal is unreachable.
+        back_out: back out of a dead end (see the module docstring).
         plan_ahead: hand out the next target this long before the current plan ends. [s]
         check_period: how often the plan is looked at. [s]
     """
 
     def __init__(self, *, targets, baseline: AStarBaseline, goal, mission_length: float,
                  split_length: float | None = None, block_radius: float = BLOCK_RADIUS,
-                 max_recoveries: int = MAX_RECOVERIES, plan_ahead: float = 0.0, check_period: float = 0.05):
+                 max_recoveries: int = MAX_RECOVERIES, plan_ahead: float = 0.0, check_period: float = 0.05,
+                 back_out: bool = True):
         super().__init__(log=AStarRecoveryLog(), max_recoveries=max_recoveries, plan_ahead=plan_ahead)
         if not mission_length > 0:
             raise bad_value("mission_length", mission_length, "must be positive", ConfigError)
@@ -102,11 +110,13 @@ class AStarRecoverySequencer(RecoveringSequencer):
         self._mission_length = float(mission_length)
         self._split_length = 0.5 * self._mission_length if split_length is None else float(split_length)
         self._block_radius = float(block_radius)
+        self._back_out = BackOut() if back_out else None
         self._start(first, first[0].topology, check_period)
 
     def counts(self) -> dict:
         return {"planning_time_s": self.log.planning_time_s, "replans": len(self.log.replans),
-                "unreachable": self.log.unreachable, "tlc_recoveries": len(self.log.recoveries)}
+                "unreachable": self.log.unreachable, "tlc_recoveries": len(self.log.recoveries),
+                "tlc_back_outs": self.log.back_outs}
 
     def _advance(self, context, state, plan, missions, index):
         return missions[index + 1:] or None
@@ -129,6 +139,18 @@ class AStarRecoverySequencer(RecoveringSequencer):
         self.log.planning_time_s += time.perf_counter() - clock
         self.log.replans.append((context.get_time(), here, route.found))
         if not route.found:
+            # A dead end (qz_drake.planning.back_out): back to where the last walked mission
+            # started, and on from there round the blocked cells, as CapPlanner does.
+            back = None if self._back_out is None else self._back_out.target(self.log, here)
+            if back is not None:
+                route = self._baseline.route(back[:2], self._goal)
+                self.log.replans.append((context.get_time(), back[:2], route.found))
+                if route.found:
+                    self.log.back_outs += 1
+                    targets = split_route(back[:2], route.waypoints, self._mission_length)
+                    missions = [AStarMission(back, failed.topology)] + [AStarMission(tuple(t[:3]), t[3])
+                                                                        for t in targets]
+                    return unwrapped_yaws(missions, yaw), "backed out"
             self.log.unreachable = f"no route round the mission the BLC could not plan ({route.reason})"
             return [], "blocked"
         targets = split_route(here, route.waypoints, self._mission_length)
@@ -143,6 +165,7 @@ class AStarRoute(FixedRoute):
         baseline: the AStarBaseline the route was planned with (blocked cells are added to it).
         goal: (x, y) of the goal. [m]
         max_recoveries: refused missions gone round (None: MAX_RECOVERIES, CapPlanner's).
+        back_out: back out of a dead end (AStarRecoverySequencer).
     """
 
     name = "A*"
@@ -152,13 +175,14 @@ class AStarRoute(FixedRoute):
     # the 24 validation walks of session 35 "missed" a heading no task asked for).
     chooses_goal_heading = True
 
-    def __init__(self, baseline: AStarBaseline, goal, max_recoveries: int | None = None):
+    def __init__(self, baseline: AStarBaseline, goal, max_recoveries: int | None = None, back_out: bool = True):
         self._baseline = baseline
         self._goal = goal
         self._max_recoveries = MAX_RECOVERIES if max_recoveries is None else max_recoveries
+        self._back_out = bool(back_out)
 
     def make(self, scenario, info, targets) -> AStarRecoverySequencer:
         control = scenario.controller
         return AStarRecoverySequencer(targets=targets, baseline=self._baseline, goal=self._goal,
                                       mission_length=control.mission_length, plan_ahead=control.plan_ahead,
-                                      max_recoveries=self._max_recoveries)
+                                      max_recoveries=self._max_recoveries, back_out=self._back_out)

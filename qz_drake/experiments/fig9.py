@@ -57,6 +57,9 @@ class ExperimentConfig:
     # 38): the same number CapPlanner's TLC does (4); 0: A* stops at the first (the first
     # Fig. 9 run's baseline).
     astar_max_recoveries: int = 4
+    # Both planners back out of a dead end, a stance from which going round finds no way on
+    # (qz_drake.planning.back_out, session 38); False: as before.
+    recovery_back_out: bool = True
     # CapPlanner's risk and topology-change settings (capability_mdp.CapabilityMdpConfig's
     # failure_reward and topology_change_cost), chosen by ``qz experiment tune-capplanner`` on
     # the same tuning worlds as A*'s.
@@ -65,6 +68,9 @@ class ExperimentConfig:
     # The share of predicted planning failures CapPlanner counts as falls
     # (capability_mdp.CapabilityMdpConfig.plan_failure_risk).
     capplanner_plan_failure_risk: float = 0.0
+    # Whether CapPlanner doubts a topology change by the ensemble's disagreement about the
+    # difference between the topologies (capability_mdp.CapabilityMdpConfig.topology_doubt).
+    capplanner_topology_doubt: bool = True
     # CapPlanner's split of its path into BLC missions (guidance.MissionSplitConfig): the
     # longest mission [m] and the least predicted success of a merged mission.
     capplanner_mission_length: float = 2.0
@@ -109,7 +115,8 @@ def _astar(task, config):
                                                                  waypoint_spacing=config.mission_length))
     route = baseline.route(task.start, task.goal)
     route = dataclasses.replace(route, planning_time_s=time.perf_counter() - clock)
-    return route, "blc", route.waypoints, AStarRoute(baseline, task.goal, config.astar_max_recoveries)
+    return route, "blc", route.waypoints, AStarRoute(baseline, task.goal, config.astar_max_recoveries,
+                                                     back_out=config.recovery_back_out)
 
 
 def _capplanner(task, config):
@@ -121,14 +128,16 @@ def _capplanner(task, config):
     split = MissionSplitConfig(max_length=config.capplanner_mission_length,
                                min_success=config.capplanner_merge_min_success)
     return (Route(True, "", [], 0.0, np.zeros((0, 2))), "capplanner", [(*task.goal, 0.0, "nominal")],
-            CapPlannerRoute(split, min_route_success=config.capplanner_min_route_success))
+            CapPlannerRoute(split, min_route_success=config.capplanner_min_route_success,
+                            back_out=config.recovery_back_out))
 
 
 def _mdp_overrides(config: ExperimentConfig) -> dict:
     """CapPlanner's MDP settings of a run (scenario.controller.capability_mdp)."""
     return dict(failure_reward=config.capplanner_failure_reward,
                 topology_change_cost=config.capplanner_topology_change_cost,
-                plan_failure_risk=config.capplanner_plan_failure_risk)
+                plan_failure_risk=config.capplanner_plan_failure_risk,
+                topology_doubt=float(config.capplanner_topology_doubt))
 
 
 # Top-level controllers: name -> (task, config) -> (Route, walking planner, waypoints, route
@@ -149,7 +158,8 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
     record = {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,
               "planner": spec.planner, "straight_m": task.distance, "success": False, "reason": "",
               "message": "", "walked_m": 0.0, "displacement_ratio": None, "missions": 0, "replans": 0,
-              "recoveries": 0, "topology_changes": 0, "planning_time_s": 0.0, "wall_time_s": 0.0, "error": ""}
+              "recoveries": 0, "back_outs": 0, "topology_changes": 0, "planning_time_s": 0.0, "wall_time_s": 0.0,
+              "error": ""}
     try:
         route, walking_planner, waypoints, route_source = PLANNERS[spec.planner](task, config)
         record["planning_time_s"] = route.planning_time_s
@@ -194,7 +204,9 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
                       path_xy=path_samples(result.states[:, BASE_XY]),
                       displacement_ratio=walked / task.distance if m["success"] else None,
                       missions=int(m.get("missions", 0)), topology_changes=int(m.get("topology_changes", 0)),
-                      replans=int(m.get("replans", 0)), recoveries=int(m.get("tlc_recoveries", 0)))
+                      replans=int(m.get("replans", 0)), recoveries=int(m.get("tlc_recoveries", 0)),
+                      # Ways back out of a dead end (qz_drake.planning.back_out).
+                      back_outs=int(m.get("tlc_back_outs", 0)))
         if spec.planner == "capplanner":
             record["planning_time_s"] = float(m.get("planning_time_s", 0.0))
             # Replans that walked the most probable path (the MDP's policy did not reach the goal).
@@ -404,7 +416,8 @@ def compare_runs(records: list[dict], other: list[dict], planners=None) -> list[
 # them were walked with: a folder without the setting holds those walks, not today's default's.
 # A* had no recovery before issue 38; CapPlanner declined paths whose predicted chance of no
 # fall was below 0.05 (CapabilityVIPlanner's default).
-SETTINGS_BEFORE_THEY_EXISTED = {"astar_max_recoveries": 0, "capplanner_min_route_success": 0.05}
+SETTINGS_BEFORE_THEY_EXISTED = {"astar_max_recoveries": 0, "capplanner_min_route_success": 0.05,
+                                "recovery_back_out": False, "capplanner_topology_doubt": False}
 
 
 def _settings(out: Path) -> dict:
@@ -772,7 +785,8 @@ def _write_csv(path: Path, records: list[dict]) -> None:
     import csv
 
     fields = ["key", "terrain", "difficulty", "seed", "planner", "success", "reason", "straight_m", "walked_m",
-              "displacement_ratio", "missions", "replans", "recoveries", "topology_changes", "planning_time_s", "wall_time_s"]
+              "displacement_ratio", "missions", "replans", "recoveries", "back_outs", "topology_changes",
+              "planning_time_s", "wall_time_s"]
     with path.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
         writer.writeheader()
@@ -795,7 +809,8 @@ CAPPLANNER_TUNED = {"failure_reward": "capplanner_failure_reward",
                     "topology_change_cost": "capplanner_topology_change_cost",
                     "plan_failure_risk": "capplanner_plan_failure_risk",
                     "mission_length": "capplanner_mission_length",
-                    "merge_min_success": "capplanner_merge_min_success"}
+                    "merge_min_success": "capplanner_merge_min_success",
+                    "topology_doubt": "capplanner_topology_doubt"}
 # Tuning tasks per terrain and difficulty for either planner (issue 38: with two, every A*
 # setting scored 9-11 of 18 and the choice was noise).
 TUNING_TASKS_PER_CELL = 4
@@ -810,12 +825,15 @@ def _tuned_settings(path, names: dict, flag: str, command: str) -> dict:
     """The ExperimentConfig fields of a tuning's chosen setting (``tuning.json``, or its folder)."""
     path = Path(path)
     file = path / "tuning.json" if path.is_dir() else path
-    defaults = ExperimentConfig()
+    # A tuning from before a setting existed was walked with SETTINGS_BEFORE_THEY_EXISTED's value.
+    defaults = dataclasses.replace(ExperimentConfig(), **{k: v for k, v in SETTINGS_BEFORE_THEY_EXISTED.items()
+                                                         if k in names.values()})
     try:
         chosen = json.loads(file.read_text())["chosen"]
         if not isinstance(chosen, dict) or not set(chosen) & set(names):
             raise KeyError("chosen")
-        return {field: float(chosen.get(key, getattr(defaults, field))) for key, field in names.items()}
+        return {field: type(getattr(defaults, field))(chosen.get(key, getattr(defaults, field)))
+                for key, field in names.items()}
     except FileNotFoundError:
         raise bad_value(flag, str(path), f"no tuning.json there (run qz experiment {command})") from None
     except (ValueError, KeyError, TypeError):
@@ -923,7 +941,7 @@ def _tune_setting(out: Path, planner: str, setting: dict, names: dict, folder_of
     from ``walks``, which gains this setting's), and its row of the tuning report."""
     from qz_drake.experiments.worlds import TUNING_SEED_START
 
-    trial = dataclasses.replace(config, **{names[k]: float(v) for k, v in setting.items()})
+    trial = dataclasses.replace(config, **{names[k]: type(getattr(config, names[k]))(v) for k, v in setting.items()})
     folder = out / folder_of(setting)
     hashes: dict[str, str | None] = {}
 
@@ -954,7 +972,7 @@ def _tune_setting(out: Path, planner: str, setting: dict, names: dict, folder_of
     done = sum(r["tasks"] for r in rows)
     ok = sum(r["successes"] for r in rows)
     ratios = [r["displacement_ratio"] for r in rows if r["displacement_ratio"] is not None]
-    return {**{k: float(v) for k, v in setting.items()}, "tasks": done, "successes": ok,
+    return {**{k: v if isinstance(v, bool) else float(v) for k, v in setting.items()}, "tasks": done, "successes": ok,
             "success_rate": ok / done if done else None,
             "displacement_ratio": float(np.mean(ratios)) if ratios else None,
             "walked": sum(1 for r in records if "walk_of" not in r and r["reason"] != "planner"),
@@ -984,25 +1002,27 @@ def tune_astar(out, *, step_heights=TUNING_STEP_HEIGHTS, slopes_deg=TUNING_SLOPE
                  ray_address=ray_address, config=config, progress=progress)
 
 
-# The grid ``tune_capplanner`` searches by default: the fall's penalty against the goal's 100
-# (how much risk a shorter route may carry) and the price of a topology change (how sure the
-# networks must be that another topology is better: with six topologies the most optimistic
-# network's noise alone can look like a gain).
+# The grid ``tune_capplanner`` searches by default (16 settings, as many as A*'s): the fall's
+# penalty against the goal's 100 (how much risk a shorter route may carry); the share of the
+# predicted refusals counted as falls (session 38: CapPlanner's failed validation walks ended in
+# stances the BLC refused every way out of, where the MDP had priced a refusal as a stand and a
+# retry); the split of the path into missions (the longest mission [m], a diagonal cell's 1.42 m
+# at least, and the merge threshold). A topology change is doubted by the ensemble's
+# disagreement about the difference (capability_mdp.CapabilityMdpConfig.topology_doubt, on by
+# default since session 38), which leaves its price little to decide: one value.
 TUNING_FAILURE_REWARDS = (-100.0, -200.0)
-TUNING_TOPOLOGY_CHANGE_COSTS = (2.0, 6.0)
-# How much of the predicted planning failures counts as falls (0: none, the model's split).
-TUNING_PLAN_FAILURE_RISKS = (0.0,)
-# CapPlanner's split of its path into missions (issue 38): the longest mission [m] (a diagonal
-# cell's 1.42 m at least) and the merge threshold. With the two above, 16 settings: as many as
-# A*'s grid.
+TUNING_TOPOLOGY_CHANGE_COSTS = (2.0,)
+TUNING_PLAN_FAILURE_RISKS = (0.0, 1.0)
 TUNING_MISSION_LENGTHS = (1.5, 2.0)
 TUNING_MERGE_MIN_SUCCESS = (0.8, 0.95)
+TUNING_TOPOLOGY_DOUBTS = (True,)
 
 
 def tune_capplanner(out, *, failure_rewards=TUNING_FAILURE_REWARDS,
                     topology_change_costs=TUNING_TOPOLOGY_CHANGE_COSTS,
                     plan_failure_risks=TUNING_PLAN_FAILURE_RISKS, mission_lengths=TUNING_MISSION_LENGTHS,
-                    merge_min_success=TUNING_MERGE_MIN_SUCCESS, terrains=TERRAINS,
+                    merge_min_success=TUNING_MERGE_MIN_SUCCESS, topology_doubts=TUNING_TOPOLOGY_DOUBTS,
+                    terrains=TERRAINS,
                     difficulties=TUNING_DIFFICULTIES, tasks: int = TUNING_TASKS_PER_CELL, workers: int = 1,
                     ray_address: str | None = None, config: ExperimentConfig = ExperimentConfig(),
                     progress: bool = True) -> dict:
@@ -1017,10 +1037,12 @@ def tune_capplanner(out, *, failure_rewards=TUNING_FAILURE_REWARDS,
     _check_numbers("--mission-lengths", mission_lengths, lambda v: v >= 1.42, "expected lengths >= 1.42 m "
                                                                                 "(a diagonal move)")
     _check_numbers("--merge-thresholds", merge_min_success, lambda v: 0 <= v <= 1, "expected numbers in [0, 1]")
+    if not topology_doubts or not all(isinstance(d, (bool, np.bool_)) for d in topology_doubts):
+        raise bad_value("--topology-doubts", list(topology_doubts), "expected true/false values")
     grid = [{"failure_reward": float(f), "topology_change_cost": float(c), "plan_failure_risk": float(r),
-             "mission_length": float(m), "merge_min_success": float(s)}
-            for r in plan_failure_risks for f in failure_rewards for c in topology_change_costs
-            for m in mission_lengths for s in merge_min_success]
+             "mission_length": float(m), "merge_min_success": float(s), "topology_doubt": bool(d)}
+            for d in topology_doubts for r in plan_failure_risks for f in failure_rewards
+            for c in topology_change_costs for m in mission_lengths for s in merge_min_success]
     split = MissionSplitConfig()
     # Folders of the settings at the defaults keep the names they had before these were settings.
     return _tune(out, "capplanner", grid, CAPPLANNER_TUNED,
@@ -1028,6 +1050,7 @@ def tune_capplanner(out, *, failure_rewards=TUNING_FAILURE_REWARDS,
                            + (f"_risk{g['plan_failure_risk']:g}" if g["plan_failure_risk"] else "")
                            + (f"_missions{g['mission_length']:g}" if g["mission_length"] != split.max_length else "")
                            + (f"_merge{g['merge_min_success']:g}" if g["merge_min_success"] != split.min_success
-                              else ""),
+                              else "")
+                           + ("_doubt" if g["topology_doubt"] else ""),
                  terrains=terrains, difficulties=difficulties, tasks=tasks, workers=workers,
                  ray_address=ray_address, config=config, progress=progress)

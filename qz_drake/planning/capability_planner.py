@@ -25,7 +25,8 @@ import time
 from pydrake.common.value import AbstractValue
 
 from qz_drake.capability.patches import HEADING_STEP
-from qz_drake.planning.guidance import MissionSplitConfig, split_missions
+from qz_drake.planning.back_out import BackOut
+from qz_drake.planning.guidance import GuidedMission, MissionSplitConfig, split_missions
 from qz_drake.systems.mission_sequencer import RecoveringSequencer, RecoveryLog, unwrapped_yaws
 from qz_drake.state_layout import BASE_XY, base_rpy
 
@@ -43,6 +44,8 @@ class CapabilityPlannerLog(RecoveryLog):
     # Replans whose path is the most probable one because the policy's did not reach the goal
     # (capability_mdp.most_probable_path).
     most_probable: int = 0
+    # Ways back out of a dead end handed out (qz_drake.planning.back_out).
+    back_outs: int = 0
 
 
 class CapabilityVIPlanner(RecoveringSequencer):
@@ -97,11 +100,16 @@ class CapabilityVIPlanner(RecoveringSequencer):
         plan_ahead: hand out the next mission this long before the current plan ends. [s]
         check_period: how often the plan is looked at. [s]
         max_recoveries: most missions the BLC could not plan that the planner goes round.
+        back_out: when going round finds no way on from where the robot stands (a dead end:
+            its moves and turns refused or forbidden), back out to where the last walked
+            mission started and plan on from there (qz_drake.planning.back_out); once per
+            dead end, the way back counted as a mission like any other.
     """
 
     def __init__(self, *, model, heightmap, goal, start, initial_topology: str = "nominal", mdp_config=None,
                  split_config: MissionSplitConfig = MissionSplitConfig(), min_route_success: float = 0.05,
-                 plan_ahead: float = 0.0, check_period: float = 0.05, max_recoveries: int = 4):
+                 plan_ahead: float = 0.0, check_period: float = 0.05, max_recoveries: int = 4,
+                 back_out: bool = True):
         super().__init__(log=CapabilityPlannerLog(), max_recoveries=max_recoveries, plan_ahead=plan_ahead)
         from qz_drake.capability.model import predict_map
         from qz_drake.planning.capability_mdp import (CapabilityMdpConfig, build_capability_mdp, cells_on_map,
@@ -110,6 +118,7 @@ class CapabilityVIPlanner(RecoveringSequencer):
         # The plan from the start (a CapabilityPlan, for drawing: capability.plots.plot_plan).
         self.first_plan = None
         self._split = split_config
+        self._back_out = BackOut() if back_out else None
         self._min_success = float(min_route_success)
         clock = time.perf_counter()
         config = (mdp_config or CapabilityMdpConfig()).check()
@@ -168,7 +177,7 @@ class CapabilityVIPlanner(RecoveringSequencer):
 
     def _advance(self, context, state, plan, missions, index):
         """The current mission ended (or is about to): replan from where it is expected to end."""
-        if index + 1 >= len(missions):
+        if index + 1 >= len(missions) and not missions[index].back_out:
             return None
         p = plan.base_position(plan.end_time)
         yaw = float(plan.base_rpy(plan.end_time)[2])
@@ -186,7 +195,11 @@ class CapabilityVIPlanner(RecoveringSequencer):
         x0, y0 = (float(v) for v in x[BASE_XY])
         yaw = float(base_rpy(x)[2])
         robot = self._robot_topology.Eval(context) if self._robot_topology.HasValue(context) else ""
-        topology = robot if robot in self.mdp.topologies else failed.steps[0].topology
+        topology = robot if robot in self.mdp.topologies else (failed.steps[0].topology if failed.steps
+                                                                 else failed.topology)
+        if failed.back_out:
+            self.log.unreachable = "the BLC could not plan the way back out of a dead end"
+            return [], "forbade"
         if len(failed.steps) > 1:
             # Shorter missions are easier for the BLC: the same actions, one mission each, the
             # last ending where the failed one did (the goal itself, if it was the last).
@@ -206,13 +219,25 @@ class CapabilityVIPlanner(RecoveringSequencer):
         self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
         self.log.planning_time_s += time.perf_counter() - clock
         self.log.value_iterations += int(self.solution.iterations)
-        return self._replan(context.get_time(), x0, y0, yaw, topology), "forbade"
+        missions = self._replan(context.get_time(), x0, y0, yaw, topology)
+        if not missions:
+            # A dead end: every way on from this stance refused or forbidden. Its actions stay
+            # forbidden (value iteration now avoids the state), and the robot backs out to
+            # where it stood when the last walked mission started, to plan on from there.
+            target = None if self._back_out is None else self._back_out.target(self.log, (x0, y0))
+            if target is not None:
+                self.log.unreachable = ""
+                self.log.back_outs += 1
+                back = GuidedMission(target, topology, [], 1.0, back_out=True)
+                return unwrapped_yaws([back], yaw), "backed out"
+        return missions, "forbade"
 
     def counts(self) -> dict:
         """The planner's numbers for the walk's metrics."""
         return {"planning_time_s": self.log.planning_time_s, "value_iterations": self.log.value_iterations,
                 "replans": max(len(self.log.replans) - 1, 0), "unreachable": self.log.unreachable,
-                "tlc_recoveries": len(self.log.recoveries), "tlc_most_probable": self.log.most_probable}
+                "tlc_recoveries": len(self.log.recoveries), "tlc_most_probable": self.log.most_probable,
+                "tlc_back_outs": self.log.back_outs}
 
     # -- outputs -----------------------------------------------------------------------------
     def _calc_guidance(self, context, output):

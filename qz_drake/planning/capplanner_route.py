@@ -34,13 +34,22 @@ CAPPLANNER_MISSION_RETRIES = 2
 
 def mdp_config(overrides: dict, topologies) -> CapabilityMdpConfig:
     """CapPlanner's MDP settings: the defaults, ``overrides`` (controller.capability_mdp) by
-    name, the topologies the model knows."""
-    numbers = [f.name for f in dataclasses.fields(CapabilityMdpConfig) if f.type in ("float", float)]
-    for key in overrides:
+    name, the topologies the model knows. A switch (``topology_doubt``) is given as 1 or 0
+    (the scenario's settings there are numbers)."""
+    fields = {f.name: f.type for f in dataclasses.fields(CapabilityMdpConfig)}
+    numbers = [name for name, kind in fields.items() if kind in ("float", float, "bool", bool)]
+    values = {}
+    for key, value in overrides.items():
         if key not in numbers:
-            raise bad_value(f"scenario.controller.capability_mdp.{key}", overrides[key],
+            raise bad_value(f"scenario.controller.capability_mdp.{key}", value,
                             f"not a setting of the MDP (valid: {', '.join(numbers)})")
-    return CapabilityMdpConfig(topologies=list(topologies), **{k: float(v) for k, v in overrides.items()}).check()
+        if fields[key] in ("bool", bool):
+            if value not in (0, 1):  # True and False compare equal to 1 and 0
+                raise bad_value(f"scenario.controller.capability_mdp.{key}", value, "must be 1 (on) or 0 (off)")
+            values[key] = bool(value)
+        else:
+            values[key] = float(value)
+    return CapabilityMdpConfig(topologies=list(topologies), **values).check()
 
 
 class CapPlannerRoute(FixedRoute):
@@ -51,19 +60,22 @@ class CapPlannerRoute(FixedRoute):
     iteration budget) and retries a mission CAPPLANNER_MISSION_RETRIES times. ``split_config``
     (guidance.MissionSplitConfig: the longest mission, the merge threshold) is the planner's
     split of its path into missions (None: the defaults); ``min_route_success`` the least
-    predicted chance of arriving without a fall for which it sets out (CapabilityVIPlanner)."""
+    predicted chance of arriving without a fall for which it sets out (CapabilityVIPlanner);
+    ``back_out`` whether it backs out of a dead end (qz_drake.planning.back_out)."""
 
     mission_retries = CAPPLANNER_MISSION_RETRIES
     chooses_goal_heading = True
     name = "CapPlanner"
 
-    def __init__(self, split_config: MissionSplitConfig | None = None, min_route_success: float = 0.05):
+    def __init__(self, split_config: MissionSplitConfig | None = None, min_route_success: float = 0.05,
+                 back_out: bool = True):
         from qz_drake.errors import bad_value
 
         self._split = (split_config or MissionSplitConfig()).check()
         if not 0.0 <= float(min_route_success) <= 1.0:
             raise bad_value("min_route_success", min_route_success, "must be in [0, 1]")
         self.min_route_success = float(min_route_success)
+        self.back_out = bool(back_out)
 
     def blc_parameters(self):
         # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt
@@ -88,7 +100,8 @@ class CapPlannerRoute(FixedRoute):
                                    start=(float(start_x), float(start_y), float(base_rpy(x0)[2])),
                                    initial_topology=info.topology.name, plan_ahead=control.plan_ahead,
                                    mdp_config=mdp_config(control.capability_mdp, topologies),
-                                   split_config=self._split, min_route_success=self.min_route_success)
+                                   split_config=self._split, min_route_success=self.min_route_success,
+                                   back_out=self.back_out)
 
     def unreachable(self, source) -> str:
         return source.log.unreachable

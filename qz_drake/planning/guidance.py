@@ -57,6 +57,9 @@ class GuidedMission:
     topology: str
     steps: list
     success: float
+    # A way back out of a dead end (qz_drake.planning.back_out): no actions of the path; the
+    # TLC plans on from its end.
+    back_out: bool = False
 
     @property
     def length(self) -> float:

@@ -92,6 +92,44 @@ def test_after_the_limit_the_goal_is_unreachable_and_the_robot_stands():
     assert loop.target() == pytest.approx(half)
 
 
+def test_from_a_dead_end_astar_backs_out_to_where_the_last_mission_started_and_routes_from_there(straight_plan):
+    """The robot walked its first mission; there the BLC refuses the next and, once its target
+    is blocked, A* finds no way out of where the robot stands (closed in on every side): the
+    robot backs out to where the walked mission started and A* routes from there, as CapPlanner
+    does (qz_drake.planning.back_out); without back_out the goal is unreachable."""
+    for back_out in (True, False):
+        loop = _Loop()
+        loop.system = AStarRecoverySequencer(targets=loop.first, baseline=loop.baseline, goal=GOAL, mission_length=1.0,
+                                             back_out=back_out)
+        loop.simulator = Simulator(loop.system)
+        loop.context = loop.simulator.get_mutable_context()
+        loop.system.GetInputPort("robot_topology").FixValue(loop.context, "nominal")
+        loop.system.GetInputPort("failed_missions").FixValue(loop.context, [0.0])
+        here = tuple(loop.first[0][:2])
+        loop.system.GetInputPort("plan").FixValue(loop.context, straight_plan(START, here, 0.0, 1.0, z=0.3))
+        loop.stand(*here)
+        loop.simulator.AdvanceTo(1.2)  # the first mission walked, the second handed out
+        assert loop.target()[:2] == pytest.approx(loop.first[1][:2])
+        # Close the robot in: a ring of blocked discs round where it stands.
+        for angle in np.linspace(0.0, 2 * np.pi, 16, endpoint=False):
+            loop.baseline.block((here[0] + 0.5 * np.cos(angle), here[1] + 0.5 * np.sin(angle)), 0.25)
+        assert not loop.baseline.route(here, GOAL).found
+        loop.refuse()  # the 1 m mission: split
+        loop.refuse()  # its half: blocked, and no route from here
+        log = loop.system.log
+        if not back_out:
+            assert loop.system.done and log.unreachable.startswith("no route round") and log.back_outs == 0
+            continue
+        assert log.recoveries[-1][2] == "backed out" and log.back_outs == 1 and not loop.system.done
+        assert loop.target() == pytest.approx((*START, 0.0))
+        assert loop.system.counts()["tlc_back_outs"] == 1
+        # The missions after it are A*'s route from the back-out stance round the ring to the goal.
+        missions, _ = loop.context.get_abstract_state(0).get_value()
+        assert missions[-1].target[:2] == pytest.approx(GOAL) and len(missions) >= 3
+        route = np.array([m.target[:2] for m in missions[1:]])
+        assert np.min(np.hypot(route[:, 0] - here[0], route[:, 1] - here[1])) > 0.5
+
+
 def test_astar_route_is_the_baselines_route_and_bad_input_is_named():
     world = _open_world()
     a = astar_route(world, START, GOAL)

@@ -230,3 +230,61 @@ def test_forbid_action_sends_the_action_to_failure_with_a_failures_reward():
     from qz_drake.errors import QzError
     with pytest.raises(QzError, match="state"):
         forbid_action(mdp, mdp.goal_state, a)
+
+
+def _walk_one_mission(planner, simulator, context, start, end, plan):
+    """The BLC plans the current mission (``plan``: conftest.StraightPlan) and the robot walks it
+    from ``start`` to ``end``."""
+    t0 = context.get_time()
+    planner.GetInputPort("plan").FixValue(context, AbstractValue.Make(plan(start, end, t0, t0 + 1.0)))
+    planner.GetInputPort("state").FixValue(context, make_state([*end, 0.55], [0, 0, 0], np.zeros(18)))
+    simulator.AdvanceTo(t0 + 1.2)
+    return planner.GetOutputPort("guidance").Eval(context)
+
+
+def _dead_end(plan, back_out=True):
+    """The robot walks one mission east, then the BLC refuses everything from where it stands."""
+    planner = CapabilityVIPlanner(model=WallModel(), heightmap=_world(), goal=GOAL, start=(*START, 0.0),
+                                  mdp_config=CapabilityMdpConfig(topologies=["nominal"]), max_recoveries=20,
+                                  back_out=back_out)
+    simulator, context = _standing(planner)
+    here = (START[0] + 1.0, START[1])
+    _walk_one_mission(planner, simulator, context, START, here, plan)
+    failures = 0
+    while not planner.done and not (planner.log.recoveries and planner.log.recoveries[-1][2] == "backed out"):
+        failures += 1
+        assert failures <= 12, planner.log.recoveries
+        _blc_fails(planner, simulator, context, failures)
+    return planner, simulator, context, here, failures
+
+
+def test_from_a_dead_end_the_robot_backs_out_to_where_its_last_mission_started_and_plans_on(straight_plan):
+    """The BLC refuses every move and turn from where the robot stands (a stance across a stair
+    edge, session 38's validation walks): going round finds no way on, so the TLC hands out one
+    mission back to where the last walked mission started (a stance the BLC planned from) and
+    plans on from there, the dead end's actions still forbidden; without ``back_out`` the goal
+    is unreachable there."""
+    planner, simulator, context, here, failures = _dead_end(straight_plan)
+    [back] = planner.GetOutputPort("guidance").Eval(context)
+    assert back.back_out and back.steps == [] and planner.log.back_outs == 1
+    np.testing.assert_allclose(back.target, (*START, 0.0), atol=1e-9)
+    np.testing.assert_allclose(planner.GetOutputPort("target").Eval(context), back.target, atol=1e-9)
+    assert not planner.done and not planner.log.unreachable
+    assert planner.counts()["tlc_back_outs"] == 1
+    # Every action from the dead end's state is forbidden.
+    mdp = planner.mdp
+    dead = mdp.state(*mdp.cell_of(*here), 0, "nominal")
+    assert (mdp.success[:, dead] == 0.0).all()
+    # The robot walks back; the TLC plans on from there, to the goal.
+    missions = _walk_one_mission(planner, simulator, context, here, START, straight_plan)
+    assert missions and not planner.done and not planner.log.unreachable
+    np.testing.assert_allclose(missions[-1].target[:2], GOAL)
+    # Without backing out, the same refusals leave the goal unreachable.
+    stuck, *_ = _dead_end(straight_plan, back_out=False)
+    assert stuck.done and "no path reaches the goal" in stuck.log.unreachable and stuck.log.back_outs == 0
+
+
+def test_a_way_back_out_the_blc_refuses_ends_the_walk_with_the_reason(straight_plan):
+    planner, simulator, context, here, failures = _dead_end(straight_plan)
+    assert _blc_fails(planner, simulator, context, failures + 1) == []
+    assert planner.done and planner.log.unreachable == "the BLC could not plan the way back out of a dead end"

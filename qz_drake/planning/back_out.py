@@ -1,0 +1,55 @@
+"""Backing out of a dead end: a stance from which the BLC refuses every way on.
+
+Both recovering route sources (CapPlanner's TLC, qz_drake.planning.capability_planner, and the
+A* baseline's, qz_drake.experiments.astar_recovery) go round a mission the BLC could not plan.
+Sometimes the stance the robot stands in is the trouble, not the way: the BLC, started from
+feet spread across a stair edge or astride a box, refuses whatever it is given within its
+iteration budget, and going round from there finds nothing (CapPlanner's moves and turns in
+place from the robot's cell all refused; session 38 validation walks). Then the route source
+hands out one more mission: back to where the robot stood when the last walked mission
+started, a stance the BLC planned from, and plans on from there with the refused ways closed.
+"""
+
+from __future__ import annotations
+
+import math
+
+# Least distance to a stance worth backing out to: closer, the robot already stands there. [m]
+BACK_OUT_MIN = 0.2
+
+
+class BackOut:
+    """Where to back out to, for a RecoveringSequencer (its ``log``: the plans and targets
+    handed out). One per walk, as its sequencer."""
+
+    def __init__(self):
+        # Targets of the ways back out already handed out.
+        self._targets: set = set()
+
+    def target(self, log, here) -> tuple[float, float, float] | None:
+        """(x, y, yaw) where the last walked mission started; None without a walked mission,
+        when the robot stands within BACK_OUT_MIN of it, or when that mission was itself a way
+        back out (no backing and forth between two stances)."""
+        plans = log.plans
+        if not plans or len(log.targets) < len(plans):
+            return None
+        if _key(log.targets[len(plans) - 1]) in self._targets:
+            return None
+        plan = plans[-1]
+        p = plan.base_position(plan.start_time)
+        if math.hypot(float(p[0]) - here[0], float(p[1]) - here[1]) < BACK_OUT_MIN:
+            return None
+        target = (float(p[0]), float(p[1]), float(plan.base_rpy(plan.start_time)[2]))
+        self._targets.add(_key(target))
+        return target
+
+    def __len__(self) -> int:
+        return len(self._targets)
+
+
+def _key(target) -> tuple[float, float]:
+    """A target's place, to the millimetre (its yaw may be unwrapped by whole turns)."""
+    return round(float(target[0]), 3), round(float(target[1]), 3)
+
+
+__all__ = ["BACK_OUT_MIN", "BackOut"]
