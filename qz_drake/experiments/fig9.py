@@ -1051,6 +1051,6 @@ def tune_capplanner(out, *, failure_rewards=TUNING_FAILURE_REWARDS,
                            + (f"_missions{g['mission_length']:g}" if g["mission_length"] != split.max_length else "")
                            + (f"_merge{g['merge_min_success']:g}" if g["merge_min_success"] != split.min_success
                               else "")
-                           + ("_doubt" if g["topology_doubt"] else ""),
+                           + ("" if g["topology_doubt"] else "_nodoubt"),
                  terrains=terrains, difficulties=difficulties, tasks=tasks, workers=workers,
                  ray_address=ray_address, config=config, progress=progress)
