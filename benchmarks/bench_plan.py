@@ -48,6 +48,10 @@ def run(repeats: int = 5, quick: bool = False, sizes=(20, 100)) -> dict:
         model = CapabilityModel.random(seed=0)
         weights = "random (CapabilityModel.random, seed 0): timing only"
     out = {"weights": weights, "torch_threads": 1}
+    if getattr(model, "card", {}).get("learner") == "boosted":
+        from qz_drake.capability.boosted import inference_threads
+
+        out["tree_threads"] = inference_threads()  # the free cores (QZ_TORCH_THREADS sets it)
     for size in sizes:
         heightmap = _world(size)
         xmin, xmax, ymin, ymax = heightmap.bounds

@@ -7,7 +7,7 @@ Each run is a fresh interpreter importing qz_drake from the tree given (the edit
 finder is taken out of sys.meta_path, so PYTHONPATH alone would not do); the trees alternate
 (base, new, base, new, ...); ``--world`` picks the 20 m long_range world (default) or a Fig. 9
 task's world (e.g. ``obstacles-hard``, seed 0). Random weights (CapabilityModel.random, seed 0), single networks
-and ensembles of five members; torch on one thread. Prints one JSON line per run and the medians
+and ensembles of five members, or with ``--shipped`` each tree's shipped model; torch on one thread. Prints one JSON line per run and the medians
 with their ratios (new / base).
 """
 
@@ -35,13 +35,17 @@ else:  # a Fig. 9 world: terrain-difficulty, e.g. obstacles-hard (flat outside i
     from qz_drake.experiments.worlds import make_task
     task = make_task(*sys.argv[2].split("-"), 0)
     hm, anchor = task.heightmap, task.start
-single = CapabilityModel.random(seed=0)
-torch.manual_seed(0)
-ensemble = CapabilityModel({k: CapabilityEnsemble([CapabilityNet(k[1]).eval() for _ in range(5)]).eval()
-                            for k in single.networks}, dict(single.card))
-predict_map(single, hm, anchor=anchor)
+if sys.argv[3] == "shipped":  # the tree's own shipped model
+    models = (("shipped", CapabilityModel.load()),)
+else:
+    single = CapabilityModel.random(seed=0)
+    torch.manual_seed(0)
+    ensemble = CapabilityModel({k: CapabilityEnsemble([CapabilityNet(k[1]).eval() for _ in range(5)]).eval()
+                                for k in single.networks}, dict(single.card))
+    models = (("single", single), ("ensemble5", ensemble))
+predict_map(models[0][1], hm, anchor=anchor)
 out = {}
-for name, model in (("single", single), ("ensemble5", ensemble)):
+for name, model in models:
     clock = time.perf_counter()
     predict_map(model, hm, anchor=anchor)
     out[name] = time.perf_counter() - clock
@@ -58,12 +62,16 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--world", default="long_range",
                         help="long_range (the 20 m world) or a Fig. 9 cell such as obstacles-hard (seed 0)")
+    parser.add_argument("--shipped", action="store_true",
+                        help="each tree's shipped model instead of random CNNs (the boosted trees use the free "
+                             "cores, or QZ_TORCH_THREADS)")
     args = parser.parse_args(argv)
     times = {"base": [], "new": []}
     for _ in range(args.repeats):
         for label in ("base", "new"):
             root = str(Path(getattr(args, label)).resolve())
-            run = subprocess.run([sys.executable, "-c", _RUN, root, args.world], capture_output=True, text=True, check=True)
+            run = subprocess.run([sys.executable, "-c", _RUN, root, args.world, "shipped" if args.shipped else "random"],
+                                 capture_output=True, text=True, check=True)
             result = json.loads(run.stdout.strip().splitlines()[-1])
             print(json.dumps({"tree": label, **result}))
             times[label].append(result)

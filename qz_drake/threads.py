@@ -6,7 +6,8 @@ wait on each other and on the other work: `qz plan` on a 20 m world spent 12.7-1
 planning with two threads and 4.1-4.6 s with one, with the other core busy (BENCHMARKS
 "plan", session 34). So torch gets the cores that are free when the model is loaded: the
 process's cores less the load average (its own work included), at least one.
-``QZ_TORCH_THREADS`` sets the number instead.
+``QZ_TORCH_THREADS`` sets the number instead. The shipped boosted capability model's trees
+(qz_drake.capability.boosted) split a map's queries over the same number of threads.
 
 Where the networks run: the CPU unless asked (``--device`` of the commands that plan, or
 ``QZ_TORCH_DEVICE`` for every model a process loads, walks and experiments included): ``cpu``,

@@ -111,6 +111,26 @@ def test_saved_model_loads_and_answers_as_trained(trained):
     assert share is not None and 0.0 <= share <= 1.0
 
 
+def test_the_trees_answer_the_same_on_one_thread_or_several(trained, monkeypatch):
+    """The free cores share a map's queries (QZ_TORCH_THREADS sets how many): the answers are
+    the same to the last bit, block by block, as on one thread."""
+    arrays, _, _, result, _ = trained
+    model = B.BoostedCapabilityModel(result.members, result.card)
+    rng = np.random.default_rng(3)
+    rows = rng.choice(len(arrays["kind"]), size=3 * B.PARALLEL_ROWS, replace=True)
+    patches, feet = arrays["patch"][rows], arrays["feet"][rows]
+    answers = {}
+    for threads in ("1", "3"):
+        monkeypatch.setenv("QZ_TORCH_THREADS", threads)
+        answers[threads] = model.success_all(patches, {"nominal": feet, "split_up": feet[::-1]}, "turn")
+    for topology in ("nominal", "split_up"):
+        for one, several in zip(answers["1"][topology], answers["3"][topology]):
+            np.testing.assert_array_equal(one, several)
+    monkeypatch.setenv("QZ_TORCH_THREADS", "3")
+    X = np.concatenate([B.features(patches, feet, "orthogonal", "nominal")] * 2)
+    np.testing.assert_array_equal(model.member_outcomes(X)[:, :len(rows)], model.member_outcomes(X)[:, len(rows):])
+
+
 def test_refuses_tampered_or_foreign_files_and_bad_queries(trained, tmp_path):
     _, manifest, _, result, folder = trained
     copy = B.save_boosted(result, tmp_path / "m")
