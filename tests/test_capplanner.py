@@ -346,6 +346,7 @@ def test_capplanner_is_tuned_on_the_same_tuning_worlds_as_astar(synthetic_model_
 
     report = tune_capplanner(tmp_path, failure_rewards=(-100.0, -300.0), topology_change_costs=(2.0,),
                              mission_lengths=(1.5,), merge_min_success=(0.95,), topology_doubts=(False,),
+                             plan_failure_risks=(0.0,),
                              terrains=("obstacles",), difficulties=("simple",), tasks=1,
                              config=ExperimentConfig(capability_model=str(synthetic_model_dir), scale=0.3),
                              progress=False)
