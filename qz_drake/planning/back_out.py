@@ -6,8 +6,9 @@ Sometimes the stance the robot stands in is the trouble, not the way: the BLC, s
 feet spread across a stair edge or astride a box, refuses whatever it is given within its
 iteration budget, and going round from there finds nothing (CapPlanner's moves and turns in
 place from the robot's cell all refused; session 38 validation walks). Then the route source
-hands out one more mission: back to where the robot stood when the last walked mission
-started, a stance the BLC planned from, and plans on from there with the refused ways closed.
+hands out one more mission: back to where the robot stood when the last walked mission that
+moved it started (a turn in place leaves it where it is), a stance the BLC planned from, and
+plans on from there with the refused ways closed.
 """
 
 from __future__ import annotations
@@ -27,21 +28,23 @@ class BackOut:
         self._targets: set = set()
 
     def target(self, log, here) -> tuple[float, float, float] | None:
-        """(x, y, yaw) where the last walked mission started; None without a walked mission,
-        when the robot stands within BACK_OUT_MIN of it, or when that mission was itself a way
-        back out (no backing and forth between two stances)."""
+        """(x, y, yaw) where the robot stood when the last walked mission that moved it (by
+        BACK_OUT_MIN at least: a turn in place leaves it where it is) started; None without
+        one, or when a way back out was walked since (no backing and forth between two
+        stances)."""
         plans = log.plans
-        if not plans or len(log.targets) < len(plans):
+        if len(log.targets) < len(plans):
             return None
-        if _key(log.targets[len(plans) - 1]) in self._targets:
-            return None
-        plan = plans[-1]
-        p = plan.base_position(plan.start_time)
-        if math.hypot(float(p[0]) - here[0], float(p[1]) - here[1]) < BACK_OUT_MIN:
-            return None
-        target = (float(p[0]), float(p[1]), float(plan.base_rpy(plan.start_time)[2]))
-        self._targets.add(_key(target))
-        return target
+        for i in range(len(plans) - 1, -1, -1):
+            if _key(log.targets[i]) in self._targets:
+                return None
+            plan = plans[i]
+            p = plan.base_position(plan.start_time)
+            if math.hypot(float(p[0]) - here[0], float(p[1]) - here[1]) >= BACK_OUT_MIN:
+                target = (float(p[0]), float(p[1]), float(plan.base_rpy(plan.start_time)[2]))
+                self._targets.add(_key(target))
+                return target
+        return None
 
     def __len__(self) -> int:
         return len(self._targets)
