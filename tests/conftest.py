@@ -66,6 +66,19 @@ class StraightPlan:
 
         return np.zeros(3)
 
+    def foot_positions(self, t):
+        """The nominal topology's footholds round the base on level ground (z = 0)."""
+        import numpy as np
+
+        from qz_drake.capability import patches as P
+        from qz_drake.robot.params import DEFAULT_PARAMS
+        from qz_drake.robot.topology import get_topology
+        from qz_drake.terrain import HeightMap
+
+        x, y, _ = self.base_position(t)
+        flat = HeightMap(np.zeros((81, 81)), 0.05, (x - 2.0, y - 2.0))
+        return P.nominal_feet_W(flat, x, y, 0.0, get_topology("nominal"), DEFAULT_PARAMS.foot_radius)
+
 
 @pytest.fixture
 def straight_plan():

@@ -511,6 +511,84 @@ def forbid_action(mdp: CapabilityMdp, state: int, action: int) -> None:
                             + config.failure_reward)
 
 
+def stance_outcomes(model, heightmap, x: float, y: float, heading: int, topology: str, feet_W) -> np.ndarray:
+    """(3, 3): for the moves of MOTIONS (forward one cell along ``heading``, turn left, turn
+    right) in ``topology``, from the robot's pose (x, y) facing heading k and standing on
+    ``feet_W`` (6, 3) in the world (the measured or the plan's stance, not the topology's
+    nominal footholds the map assumes), the model's (P(walked) doubted by its spread as the map
+    is, P(the BLC plans it), spread)."""
+    from qz_drake.capability import patches as P
+
+    yaw = float(P.heading_yaw(int(heading)))
+    ground = float(P.ground_reference(heightmap, x, y))
+    feet = P.feet_in_heading_frame(np.asarray(feet_W, dtype=float), x, y, yaw, ground)[None]
+    out = np.zeros((3, 3))
+    move = "orthogonal" if int(heading) % 2 == 0 else "diagonal"
+    for m, kind in enumerate((move, "turn")):
+        patch = P.sample_patches(heightmap, x, y, yaw, kind, ground=ground)[None]
+        rows = (0,) if m == 0 else (1, 2)  # a turn's answers are (left, right)
+        if hasattr(model, "success_all"):
+            success, plan, spread = model.success_all(patch, {topology: feet}, kind)[topology]
+        else:  # a model with only ``success`` (a stub): no plan output, no spread
+            directions = np.array([P.TURN_LEFT, P.TURN_RIGHT])[:, None] if kind == "turn" else None
+            success = model.success(np.stack([patch] * len(rows)) if kind == "turn" else patch,
+                                    np.stack([feet] * len(rows)) if kind == "turn" else feet, kind, topology,
+                                    direction=directions)
+            plan = spread = None
+        success = np.reshape(success, (len(rows),))
+        plan = np.ones(len(rows)) if plan is None else np.reshape(plan, (len(rows),))
+        spread = np.zeros(len(rows)) if spread is None else np.reshape(spread, (len(rows),))
+        for i, r in enumerate(rows):
+            out[r] = (success[i], plan[i], spread[i])
+    return out
+
+
+def set_stance(mdp: CapabilityMdp, state: int, outcomes: np.ndarray) -> dict:
+    """Replaces, in place, the moves of ``state``'s own topology from that state with what the
+    robot's stance gives them (``outcomes``: stance_outcomes), a refusal counted as a failure:
+    the BLC is deterministic, and from a stance it refuses an action it refuses it again, so a
+    refusal predicted from the stance the robot stands in is a dead end, not a stand and a retry.
+    Actions already forbidden (forbid_action) stay forbidden. The success is doubted by the
+    spread as the map's is (``pessimism``); ``topology_doubt``'s comparison with nominal is
+    not made here (the robot's own topology's moves, nominal's nearly always). Returns what it
+    replaced, for :func:`restore_actions`."""
+    if not (0 <= state < mdp.goal_state):
+        raise bad_value("state", state, f"expected a grid state 0..{mdp.goal_state - 1}")
+    ix, iy, _, topology = mdp.unravel(state)
+    if (ix, iy) == mdp.goal_cell:
+        return {}
+    config = mdp.config
+    t = mdp.topologies.index(topology)
+    saved = {}
+    for m in range(len(MOTIONS)):
+        a = t * len(MOTIONS) + m
+        nxt = int(mdp.next_state[a, state])
+        if nxt == mdp.failure_state:  # forbidden, or a move off the map
+            continue
+        saved[a] = (float(mdp.success[a, state]), None if mdp.stand is None else float(mdp.stand[a, state]),
+                    float(mdp.R[state, a]))
+        p = float(np.clip(outcomes[m, 0] - config.pessimism * outcomes[m, 2], 0.0, 1.0))
+        mdp.success[a, state] = p
+        if mdp.stand is not None:
+            mdp.stand[a, state] = 0.0
+        mdp.R[state, a] = (-config.action_cost + p * config.goal_reward * (nxt == mdp.goal_state)
+                           + (1.0 - p) * config.failure_reward)
+    return {state: saved}
+
+
+def restore_actions(mdp: CapabilityMdp, saved: dict) -> None:
+    """Undoes :func:`set_stance` (its return value), in place; an action forbidden since stays
+    forbidden."""
+    for state, actions in saved.items():
+        for a, (success, stand, reward) in actions.items():
+            if mdp.next_state[a, state] == mdp.failure_state:
+                continue
+            mdp.success[a, state] = success
+            if stand is not None:
+                mdp.stand[a, state] = stand
+            mdp.R[state, a] = reward
+
+
 def step_state_action(mdp: CapabilityMdp, step) -> tuple[int, int]:
     """(state, action) of a PathStep of this MDP's grid."""
     ix, iy = mdp.cell_of(step.x, step.y, field="step")

@@ -27,7 +27,8 @@ from pydrake.common.value import AbstractValue
 from qz_drake.capability.patches import HEADING_STEP
 from qz_drake.planning.back_out import BackOut
 from qz_drake.planning.guidance import GuidedMission, MissionSplitConfig, split_missions
-from qz_drake.systems.mission_sequencer import RecoveringSequencer, RecoveryLog, unwrapped_yaws
+from qz_drake.robot.params import DEFAULT_PARAMS
+from qz_drake.systems.mission_sequencer import RecoveringSequencer, RecoveryLog, measured_start, unwrapped_yaws
 from qz_drake.state_layout import BASE_XY, base_rpy
 
 
@@ -104,12 +105,16 @@ class CapabilityVIPlanner(RecoveringSequencer):
             its moves and turns refused or forbidden), back out to where the last walked
             mission started and plan on from there (qz_drake.planning.back_out); once per
             dead end, the way back counted as a mission like any other.
+        measured_stance: at each replan after the first, the moves from the robot's cell in its
+            topology are judged from the stance it stands in (the plan's end feet, or the
+            measured ones after a refusal) instead of the nominal footholds the map assumes,
+            a predicted refusal counted as a failure (capability_mdp.set_stance).
     """
 
     def __init__(self, *, model, heightmap, goal, start, initial_topology: str = "nominal", mdp_config=None,
                  split_config: MissionSplitConfig = MissionSplitConfig(), min_route_success: float = 0.05,
                  plan_ahead: float = 0.0, check_period: float = 0.05, max_recoveries: int = 4,
-                 back_out: bool = True):
+                 back_out: bool = True, measured_stance: bool = True):
         super().__init__(log=CapabilityPlannerLog(), max_recoveries=max_recoveries, plan_ahead=plan_ahead)
         from qz_drake.capability.model import predict_map
         from qz_drake.planning.capability_mdp import (CapabilityMdpConfig, build_capability_mdp, cells_on_map,
@@ -119,6 +124,11 @@ class CapabilityVIPlanner(RecoveringSequencer):
         self.first_plan = None
         self._split = split_config
         self._back_out = BackOut() if back_out else None
+        # The model and the map for the stance at each replan (measured_stance), and what the
+        # last replan's stance replaced in the MDP (capability_mdp.set_stance).
+        self._model = model if measured_stance else None
+        self._heightmap = heightmap
+        self._stance_saved: dict = {}
         self._min_success = float(min_route_success)
         clock = time.perf_counter()
         config = (mdp_config or CapabilityMdpConfig()).check()
@@ -143,14 +153,24 @@ class CapabilityVIPlanner(RecoveringSequencer):
                                        prerequisites_of_calc={self.nothing_ticket()})
 
     # -- planning ------------------------------------------------------------------------------
-    def _replan(self, t: float, x: float, y: float, yaw: float, topology: str) -> list:
+    def _replan(self, t: float, x: float, y: float, yaw: float, topology: str, feet_W=None) -> list:
         from qz_drake.planning.capability_mdp import (CapabilityPlan, fall_free_probability, most_likely_path,
-                                                      most_probable_path)
+                                                      most_probable_path, restore_actions, set_stance,
+                                                      solve_capability_mdp, stance_outcomes)
 
         clock = time.perf_counter()
         ix, iy = self.mdp.cell_of(x, y, field="start", margin=self.mdp.config.cell_size)
         k = int(round(yaw / HEADING_STEP)) % 8
         start = self.mdp.state(ix, iy, k, topology)
+        restore_actions(self.mdp, self._stance_saved)
+        self._stance_saved = {}
+        if feet_W is not None and self._model is not None:
+            # The first moves from the stance the robot stands in (the map assumed the nominal
+            # footholds): a refusal predicted from it is a dead end.
+            outcomes = stance_outcomes(self._model, self._heightmap, x, y, k, topology, feet_W)
+            self._stance_saved = set_stance(self.mdp, start, outcomes)
+            self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
+            self.log.value_iterations += int(self.solution.iterations)
         steps, reaches, probability = most_likely_path(self.mdp, self.solution, start)
         if not reaches:
             # The policy prefers turning in place to every way there; declining fails the task
@@ -185,7 +205,8 @@ class CapabilityVIPlanner(RecoveringSequencer):
         ix, iy = self.mdp.cell_of(float(p[0]), float(p[1]), field="expected end", margin=self.mdp.config.cell_size)
         if (ix, iy) == self.mdp.goal_cell:
             return None
-        return self._replan(context.get_time(), float(p[0]), float(p[1]), yaw, topology) or None
+        return self._replan(context.get_time(), float(p[0]), float(p[1]), yaw, topology,
+                            plan.foot_positions(plan.end_time)) or None
 
     def _go_round(self, context, state, failed, missions, index):
         """The BLC could not plan ``failed``: go round it (see the class docstring)."""
@@ -219,7 +240,8 @@ class CapabilityVIPlanner(RecoveringSequencer):
         self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
         self.log.planning_time_s += time.perf_counter() - clock
         self.log.value_iterations += int(self.solution.iterations)
-        missions = self._replan(context.get_time(), x0, y0, yaw, topology)
+        feet_W = measured_start(x, 0.0, DEFAULT_PARAMS).feet_W
+        missions = self._replan(context.get_time(), x0, y0, yaw, topology, feet_W)
         if not missions:
             # A dead end: every way on from this stance refused or forbidden. Its actions stay
             # forbidden (value iteration now avoids the state), and the robot backs out to

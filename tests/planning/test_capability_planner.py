@@ -288,3 +288,49 @@ def test_a_way_back_out_the_blc_refuses_ends_the_walk_with_the_reason(straight_p
     planner, simulator, context, here, failures = _dead_end(straight_plan)
     assert _blc_fails(planner, simulator, context, failures + 1) == []
     assert planner.done and planner.log.unreachable == "the BLC could not plan the way back out of a dead end"
+
+
+class StanceModel(WallModel):
+    """WallModel, and from a stance with a foot 0.1 m or more below the ground under the body
+    every action but a right turn walks only 5 % of the time (the BLC refusing a stance across
+    a step)."""
+
+    def success(self, patches, feet, kind, topology, direction=None):
+        from qz_drake.capability.patches import TURN_RIGHT
+
+        p = super().success(patches, feet, kind, topology, direction)
+        low = (np.asarray(feet)[..., 2] < -0.1).any(axis=-1)
+        if kind == "turn":
+            low = low & (np.asarray(direction) != TURN_RIGHT)
+        return np.where(low, 0.05, p)
+
+
+def test_the_first_moves_are_judged_from_the_stance_the_robot_stands_in(straight_plan):
+    """The map assumes the topology's nominal footholds; at a replan the TLC judges the moves
+    from the robot's cell by the stance it stands in (here a foot 0.25 m down, from which the
+    model says only a right turn is planned), so it turns right first instead of left, round the
+    wall; the next replan, from another stance, plans on the map's values again."""
+
+    class FootDown(straight_plan):
+        def foot_positions(self, t):
+            feet = super().foot_positions(t).copy()
+            feet[0, 2] -= 0.25
+            return feet
+
+    here = (START[0] + 1.0, START[1])
+    firsts = {}
+    for measured in (True, False):
+        planner = CapabilityVIPlanner(model=StanceModel(), heightmap=_world(), goal=GOAL, start=(*START, 0.0),
+                                      mdp_config=CapabilityMdpConfig(topologies=["nominal"]), measured_stance=measured)
+        simulator, context = _standing(planner)
+        missions = _walk_one_mission(planner, simulator, context, START, here, FootDown)
+        firsts[measured] = missions[0].steps[0]
+        assert missions and not planner.done
+        if measured:
+            mdp = planner.mdp
+            s = mdp.state(*mdp.cell_of(*here), 0, "nominal")
+            assert mdp.success[1, s] < 0.1 and mdp.stand[1, s] == 0.0  # a refusal from there is no retry
+            # The robot turns and stands on its nominal footholds again: the map's values are back.
+            turned = _walk_one_mission(planner, simulator, context, here, here, straight_plan)
+            assert turned and mdp.success[1, s] > 0.9
+    assert firsts[False].motion == "turn_left" and firsts[True].motion == "turn_right"
