@@ -32,6 +32,11 @@ from qz_drake.systems.mission_sequencer import RecoveringSequencer, RecoveryLog,
 from qz_drake.state_layout import BASE_XY, base_rpy
 
 
+# A stance from which no move of the robot's topology is predicted to walk (doubted) at least
+# this often is a dead end (measured_stance, back_out).
+DEAD_END_SUCCESS = 0.5
+
+
 @dataclasses.dataclass
 class CapabilityPlannerLog(RecoveryLog):
     """The missions handed out, the ones gone round (RecoveryLog's fields: ``recoveries`` says
@@ -45,8 +50,10 @@ class CapabilityPlannerLog(RecoveryLog):
     # Replans whose path is the most probable one because the policy's did not reach the goal
     # (capability_mdp.most_probable_path).
     most_probable: int = 0
-    # Ways back out of a dead end handed out (qz_drake.planning.back_out).
+    # Ways back out of a dead end handed out (qz_drake.planning.back_out), and of those the
+    # dead ends the model foretold from the robot's stance (no move refused first).
     back_outs: int = 0
+    predicted_dead_ends: int = 0
 
 
 class CapabilityVIPlanner(RecoveringSequencer):
@@ -169,8 +176,21 @@ class CapabilityVIPlanner(RecoveringSequencer):
             # footholds): a refusal predicted from it is a dead end.
             outcomes = stance_outcomes(self._model, self._heightmap, x, y, k, topology, feet_W)
             self._stance_saved = set_stance(self.mdp, start, outcomes)
+            moves = list(self._stance_saved.get(start, {}))
+            dead = bool(moves) and max(self.mdp.success[a, start] for a in moves) < DEAD_END_SUCCESS
+            back = self._back_out_missions(x, y, yaw, topology) if dead else None
+            if back is not None:
+                # A dead end by the model's word: every move from this stance predicted to fail
+                # (the BLC refusing them, mostly). Back out now rather than spend the refusals
+                # the walk may afford on trying each (forbidden from here, as refused ones are).
+                self._forbid_here(start, moves)
+                self.log.predicted_dead_ends += 1
             self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
             self.log.value_iterations += int(self.solution.iterations)
+            if back is not None:
+                self.log.replans.append((t, (x, y, k, topology), len(back), 0.0))
+                self.log.planning_time_s += time.perf_counter() - clock
+                return back
         steps, reaches, probability = most_likely_path(self.mdp, self.solution, start)
         if not reaches:
             # The policy prefers turning in place to every way there; declining fails the task
@@ -242,24 +262,43 @@ class CapabilityVIPlanner(RecoveringSequencer):
         self.log.value_iterations += int(self.solution.iterations)
         feet_W = measured_start(x, 0.0, DEFAULT_PARAMS).feet_W
         missions = self._replan(context.get_time(), x0, y0, yaw, topology, feet_W)
+        if missions and missions[0].back_out:
+            return missions, "backed out"
         if not missions:
             # A dead end: every way on from this stance refused or forbidden. Its actions stay
             # forbidden (value iteration now avoids the state), and the robot backs out to
             # where it stood when the last walked mission started, to plan on from there.
-            target = None if self._back_out is None else self._back_out.target(self.log, (x0, y0))
-            if target is not None:
-                self.log.unreachable = ""
-                self.log.back_outs += 1
-                back = GuidedMission(target, topology, [], 1.0, back_out=True)
-                return unwrapped_yaws([back], yaw), "backed out"
+            back = self._back_out_missions(x0, y0, yaw, topology)
+            if back is not None:
+                return back, "backed out"
         return missions, "forbade"
+
+    def _back_out_missions(self, x: float, y: float, yaw: float, topology: str) -> list | None:
+        """[the way back out of a dead end] (qz_drake.planning.back_out), or None."""
+        target = None if self._back_out is None else self._back_out.target(self.log, (x, y))
+        if target is None:
+            return None
+        self.log.unreachable = ""
+        self.log.back_outs += 1
+        return unwrapped_yaws([GuidedMission(target, topology, [], 1.0, back_out=True)], yaw)
+
+    def _forbid_here(self, state: int, actions) -> None:
+        """Forbids the moves ``actions`` of ``state``'s topology from its cell and heading in
+        every topology (as a refused move is: how the robot stood before does not change it)."""
+        from qz_drake.planning.capability_mdp import MOTIONS, forbid_action
+
+        ix, iy, k, _ = self.mdp.unravel(state)
+        for a in actions:
+            m = a % len(MOTIONS)
+            for t, name in enumerate(self.mdp.topologies):
+                forbid_action(self.mdp, self.mdp.state(ix, iy, k, name), t * len(MOTIONS) + m)
 
     def counts(self) -> dict:
         """The planner's numbers for the walk's metrics."""
         return {"planning_time_s": self.log.planning_time_s, "value_iterations": self.log.value_iterations,
                 "replans": max(len(self.log.replans) - 1, 0), "unreachable": self.log.unreachable,
                 "tlc_recoveries": len(self.log.recoveries), "tlc_most_probable": self.log.most_probable,
-                "tlc_back_outs": self.log.back_outs}
+                "tlc_back_outs": self.log.back_outs, "tlc_predicted_dead_ends": self.log.predicted_dead_ends}
 
     # -- outputs -----------------------------------------------------------------------------
     def _calc_guidance(self, context, output):

@@ -334,3 +334,39 @@ def test_the_first_moves_are_judged_from_the_stance_the_robot_stands_in(straight
             turned = _walk_one_mission(planner, simulator, context, here, here, straight_plan)
             assert turned and mdp.success[1, s] > 0.9
     assert firsts[False].motion == "turn_left" and firsts[True].motion == "turn_right"
+
+
+class DeadEndModel(WallModel):
+    """WallModel, and from a stance with a foot 0.1 m or more below the ground under the body
+    nothing walks (5 %): a dead end the model foretells."""
+
+    def success(self, patches, feet, kind, topology, direction=None):
+        p = super().success(patches, feet, kind, topology, direction)
+        return np.where((np.asarray(feet)[..., 2] < -0.1).any(axis=-1), 0.05, p)
+
+
+def test_a_dead_end_the_model_foretells_is_backed_out_of_without_a_refusal(straight_plan):
+    """From a stance where the model predicts every move to fail, the TLC backs out at once
+    (the walk's refusals are few: four, then the goal is unreachable) and never comes back to
+    that cell and heading; the way back is not a refusal."""
+
+    class FootDown(straight_plan):
+        def foot_positions(self, t):
+            feet = super().foot_positions(t).copy()
+            feet[0, 2] -= 0.25
+            return feet
+
+    planner = CapabilityVIPlanner(model=DeadEndModel(), heightmap=_world(), goal=GOAL, start=(*START, 0.0),
+                                  mdp_config=CapabilityMdpConfig(topologies=["nominal"]))
+    simulator, context = _standing(planner)
+    here = (START[0] + 1.0, START[1])
+    [back] = _walk_one_mission(planner, simulator, context, START, here, FootDown)
+    assert back.back_out and planner.log.predicted_dead_ends == planner.log.back_outs == 1
+    np.testing.assert_allclose(back.target, (*START, 0.0), atol=1e-9)
+    assert planner.log.recoveries == [] and not planner.done
+    mdp = planner.mdp
+    dead = mdp.state(*mdp.cell_of(*here), 0, "nominal")
+    assert (mdp.next_state[:, dead] == mdp.failure_state).all()
+    missions = _walk_one_mission(planner, simulator, context, here, START, straight_plan)
+    assert missions and not missions[0].back_out and not planner.done
+    np.testing.assert_allclose(missions[-1].target[:2], GOAL)
