@@ -474,6 +474,11 @@ def test_the_experiments_capplanner_sets_out_on_any_path_it_has():
     task = make_task("stairs", "hard", 0, scale=0.3)
     assert PLANNERS["capplanner"](task, ExperimentConfig())[3].min_route_success == 0.0
     assert PLANNERS["capplanner"](task, ExperimentConfig(capplanner_min_route_success=0.05))[3].min_route_success == 0.05
+    # Backing out of dead ends and judging moves from the robot's stance: on unless the run says.
+    route = PLANNERS["capplanner"](task, ExperimentConfig())[3]
+    assert route.back_out and route.measured_stance
+    route = PLANNERS["capplanner"](task, ExperimentConfig(recovery_back_out=False, capplanner_measured_stance=False))[3]
+    assert not route.back_out and not route.measured_stance
     with pytest.raises(QzError, match="min_route_success = 1.5"):
         CapPlannerRoute(min_route_success=1.5)
 

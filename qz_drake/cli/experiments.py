@@ -41,7 +41,8 @@ def run_fig9(args) -> int:
     if args.capplanner_tuning:
         tuned.update(capplanner_settings(args.capplanner_tuning))
     config = ExperimentConfig(capability_model=args.model or "", scale=args.scale,
-                              recovery_back_out=not args.no_back_out, **tuned)
+                              recovery_back_out=not args.no_back_out,
+                              capplanner_measured_stance=not args.no_measured_stance, **tuned)
     summary = run_experiment(args.out, planners=_names(args.planners, "--planners", tuple(PLANNERS)),
                              terrains=_names(args.terrains, "--terrains", TERRAINS),
                              difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
@@ -191,7 +192,8 @@ def run_tune_capplanner(args) -> int:
         difficulties=_names(args.difficulties, "--difficulties", TUNING_DIFFICULTIES),
         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
         config=ExperimentConfig(capability_model=args.model or "", scale=args.scale,
-                                recovery_back_out=not args.no_back_out),
+                                recovery_back_out=not args.no_back_out,
+                                capplanner_measured_stance=not args.no_measured_stance),
         progress=not args.json)
     _print_tuning(report, args)
     return 0
@@ -215,6 +217,12 @@ def _back_out_argument(p) -> None:
     p.add_argument("--no-back-out", action="store_true",
                    help="neither planner backs out of a dead end (walks as before session 38; "
                         "qz_drake.planning.back_out)")
+
+
+def _stance_argument(p) -> None:
+    p.add_argument("--no-measured-stance", action="store_true",
+                   help="CapPlanner judges every move by the map's nominal footholds, also from the stance the "
+                        "robot stands in (walks as before session 38)")
 
 
 def register(subparsers) -> None:
@@ -243,6 +251,7 @@ def register(subparsers) -> None:
     p.add_argument("--ray-address", default=None, help="run the tasks on this Ray cluster (host:port)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     _back_out_argument(p)
+    _stance_argument(p)
     p.set_defaults(func=run_fig9)
 
     p = sub.add_parser("report", help="the tables of a capplanner-vs-astar results folder (a run in progress too)")
@@ -293,4 +302,5 @@ def register(subparsers) -> None:
                    help="comma-separated on/off: doubt a topology change by the ensemble's disagreement about the "
                         "difference (default on)")
     p.add_argument("--model", default=None, help="CapPlanner's capability model folder (default: shipped)")
+    _stance_argument(p)
     p.set_defaults(func=run_tune_capplanner)

@@ -71,6 +71,9 @@ class ExperimentConfig:
     # Whether CapPlanner doubts a topology change by the ensemble's disagreement about the
     # difference between the topologies (capability_mdp.CapabilityMdpConfig.topology_doubt).
     capplanner_topology_doubt: bool = True
+    # Whether CapPlanner judges the first moves of each replan from the stance the robot stands
+    # in, and backs out of a dead end the model foretells (CapabilityVIPlanner's measured_stance).
+    capplanner_measured_stance: bool = True
     # CapPlanner's split of its path into BLC missions (guidance.MissionSplitConfig): the
     # longest mission [m] and the least predicted success of a merged mission.
     capplanner_mission_length: float = 2.0
@@ -129,7 +132,7 @@ def _capplanner(task, config):
                                min_success=config.capplanner_merge_min_success)
     return (Route(True, "", [], 0.0, np.zeros((0, 2))), "capplanner", [(*task.goal, 0.0, "nominal")],
             CapPlannerRoute(split, min_route_success=config.capplanner_min_route_success,
-                            back_out=config.recovery_back_out))
+                            back_out=config.recovery_back_out, measured_stance=config.capplanner_measured_stance))
 
 
 def _mdp_overrides(config: ExperimentConfig) -> dict:
@@ -417,7 +420,8 @@ def compare_runs(records: list[dict], other: list[dict], planners=None) -> list[
 # A* had no recovery before issue 38; CapPlanner declined paths whose predicted chance of no
 # fall was below 0.05 (CapabilityVIPlanner's default).
 SETTINGS_BEFORE_THEY_EXISTED = {"astar_max_recoveries": 0, "capplanner_min_route_success": 0.05,
-                                "recovery_back_out": False, "capplanner_topology_doubt": False}
+                                "recovery_back_out": False, "capplanner_topology_doubt": False,
+                                "capplanner_measured_stance": False}
 
 
 def _settings(out: Path) -> dict:

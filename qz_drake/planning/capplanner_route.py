@@ -61,14 +61,16 @@ class CapPlannerRoute(FixedRoute):
     (guidance.MissionSplitConfig: the longest mission, the merge threshold) is the planner's
     split of its path into missions (None: the defaults); ``min_route_success`` the least
     predicted chance of arriving without a fall for which it sets out (CapabilityVIPlanner);
-    ``back_out`` whether it backs out of a dead end (qz_drake.planning.back_out)."""
+    ``back_out`` whether it backs out of a dead end (qz_drake.planning.back_out);
+    ``measured_stance`` whether each replan judges the first moves from the robot's stance
+    (CapabilityVIPlanner)."""
 
     mission_retries = CAPPLANNER_MISSION_RETRIES
     chooses_goal_heading = True
     name = "CapPlanner"
 
     def __init__(self, split_config: MissionSplitConfig | None = None, min_route_success: float = 0.05,
-                 back_out: bool = True):
+                 back_out: bool = True, measured_stance: bool = True):
         from qz_drake.errors import bad_value
 
         self._split = (split_config or MissionSplitConfig()).check()
@@ -76,6 +78,7 @@ class CapPlannerRoute(FixedRoute):
             raise bad_value("min_route_success", min_route_success, "must be in [0, 1]")
         self.min_route_success = float(min_route_success)
         self.back_out = bool(back_out)
+        self.measured_stance = bool(measured_stance)
 
     def blc_parameters(self):
         # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt
@@ -101,7 +104,7 @@ class CapPlannerRoute(FixedRoute):
                                    initial_topology=info.topology.name, plan_ahead=control.plan_ahead,
                                    mdp_config=mdp_config(control.capability_mdp, topologies),
                                    split_config=self._split, min_route_success=self.min_route_success,
-                                   back_out=self.back_out)
+                                   back_out=self.back_out, measured_stance=self.measured_stance)
 
     def unreachable(self, source) -> str:
         return source.log.unreachable
