@@ -80,9 +80,13 @@ class CapabilityVIPlanner(RecoveringSequencer):
     goes round it, as a mature TLC must (a BLC failure is not a fall). A mission of several
     actions is handed out again one action at a time; a single action that fails is forbidden
     from that state (its transition leads to failure), value iteration is solved again, and
-    the planner replans from the measured state. After ``max_recoveries`` such failures (or
-    when no path remains) the goal is unreachable, with the reason; ``target`` (x, y, yaw) and ``topology`` feed
-    TrajectoryOptimizationBLC; ``guidance`` is the current list of GuidedMissions and
+    the planner replans from the measured state. Each replan after the first judges the moves
+    from the robot's cell by the stance it stands in (``measured_stance``; the map assumed the
+    nominal footholds), a refusal predicted from it a failure; where no move is left from there
+    (all refused or forbidden, or all foretold to fail) the robot backs out to where its last
+    walked move started (``back_out``). After ``max_recoveries`` refusals (or when no path
+    remains) the goal is unreachable, with the reason; ``target`` (x, y, yaw) and ``topology``
+    feed TrajectoryOptimizationBLC; ``guidance`` is the current list of GuidedMissions and
     ``utility`` the (ny, nx) utility map with its cell centres (xs, ys), for drawing.
 
     State: the missions of the latest plan with the index of the current one, and the mission
