@@ -136,6 +136,14 @@ def test_the_claim_is_checked_on_paired_tasks_and_reported_as_tables(tmp_path, c
     assert claim["discordant_share"] == pytest.approx(7 / 9) and 0 < claim["power"] < 0.8
     assert claim["tasks_per_cell_for_power"] > 9
     assert "The aim on medium + hard (9 paired tasks): CapPlanner 88.9 %, A* 33.3 %, difference +55.6 points" in text
+    # Every difference between the planners' walks that remains is stated, from the settings.
+    assert "What differs between the planners' walks besides their plans:" in text
+    assert "- Both go round up to 4 missions the BLC refuses" in text and "back out of a dead end." in text
+    (tmp_path / "settings.json").write_text(json.dumps({"astar_max_recoveries": 0, "capplanner_mission_length": 1.5}))
+    assert main(["experiment", "report", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert "- Refusals gone round: CapPlanner 4, A* 0." in text and "missions of at most 1.5 m" in text
+    assert "judges its next moves from the stance" not in text  # a folder from before that setting
     assert main(["experiment", "report", str(tmp_path / "nothing")]) == 2
     assert "results" in capsys.readouterr().err
 

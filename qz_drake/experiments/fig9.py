@@ -537,6 +537,38 @@ def route_calibration(records: list[dict], predictions: list[dict]) -> list[dict
     return [r for r in rows if r["tasks"]]
 
 
+def planner_differences(settings: dict) -> list[str]:
+    """What still differs between the two planners' walks of a run with these settings
+    (``settings.json``; {} for defaults), beyond the top-level controller itself: the issue
+    asks the report to state every difference, and the settings say which hold."""
+    from qz_drake.experiments.astar_recovery import MAX_RECOVERIES
+
+    c = {**dataclasses.asdict(ExperimentConfig()), **SETTINGS_BEFORE_THEY_EXISTED, **settings} if settings else \
+        dataclasses.asdict(ExperimentConfig())
+    out = [f"Shared: the BLC ({c['blc_max_iterations']} Ipopt iterations a mission, no retry), the IK tracker "
+           f"and joint PD, the strict verdict, the time budget ({c['time_factor']:g} x the straight-line walking "
+           f"time + {c['time_margin']:g} s), the speed and tripod phase."]
+    if c["astar_max_recoveries"] == MAX_RECOVERIES:
+        out.append(f"Both go round up to {MAX_RECOVERIES} missions the BLC refuses (split, then forbid / block and "
+                   "plan again)" + (" and back out of a dead end." if c["recovery_back_out"] else
+                                    "; neither backs out of a dead end."))
+    else:
+        out.append(f"Refusals gone round: CapPlanner {MAX_RECOVERIES}, A* {c['astar_max_recoveries']}.")
+    out.append(f"Missions: A* walks its route in missions of at most {c['mission_length']:g} m and plans again "
+               f"only after a refusal; CapPlanner merges its path's actions into missions of at most "
+               f"{c['capplanner_mission_length']:g} m while their predicted success stays above "
+               f"{c['capplanner_merge_min_success']:g}, and plans again at every mission start.")
+    out.append("Topology: A* walks in the nominal topology; CapPlanner may change topology"
+               + (" where the gain exceeds its ensemble's doubt about it." if c["capplanner_topology_doubt"] else "."))
+    if c["capplanner_measured_stance"]:
+        out.append("CapPlanner judges its next moves from the stance the robot stands in and backs out of a "
+                   "stance its model foretells as a dead end; A* has no model of the BLC to do so.")
+    if c["capplanner_min_route_success"] > 0:
+        out.append(f"CapPlanner declines a task whose best path's predicted chance of no fall is below "
+                   f"{c['capplanner_min_route_success']:g} (a failure here); A* declines only without a route.")
+    return out
+
+
 def report(out, against=None) -> dict:
     """The summary of a results folder as it stands (a run in progress included): rows,
     comparisons, failure reasons per planner, and how many tasks are done; with ``against``
@@ -556,7 +588,8 @@ def report(out, against=None) -> dict:
             bucket[r["reason"]] = bucket.get(r["reason"], 0) + 1
     summary = {"rows": summarise(records), "comparisons": compare_planners(records), "failure_reasons": reasons,
                "claim": claim_check(records), "errors": errors, "tasks_done": len(records),
-               "wall_time_s": float(sum(r.get("wall_time_s", 0.0) for r in records))}
+               "wall_time_s": float(sum(r.get("wall_time_s", 0.0) for r in records)),
+               "differences": planner_differences(_settings(out))}
     if (out / PREDICTIONS).is_file():  # written by qz experiment report --predict
         predictions = [json.loads(line) for line in (out / PREDICTIONS).read_text().splitlines() if line.strip()]
         summary["route_calibration"] = route_calibration(records, predictions)
@@ -637,6 +670,9 @@ def report_markdown(summary: dict) -> str:
         for t in summary["discordant"]:
             lines.append(f"| {t['task']} | {names.get(t['walked'], t['walked'])} | "
                          f"{names.get(t['failed'], t['failed'])} | {t['reason']} | {t['picture']} |")
+    if summary.get("differences"):
+        lines += ["", "What differs between the planners' walks besides their plans:", ""]
+        lines += [f"- {d}" for d in summary["differences"]]
     if summary["failure_reasons"]:
         lines += ["", "| planner | failures by reason |", "| --- | --- |"]
         for planner, reasons in sorted(summary["failure_reasons"].items()):
