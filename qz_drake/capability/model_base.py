@@ -204,6 +204,15 @@ class MapInputs:
     feet: dict
 
 
+def pose_inputs(heightmap, x: float, y: float, yaw: float, kind: str, feet_W) -> tuple[np.ndarray, np.ndarray]:
+    """One query's inputs at a pose: the (20, 20) height patch of ``kind`` and the feet
+    ``feet_W`` (6, 3, world) in the heading frame, both against the ground under the body
+    (patches.ground_reference), as the map's are for every cell."""
+    ground = float(P.ground_reference(heightmap, x, y))
+    return (P.sample_patches(heightmap, x, y, yaw, kind, ground=ground),
+            P.feet_in_heading_frame(np.asarray(feet_W, dtype=float), x, y, yaw, ground))
+
+
 def sample_map_inputs(heightmap, topologies, *, cell_size: float = P.CELL_SIZE, anchor=None) -> MapInputs:
     """Patches (once per kind: they do not depend on the topology) and each topology's nominal
     feet for every cell and heading, vectorised over all of them (built on patches.py)."""

@@ -69,6 +69,7 @@ def predict_mission(model, heightmap, mission: dict) -> dict:
     """P(walked), P(no plan), P(executed and failed) of one mission record (walk_missions):
     products over its actions (module docstring). A model without a plan output predicts no
     split: P(no plan) and P(failed) are then None."""
+    from qz_drake.capability.model_base import pose_inputs
     from qz_drake.robot.params import DEFAULT_PARAMS
     from qz_drake.robot.topology import get_topology
 
@@ -76,11 +77,9 @@ def predict_mission(model, heightmap, mission: dict) -> dict:
     walked, planned = 1.0, 1.0
     feet_W = np.asarray(mission["feet"], dtype=float)
     for k, (kind, direction, x, y, yaw) in enumerate(mission_actions(mission["start"], mission["target"])):
-        ground = float(P.ground_reference(heightmap, x, y))
-        patch = P.sample_patches(heightmap, x, y, yaw, kind, ground=ground)
         if k > 0:  # standing on the topology's nominal footholds, as the planner's map assumes
             feet_W = P.nominal_feet_W(heightmap, x, y, yaw, get_topology(topology), DEFAULT_PARAMS.foot_radius)
-        feet = P.feet_in_heading_frame(feet_W, x, y, yaw, ground)
+        patch, feet = pose_inputs(heightmap, x, y, yaw, kind, feet_W)
         success, plan, _ = model.success_all(patch[None], {topology: feet[None]}, kind)[topology]
         pick = (lambda a: float(np.asarray(a)[direction][0])) if kind == "turn" else (lambda a: float(np.asarray(a)[0]))
         walked *= pick(success)

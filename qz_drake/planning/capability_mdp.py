@@ -352,6 +352,15 @@ def cells_on_map(heightmap, xs, ys) -> np.ndarray:
             & (Y - MAP_EDGE_REACH >= ymin) & (Y + MAP_EDGE_REACH <= ymax))
 
 
+def action_reward(config: CapabilityMdpConfig, p, q, to_goal, switch):
+    """An action's expected immediate reward (arrays or numbers): its cost and a topology
+    change's, the goal's reward where it succeeds into the goal (probability p), the failure's
+    where it neither succeeds nor leaves the robot standing (1 - p - q), a stand's cost (q)."""
+    return (-config.action_cost - config.topology_change_cost * switch
+            + p * config.goal_reward * to_goal + (1.0 - p - q) * config.failure_reward
+            - q * config.plan_failure_cost)
+
+
 def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | None = None,
                          switchable: np.ndarray | None = None, on_map: np.ndarray | None = None) -> CapabilityMdp:
     """The MDP of a CapabilityMap (qz_drake.capability.model.predict_map) and a goal position;
@@ -423,9 +432,7 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
             if switchable is not None:  # a topology change where the robot cannot make one fails
                 refused = (t0 != t) & ~np.asarray(switchable, dtype=bool)[iy, ix]
                 p, q = np.where(refused, 0.0, p), np.where(refused, 0.0, q)
-            reward = (-config.action_cost - config.topology_change_cost * (t0 != t)
-                      + p * config.goal_reward * (nxt == goal) + (1.0 - p - q) * config.failure_reward
-                      - q * config.plan_failure_cost)
+            reward = action_reward(config, p, q, nxt == goal, t0 != t)
             # A robot already in the goal cell (a start there) has arrived: any action ends it.
             success[a, :grid] = np.where(at_goal, 1.0, p)
             stand[a, :grid] = np.where(at_goal, 0.0, q)
@@ -507,25 +514,23 @@ def forbid_action(mdp: CapabilityMdp, state: int, action: int) -> None:
         mdp.stand[action, state] = 0.0
     mdp.success[action, state] = 0.0
     mdp.next_state[action, state] = mdp.failure_state
-    mdp.R[state, action] = (-config.action_cost - config.topology_change_cost * (t0 != action // len(MOTIONS))
-                            + config.failure_reward)
+    mdp.R[state, action] = action_reward(config, 0.0, 0.0, False, t0 != action // len(MOTIONS))
 
 
 def stance_outcomes(model, heightmap, x: float, y: float, heading: int, topology: str, feet_W) -> np.ndarray:
     """(3, 3): for the moves of MOTIONS (forward one cell along ``heading``, turn left, turn
     right) in ``topology``, from the robot's pose (x, y) facing heading k and standing on
     ``feet_W`` (6, 3) in the world (the measured or the plan's stance, not the topology's
-    nominal footholds the map assumes), the model's (P(walked) doubted by its spread as the map
-    is, P(the BLC plans it), spread)."""
+    nominal footholds the map assumes), the model's (P(walked), P(the BLC plans it), the
+    ensemble's spread of P(walked)); a model without a plan output or spread answers 1 and 0."""
     from qz_drake.capability import patches as P
+    from qz_drake.capability.model_base import pose_inputs
 
     yaw = float(P.heading_yaw(int(heading)))
-    ground = float(P.ground_reference(heightmap, x, y))
-    feet = P.feet_in_heading_frame(np.asarray(feet_W, dtype=float), x, y, yaw, ground)[None]
     out = np.zeros((3, 3))
     move = "orthogonal" if int(heading) % 2 == 0 else "diagonal"
     for m, kind in enumerate((move, "turn")):
-        patch = P.sample_patches(heightmap, x, y, yaw, kind, ground=ground)[None]
+        patch, feet = (a[None] for a in pose_inputs(heightmap, x, y, yaw, kind, feet_W))
         rows = (0,) if m == 0 else (1, 2)  # a turn's answers are (left, right)
         if hasattr(model, "success_all"):
             success, plan, spread = model.success_all(patch, {topology: feet}, kind)[topology]
@@ -571,8 +576,7 @@ def set_stance(mdp: CapabilityMdp, state: int, outcomes: np.ndarray) -> dict:
         mdp.success[a, state] = p
         if mdp.stand is not None:
             mdp.stand[a, state] = 0.0
-        mdp.R[state, a] = (-config.action_cost + p * config.goal_reward * (nxt == mdp.goal_state)
-                           + (1.0 - p) * config.failure_reward)
+        mdp.R[state, a] = action_reward(config, p, 0.0, nxt == mdp.goal_state, False)
     return {state: saved}
 
 
