@@ -9,6 +9,11 @@ place from the robot's cell all refused; session 38 validation walks). Then the 
 hands out one more mission: back to where the robot stood when the last walked mission that
 moved it started (a turn in place leaves it where it is), a stance the BLC planned from, and
 plans on from there with the refused ways closed.
+
+It is a helper of both route sources rather than a part of their shared base
+(systems.mission_sequencer.RecoveringSequencer), whose module the capability dataset's
+fingerprint covers (its "controller"): the trials never go round anything, and a change there
+would ask for the dataset to be certified again.
 """
 
 from __future__ import annotations
