@@ -80,12 +80,17 @@ def run_score_missions(args) -> int:
     from qz_drake.experiments.fig9 import RESULTS, _settings, read_results
     from qz_drake.experiments.walk_scores import score_missions
 
-    out = Path(args.out)
-    if not (out / RESULTS).is_file():
-        raise bad_value("results", str(out), f"no {RESULTS} there (run qz experiment capplanner-vs-astar)")
-    settings = _settings(out)
-    model = CapabilityModel.load(args.model or settings.get("capability_model") or None)
-    scores = score_missions(read_results(out), model, scale=float(settings.get("scale", 1.0)))
+    folders = [Path(out) for out in args.out]
+    for out in folders:
+        if not (out / RESULTS).is_file():
+            raise bad_value("results", str(out), f"no {RESULTS} there (run qz experiment capplanner-vs-astar)")
+    settings = [_settings(out) for out in folders]
+    scales = {float(s.get("scale", 1.0)) for s in settings}
+    if len(scales) > 1:
+        raise bad_value("results", [str(out) for out in folders], f"worlds of other scales ({sorted(scales)})")
+    model = CapabilityModel.load(args.model or settings[0].get("capability_model") or None)
+    records = [r for out in folders for r in read_results(out)]
+    scores = score_missions(records, model, scale=scales.pop())
     if args.json:
         print(json.dumps(scores))
         return 0
@@ -271,7 +276,7 @@ def register(subparsers) -> None:
 
     p = sub.add_parser("score-missions", help="a capability model against the missions of a run's walks "
                                               "(a run with record_missions; issue 37)")
-    p.add_argument("out", help="results folder whose walks kept their missions")
+    p.add_argument("out", nargs="+", help="results folders whose walks kept their missions (scored together)")
     p.add_argument("--model", default=None, help="capability model folder (default: the run's, else the shipped one)")
     p.add_argument("--json", action="store_true", help="print one JSON line instead of the table")
     p.set_defaults(func=run_score_missions, out_kind=None)

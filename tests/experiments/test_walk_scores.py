@@ -110,6 +110,16 @@ def test_the_command_scores_a_trained_model_on_a_runs_missions(synthetic_model_d
     text = capsys.readouterr().out
     assert "6 missions of 3 walks (0 walks kept none): walked 4, no plan 1, executed and failed 1" in text
     assert "| astar | stairs | simple | 3 | 0.67 |" in text
+    # Several runs' walks scored together (their worlds at one scale).
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "results.jsonl").write_text(json.dumps(records[1]) + "\n")
+    (other / "settings.json").write_text(json.dumps({"scale": 0.3}))
+    assert main(["experiment", "score-missions", str(tmp_path), str(other), "--model", str(synthetic_model_dir)]) == 0
+    assert "8 missions of 4 walks (0 walks kept none): walked 5, no plan 1, executed and failed 2" in capsys.readouterr().out
+    (other / "settings.json").write_text(json.dumps({"scale": 1.0}))
+    assert main(["experiment", "score-missions", str(tmp_path), str(other), "--model", str(synthetic_model_dir)]) == 2
+    assert "scale" in capsys.readouterr().err
     assert main(["experiment", "score-missions", str(tmp_path / "nothing")]) == 2
     assert "results" in capsys.readouterr().err
 
