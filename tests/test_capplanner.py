@@ -471,6 +471,24 @@ def test_one_planners_half_is_walked_before_the_other_is_tuned(synthetic_model_d
     assert json.loads((tmp_path / "settings.json").read_text()) == settings
 
 
+def test_a_run_walks_seed_by_seed_across_the_cells(tmp_path):
+    """A run cut off part way (a session's end) holds whole seeds spread over every cell and
+    planner, not the first cells complete and the last untouched."""
+    from qz_drake.experiments.fig9 import ExperimentConfig, run_experiment
+
+    order = []
+
+    def record(spec):
+        order.append((spec.seed, spec.terrain, spec.difficulty, spec.planner))
+        return {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,
+                "planner": spec.planner, "success": True, "reason": "", "displacement_ratio": 1.0}
+
+    run_experiment(tmp_path, planners=("astar",), terrains=("stairs", "obstacles"), difficulties=("simple", "hard"),
+                   tasks=2, config=ExperimentConfig(scale=0.3), reuse=record, progress=False, recordings=0)
+    assert order == [(seed, t, d, "astar") for seed in (0, 1) for t in ("stairs", "obstacles")
+                     for d in ("simple", "hard")]
+
+
 def test_the_experiments_capplanner_sets_out_on_any_path_it_has():
     """In Fig. 9 a declined task is a failed one, as A* never declines a route it has: the
     experiment's CapPlanner sets out whatever its path's predicted chance (a setting, recorded

@@ -772,8 +772,10 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
             return ""
         return str(out / "recordings" / TaskSpec(t, d, s, p).key)
 
+    # Seed by seed across every cell and planner: a run stopped part way (a session's end)
+    # holds whole pairs spread evenly over the cells, not the first cells complete.
     specs = [TaskSpec(t, d, s, p, record_dir(t, d, s, p))
-             for t in terrains for d in difficulties for s in seeds for p in planners]
+             for s in seeds for t in terrains for d in difficulties for p in planners]
     todo = [s for s in specs if s.key not in done]
     reused = 0
     clock = time.perf_counter()
