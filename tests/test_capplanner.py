@@ -500,11 +500,13 @@ def test_the_experiments_capplanner_sets_out_on_any_path_it_has():
     task = make_task("stairs", "hard", 0, scale=0.3)
     assert PLANNERS["capplanner"](task, ExperimentConfig())[3].min_route_success == 0.0
     assert PLANNERS["capplanner"](task, ExperimentConfig(capplanner_min_route_success=0.05))[3].min_route_success == 0.05
-    # Backing out of dead ends and judging moves from the robot's stance: on unless the run says.
+    # Backing out of dead ends, judging moves from the robot's stance and closing a refused move in
+    # every topology: on unless the run says.
     route = PLANNERS["capplanner"](task, ExperimentConfig())[3]
-    assert route.back_out and route.measured_stance
-    route = PLANNERS["capplanner"](task, ExperimentConfig(recovery_back_out=False, capplanner_measured_stance=False))[3]
-    assert not route.back_out and not route.measured_stance
+    assert route.back_out and route.measured_stance and route.refused_in_every_topology
+    route = PLANNERS["capplanner"](task, ExperimentConfig(recovery_back_out=False, capplanner_measured_stance=False,
+                                                          capplanner_refused_in_every_topology=False))[3]
+    assert not route.back_out and not route.measured_stance and not route.refused_in_every_topology
     with pytest.raises(QzError, match="min_route_success = 1.5"):
         CapPlannerRoute(min_route_success=1.5)
 

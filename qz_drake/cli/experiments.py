@@ -42,7 +42,8 @@ def run_fig9(args) -> int:
         tuned.update(capplanner_settings(args.capplanner_tuning))
     config = ExperimentConfig(capability_model=args.model or "", scale=args.scale,
                               recovery_back_out=not args.no_back_out,
-                              capplanner_measured_stance=not args.no_measured_stance, **tuned)
+                              capplanner_measured_stance=not args.no_measured_stance,
+                              capplanner_refused_in_every_topology=not args.retry_other_topologies, **tuned)
     summary = run_experiment(args.out, planners=_names(args.planners, "--planners", tuple(PLANNERS)),
                              terrains=_names(args.terrains, "--terrains", TERRAINS),
                              difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
@@ -198,7 +199,8 @@ def run_tune_capplanner(args) -> int:
         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
         config=ExperimentConfig(capability_model=args.model or "", scale=args.scale,
                                 recovery_back_out=not args.no_back_out,
-                                capplanner_measured_stance=not args.no_measured_stance),
+                                capplanner_measured_stance=not args.no_measured_stance,
+                                capplanner_refused_in_every_topology=not args.retry_other_topologies),
         progress=not args.json)
     _print_tuning(report, args)
     return 0
@@ -228,6 +230,9 @@ def _stance_argument(p) -> None:
     p.add_argument("--no-measured-stance", action="store_true",
                    help="CapPlanner judges every move by the map's nominal footholds, also from the stance the "
                         "robot stands in (walks as before session 38)")
+    p.add_argument("--retry-other-topologies", action="store_true",
+                   help="after the BLC refuses a move, CapPlanner may try it again in another topology (walks "
+                        "as before session 39)")
 
 
 def register(subparsers) -> None:

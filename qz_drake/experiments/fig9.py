@@ -74,6 +74,10 @@ class ExperimentConfig:
     # Whether CapPlanner judges the first moves of each replan from the stance the robot stands
     # in, and backs out of a dead end the model foretells (CapabilityVIPlanner's measured_stance).
     capplanner_measured_stance: bool = True
+    # Whether a move the BLC refused is closed in every topology from that cell and heading
+    # (CapabilityVIPlanner's refused_in_every_topology, session 39); False: CapPlanner may
+    # try it again in another topology.
+    capplanner_refused_in_every_topology: bool = True
     # CapPlanner's split of its path into BLC missions (guidance.MissionSplitConfig): the
     # longest mission [m] and the least predicted success of a merged mission.
     capplanner_mission_length: float = 2.0
@@ -132,7 +136,8 @@ def _capplanner(task, config):
                                min_success=config.capplanner_merge_min_success)
     return (Route(True, "", [], 0.0, np.zeros((0, 2))), "capplanner", [(*task.goal, 0.0, "nominal")],
             CapPlannerRoute(split, min_route_success=config.capplanner_min_route_success,
-                            back_out=config.recovery_back_out, measured_stance=config.capplanner_measured_stance))
+                            back_out=config.recovery_back_out, measured_stance=config.capplanner_measured_stance,
+                            refused_in_every_topology=config.capplanner_refused_in_every_topology))
 
 
 def _mdp_overrides(config: ExperimentConfig) -> dict:
@@ -421,7 +426,7 @@ def compare_runs(records: list[dict], other: list[dict], planners=None) -> list[
 # fall was below 0.05 (CapabilityVIPlanner's default).
 SETTINGS_BEFORE_THEY_EXISTED = {"astar_max_recoveries": 0, "capplanner_min_route_success": 0.05,
                                 "recovery_back_out": False, "capplanner_topology_doubt": False,
-                                "capplanner_measured_stance": False}
+                                "capplanner_measured_stance": False, "capplanner_refused_in_every_topology": False}
 
 
 def _settings(out: Path) -> dict:
@@ -563,6 +568,11 @@ def planner_differences(settings: dict) -> list[str]:
     if c["capplanner_measured_stance"]:
         out.append("CapPlanner judges its next moves from the stance the robot stands in and backs out of a "
                    "stance its model foretells as a dead end; A* has no model of the BLC to do so.")
+    if c["capplanner_refused_in_every_topology"]:
+        out.append("A move the BLC refused is closed for CapPlanner in every topology from that cell and heading "
+                   "(as A*, which has one, blocks it).")
+    else:
+        out.append("CapPlanner may try a move the BLC refused again in another topology.")
     if c["capplanner_min_route_success"] > 0:
         out.append(f"CapPlanner declines a task whose best path's predicted chance of no fall is below "
                    f"{c['capplanner_min_route_success']:g} (a failure here); A* declines only without a route.")

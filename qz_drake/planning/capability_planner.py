@@ -120,12 +120,18 @@ class CapabilityVIPlanner(RecoveringSequencer):
             topology are judged from the stance it stands in (the plan's end feet, or the
             measured ones after a refusal) instead of the nominal footholds the map assumes,
             a predicted refusal counted as a failure (capability_mdp.set_stance).
+        refused_in_every_topology: a move the BLC refused (or the model foretold refused, in a
+            dead end) is closed from that cell and heading in every topology, not only in the
+            one it was refused in: on the validation probes (data/walk_probes) 9 of 9 retries of
+            a refused move in another topology were refused again (BENCHMARKS "fig9", session
+            39), each costing a refusal, a back-out and a topology change. False: another
+            topology may try it again.
     """
 
     def __init__(self, *, model, heightmap, goal, start, initial_topology: str = "nominal", mdp_config=None,
                  split_config: MissionSplitConfig = MissionSplitConfig(), min_route_success: float = 0.05,
                  plan_ahead: float = 0.0, check_period: float = 0.05, max_recoveries: int = 4,
-                 back_out: bool = True, measured_stance: bool = True):
+                 back_out: bool = True, measured_stance: bool = True, refused_in_every_topology: bool = True):
         super().__init__(log=CapabilityPlannerLog(), max_recoveries=max_recoveries, plan_ahead=plan_ahead)
         from qz_drake.capability.model import predict_map
         from qz_drake.planning.capability_mdp import (CapabilityMdpConfig, build_capability_mdp, cells_on_map,
@@ -135,6 +141,7 @@ class CapabilityVIPlanner(RecoveringSequencer):
         self.first_plan = None
         self._split = split_config
         self._back_out = BackOut() if back_out else None
+        self._every_topology = bool(refused_in_every_topology)
         # The model and the map for the stance at each replan (measured_stance), and what the
         # last replan's stance replaced in the MDP (capability_mdp.set_stance).
         self._model = model if measured_stance else None
@@ -255,11 +262,10 @@ class CapabilityVIPlanner(RecoveringSequencer):
         # topology the robot stood in before (a switch first) does not change that, so the
         # move goes from every topology's state there. (Forbidden from one state only, the TLC
         # came back to the refused move from each other topology in turn, a switch and a
-        # refusal each time: CapPlanner's walk of obstacles-hard 501, session 36.)
+        # refusal each time: CapPlanner's walk of obstacles-hard 501, session 36.) With
+        # refused_in_every_topology the same move in the other topologies goes too.
         s, a = step_state_action(self.mdp, failed.steps[0])
-        ix, iy, k, _ = self.mdp.unravel(s)
-        for t in self.mdp.topologies:
-            forbid_action(self.mdp, self.mdp.state(ix, iy, k, t), a)
+        self._forbid_from(s, [a])
         clock = time.perf_counter()
         self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
         self.log.planning_time_s += time.perf_counter() - clock
@@ -291,11 +297,28 @@ class CapabilityVIPlanner(RecoveringSequencer):
         every topology (as a refused move is: how the robot stood before does not change it)."""
         from qz_drake.planning.capability_mdp import MOTIONS, forbid_action
 
+        if self._every_topology:
+            self._forbid_from(state, actions)
+            return
         ix, iy, k, _ = self.mdp.unravel(state)
         for a in actions:
             m = a % len(MOTIONS)
             for t, name in enumerate(self.mdp.topologies):
                 forbid_action(self.mdp, self.mdp.state(ix, iy, k, name), t * len(MOTIONS) + m)
+
+    def _forbid_from(self, state: int, actions) -> None:
+        """Forbids ``actions`` (refused, or foretold refused) from ``state``'s cell and heading,
+        whatever topology the robot stands in there; with refused_in_every_topology, each
+        action's motion in every topology."""
+        from qz_drake.planning.capability_mdp import MOTIONS, forbid_action
+
+        ix, iy, k, _ = self.mdp.unravel(state)
+        n = len(MOTIONS)
+        closed = sorted({t * n + a % n for a in actions for t in range(len(self.mdp.topologies))}
+                        if self._every_topology else set(actions))
+        for name in self.mdp.topologies:
+            for a in closed:
+                forbid_action(self.mdp, self.mdp.state(ix, iy, k, name), a)
 
     def counts(self) -> dict:
         """The planner's numbers for the walk's metrics."""

@@ -62,7 +62,8 @@ class CapPlannerRoute(FixedRoute):
     split of its path into missions (None: the defaults); ``min_route_success`` the least
     predicted chance of arriving without a fall for which it sets out (CapabilityVIPlanner);
     ``back_out`` whether it backs out of a dead end (qz_drake.planning.back_out);
-    ``measured_stance`` whether each replan judges the first moves from the robot's stance
+    ``measured_stance`` whether each replan judges the first moves from the robot's stance,
+    ``refused_in_every_topology`` whether a refused move is closed in every topology
     (CapabilityVIPlanner)."""
 
     mission_retries = CAPPLANNER_MISSION_RETRIES
@@ -70,7 +71,7 @@ class CapPlannerRoute(FixedRoute):
     name = "CapPlanner"
 
     def __init__(self, split_config: MissionSplitConfig | None = None, min_route_success: float = 0.05,
-                 back_out: bool = True, measured_stance: bool = True):
+                 back_out: bool = True, measured_stance: bool = True, refused_in_every_topology: bool = True):
         from qz_drake.errors import bad_value
 
         self._split = (split_config or MissionSplitConfig()).check()
@@ -79,6 +80,7 @@ class CapPlannerRoute(FixedRoute):
         self.min_route_success = float(min_route_success)
         self.back_out = bool(back_out)
         self.measured_stance = bool(measured_stance)
+        self.refused_in_every_topology = bool(refused_in_every_topology)
 
     def blc_parameters(self):
         # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt
@@ -104,7 +106,8 @@ class CapPlannerRoute(FixedRoute):
                                    initial_topology=info.topology.name, plan_ahead=control.plan_ahead,
                                    mdp_config=mdp_config(control.capability_mdp, topologies),
                                    split_config=self._split, min_route_success=self.min_route_success,
-                                   back_out=self.back_out, measured_stance=self.measured_stance)
+                                   back_out=self.back_out, measured_stance=self.measured_stance,
+                                   refused_in_every_topology=self.refused_in_every_topology)
 
     def unreachable(self, source) -> str:
         return source.log.unreachable

@@ -173,14 +173,18 @@ def test_a_mission_the_blc_cannot_plan_is_split_then_its_action_forbidden_and_th
     np.testing.assert_allclose(replanned[-1].target[:2], GOAL)
 
 
-def test_a_refused_move_is_forbidden_from_every_topology_the_robot_could_stand_in_there():
+@pytest.mark.parametrize("every_topology", [True, False])
+def test_a_refused_move_is_forbidden_from_every_topology_the_robot_could_stand_in_there(every_topology):
     """The BLC refused a move in its topology from a cell and heading: the TLC does not come back
     to it from another topology's state (a switch there first), as it did before, a switch and
-    a refusal at a time; other moves from there stay allowed."""
-    from qz_drake.planning.capability_mdp import step_state_action
+    a refusal at a time. By default (refused_in_every_topology) the same move in the other
+    topologies is closed too (on the validation walks, 9 of 9 such retries were refused again); the
+    turns from there stay allowed, and without it every other action does."""
+    from qz_drake.planning.capability_mdp import MOTIONS, step_state_action
 
     planner = CapabilityVIPlanner(model=WallModel(), heightmap=_world(), goal=GOAL, start=(*START, 0.0),
-                                  mdp_config=CapabilityMdpConfig(topologies=["nominal", "front_bend"]))
+                                  mdp_config=CapabilityMdpConfig(topologies=["nominal", "front_bend"]),
+                                  refused_in_every_topology=every_topology)
     simulator, context = _standing(planner)
     while len(planner.GetOutputPort("guidance").Eval(context)[0].steps) > 1:  # split down to one action
         _blc_fails(planner, simulator, context, len(planner.log.recoveries) + 1)
@@ -189,10 +193,14 @@ def test_a_refused_move_is_forbidden_from_every_topology_the_robot_could_stand_i
     _blc_fails(planner, simulator, context, len(planner.log.recoveries) + 1)
     assert planner.log.recoveries[-1][2] == "forbade"
     ix, iy, k, _ = planner.mdp.unravel(s)
+    n = len(MOTIONS)
+    closed = [t * n + a % n for t in range(2)] if every_topology else [a]
+    assert len(closed) == (2 if every_topology else 1)
     for t in ("nominal", "front_bend"):
         there = planner.mdp.state(ix, iy, k, t)
-        assert planner.mdp.success[a, there] == 0.0 and planner.mdp.next_state[a, there] == planner.mdp.failure_state
-        others = [b for b in range(planner.mdp.success.shape[0]) if b != a]
+        for b in closed:
+            assert planner.mdp.success[b, there] == 0.0 and planner.mdp.next_state[b, there] == planner.mdp.failure_state
+        others = [b for b in range(planner.mdp.success.shape[0]) if b not in closed]
         assert (planner.mdp.success[others, there] > 0).all()
 
 
