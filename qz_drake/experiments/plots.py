@@ -3,6 +3,7 @@ planners side by side."""
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import matplotlib
@@ -91,7 +92,9 @@ def plot_task_pair(task, records: dict, path, *, title: str = "") -> Path:
     ax.set_ylabel("y [m]")
     ax.set_aspect("equal")
     ax.legend(loc="upper left", fontsize=8, framealpha=0.85)
-    messages = [f"{PLANNER_NAMES.get(p, p)}: {rec['message'][:110]}" for p, rec in sorted(records.items())
-                if not rec["success"] and rec.get("message")]
+    # Each failed walk's message, wrapped to the axes' width (two lines at most).
+    messages = [line for p, rec in sorted(records.items()) if not rec["success"] and rec.get("message")
+                for line in textwrap.wrap(f"{PLANNER_NAMES.get(p, p)}: {rec['message']}", width=100,
+                                          max_lines=2, placeholder=" ...")]
     ax.set_title(title + ("\n" + "\n".join(messages) if messages else ""), fontsize=9)
     return _save(fig, path, dpi=110)
