@@ -241,7 +241,7 @@ class CapabilityVIPlanner(RecoveringSequencer):
 
     def _go_round(self, context, state, failed, missions, index):
         """The BLC could not plan ``failed``: go round it (see the class docstring)."""
-        from qz_drake.planning.capability_mdp import forbid_action, solve_capability_mdp, step_state_action
+        from qz_drake.planning.capability_mdp import solve_capability_mdp, step_state_action
 
         x = self._state.Eval(context)
         x0, y0 = (float(v) for v in x[BASE_XY])
