@@ -126,6 +126,8 @@ CASES = [
     ("capability_map_out_is_a_folder", ["capability", "map", "--terrain", "flat", "--out", "{tmp}"],
      ["--out = ", "is a folder"]),
     ("experiment_out_empty", ["experiment", "capplanner-vs-astar", "--out", ""], ["--out = ''"]),
+    ("experiment_negative_blc_retries", ["experiment", "capplanner-vs-astar", "--out", "{tmp}/x", "--blc-retries", "-1"],
+     ["--blc-retries = -1"]),
 ]
 
 

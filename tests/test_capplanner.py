@@ -489,6 +489,33 @@ def test_a_run_walks_seed_by_seed_across_the_cells(tmp_path):
                      for d in ("simple", "hard")]
 
 
+def test_both_planners_walk_with_the_same_blc_retries_and_the_report_says_which(monkeypatch, tmp_path):
+    """``blc_retries`` reaches the walk of either planner alike (the BLC is shared), the report's
+    list of differences says how the BLC retried, and a bad value names the option."""
+    import qz_drake.simulation as simulation
+    from qz_drake.errors import QzError
+    from qz_drake.experiments.fig9 import ExperimentConfig, TaskSpec, planner_differences, run_experiment, run_task
+
+    seen = []
+
+    def walk_stops_at_once(*args, mission_retries=None, **kwargs):
+        seen.append(mission_retries)
+        raise RuntimeError("stopped before walking")
+
+    monkeypatch.setattr(simulation, "walk", walk_stops_at_once)
+    for retries in (0, 2):
+        for planner in ("astar", "capplanner"):
+            record = run_task(TaskSpec("obstacles", "simple", 0, planner), ExperimentConfig(scale=0.3,
+                                                                                           blc_retries=retries))
+            assert record["reason"] == "error" and "stopped before walking" in record["error"]
+    assert seen == [0, 0, 2, 2]
+    assert "no retry" in planner_differences({})[0]
+    assert "solved again up to 2 times, one tripod cycle longer" in planner_differences({"blc_retries": 2})[0]
+    with pytest.raises(QzError, match="--blc-retries = -1"):
+        run_experiment(tmp_path, planners=("astar",), tasks=1, config=ExperimentConfig(blc_retries=-1),
+                       progress=False)
+
+
 def test_the_experiments_capplanner_sets_out_on_any_path_it_has():
     """In Fig. 9 a declined task is a failed one, as A* never declines a route it has: the
     experiment's CapPlanner sets out whatever its path's predicted chance (a setting, recorded

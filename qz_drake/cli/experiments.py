@@ -43,7 +43,8 @@ def run_fig9(args) -> int:
     config = ExperimentConfig(capability_model=args.model or "", scale=args.scale,
                               recovery_back_out=not args.no_back_out,
                               capplanner_measured_stance=not args.no_measured_stance,
-                              capplanner_refused_in_every_topology=not args.retry_other_topologies, **tuned)
+                              capplanner_refused_in_every_topology=not args.retry_other_topologies,
+                              blc_retries=args.blc_retries, **tuned)
     summary = run_experiment(args.out, planners=_names(args.planners, "--planners", tuple(PLANNERS)),
                              terrains=_names(args.terrains, "--terrains", TERRAINS),
                              difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
@@ -173,7 +174,8 @@ def run_tune_astar(args) -> int:
                         terrains=_names(args.terrains, "--terrains", TERRAINS),
                         difficulties=_names(args.difficulties, "--difficulties", TUNING_DIFFICULTIES),
                         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
-                        config=ExperimentConfig(scale=args.scale, recovery_back_out=not args.no_back_out),
+                        config=ExperimentConfig(scale=args.scale, recovery_back_out=not args.no_back_out,
+                                                blc_retries=args.blc_retries),
                         progress=not args.json)
     _print_tuning(report, args)
     return 0
@@ -200,7 +202,8 @@ def run_tune_capplanner(args) -> int:
         config=ExperimentConfig(capability_model=args.model or "", scale=args.scale,
                                 recovery_back_out=not args.no_back_out,
                                 capplanner_measured_stance=not args.no_measured_stance,
-                                capplanner_refused_in_every_topology=not args.retry_other_topologies),
+                                capplanner_refused_in_every_topology=not args.retry_other_topologies,
+                                blc_retries=args.blc_retries),
         progress=not args.json)
     _print_tuning(report, args)
     return 0
@@ -224,6 +227,9 @@ def _back_out_argument(p) -> None:
     p.add_argument("--no-back-out", action="store_true",
                    help="neither planner backs out of a dead end (walks as before session 38; "
                         "qz_drake.planning.back_out)")
+    p.add_argument("--blc-retries", type=int, default=0,
+                   help="solve a mission the BLC could not plan again up to N times, one tripod cycle longer "
+                        "each time, for both planners (default 0: first solves only, as the capability trials)")
 
 
 def _stance_argument(p) -> None:
