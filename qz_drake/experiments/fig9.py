@@ -428,6 +428,12 @@ def compare_runs(records: list[dict], other: list[dict], planners=None) -> list[
     return rows
 
 
+# Walks a local worker process makes before a fresh one takes its place: every walk's diagram
+# stays in the process that built it (LocalPool), 30-130 MB a walk; 20 keep a worker under about
+# 3 GB, and a fresh worker's start (a few seconds) is small beside 20 walks (15-30 minutes).
+WALKS_PER_WORKER = 20
+
+
 # Settings whose coming changed what the walks do, with the value that results written before
 # them were walked with: a folder without the setting holds those walks, not today's default's.
 # A* had no recovery before issue 38; CapPlanner declined paths whose predicted chance of no
@@ -829,7 +835,8 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
             todo = walk
         if todo:
             pool = RayPool(ray_address, config, 1, function=run_task, crashed=_crashed) if ray_address else \
-                LocalPool(min(workers, len(todo)), config, 1, function=run_task, crashed=_crashed)
+                LocalPool(min(workers, len(todo)), config, 1, function=run_task, crashed=_crashed,
+                          max_tasks=WALKS_PER_WORKER)
             try:
                 pool.run(todo, on_record)
             finally:

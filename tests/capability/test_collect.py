@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qz_drake.capability.collect import CRASH_ENV, collect, recertify
+from qz_drake.capability.collect import CRASH_ENV, LocalPool, collect, recertify
 from qz_drake.capability.dataset import differing_fields, load_records, load_training_arrays
 from qz_drake.capability.scenes import scene_recipe
 from qz_drake.capability.trials import TIME_FIELDS, trial_index
-from qz_drake.errors import ConfigError
+from qz_drake.errors import ConfigError, QzError
 
 # Seed 35's scene 0 is flat ground (both starts valid); turns in two topologies are the
 # cheapest trials.
@@ -69,6 +69,22 @@ def test_two_workers_resume_and_a_killed_worker_give_the_same_dataset(reference,
         del os.environ[CRASH_ENV]
     assert (tmp_path / "crashed_once").exists() and crashed.retries == 1 and crashed.errors == 0
     _same(reference, tmp_path / "crash")
+
+
+def test_a_worker_is_replaced_by_a_fresh_process_after_max_tasks_and_no_record_is_lost():
+    """Drake never frees a diagram with Python LeafSystems in the process that built it, so a
+    long run's workers are recycled: with max_tasks 2, five specs on one worker run in three
+    processes, every record arrives in order, and a bad max_tasks names the field."""
+    pool = LocalPool(1, 0, 0, function=max, max_tasks=2)
+    records, pids = [], []
+    try:
+        pool.run([3, -1, 5, 7, 2], lambda r: (records.append(r), pids.append(pool._workers[0]["process"].pid)))
+    finally:
+        pool.close()
+    assert records == [3, 0, 5, 7, 2]
+    assert pool.recycled == 2 and len(set(pids)) == 3
+    with pytest.raises(QzError, match="max_tasks = 0"):
+        LocalPool(1, 0, 0, function=max, max_tasks=0)
 
 
 def test_a_stale_manifest_is_refused_naming_the_field(reference, tmp_path):
