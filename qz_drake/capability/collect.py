@@ -99,9 +99,10 @@ class LocalPool:
     more than ``max_retries`` times. ``max_tasks``: a worker that has returned this many
     records is stopped and a fresh one started in its place (None: workers live as long as the
     pool). A Drake diagram with LeafSystems written in Python is never freed in the process
-    that built it (drake#22515, #23161; measured with drake 1.51.1: a Fig. 9 walk leaves
-    30-130 MB behind), so a worker that builds one per spec grows without bound: the decisive
-    Fig. 9 run's two workers held 12 GB each after 100 walks and the machine's 24 GB ran out.
+    that built it (drake#22515, #23161; measured with drake 1.51.1: a full-size Fig. 9 walk
+    leaves about 200 MB behind, a capability trial 8-36 MB), so a worker that builds one per
+    spec grows without bound: the decisive Fig. 9 run's two workers held 12 GB each after about
+    100 walks and the machine's 24 GB ran out.
     """
 
     def __init__(self, workers: int, config, max_retries: int, function=None, crashed=None,

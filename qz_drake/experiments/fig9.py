@@ -429,8 +429,9 @@ def compare_runs(records: list[dict], other: list[dict], planners=None) -> list[
 
 
 # Walks a local worker process makes before a fresh one takes its place: every walk's diagram
-# stays in the process that built it (LocalPool), 30-130 MB a walk; 20 keep a worker under about
-# 3 GB, and a fresh worker's start (a few seconds) is small beside 20 walks (15-30 minutes).
+# stays in the process that built it (LocalPool), about 200 MB a full-size walk; with 20 the
+# decisive run's workers held at most 3.0 GB, and a fresh worker's start (a few seconds) is small
+# beside 20 walks (15-30 minutes).
 WALKS_PER_WORKER = 20
 
 
