@@ -565,7 +565,7 @@ def planner_differences(settings: dict) -> list[str]:
 
     c = {**dataclasses.asdict(ExperimentConfig()), **SETTINGS_BEFORE_THEY_EXISTED, **settings} if settings else \
         dataclasses.asdict(ExperimentConfig())
-    retries = int(c.get("blc_retries", 0))
+    retries = int(c["blc_retries"])
     retry = ("no retry" if not retries else
              f"a refused mission solved again up to {retries} time{'s' if retries > 1 else ''}, one tripod cycle "
              "longer each time")
