@@ -183,9 +183,21 @@ class Trees:
 
 
 def softmax(raw: np.ndarray) -> np.ndarray:
-    z = raw - raw.max(axis=1, keepdims=True)
-    e = np.exp(z)
-    return e / e.sum(axis=1, keepdims=True)
+    """The softmax over the last axis (the classes). Written class by class: numpy's
+    reductions over a 3-long last axis cost ~20 ns a row; for fewer than 8 classes the sums
+    are added in numpy's order ((e0 + e1) + e2), so the numbers are those of ``e.sum(-1)``."""
+    raw = np.asarray(raw, dtype=np.float64)
+    classes = raw.shape[-1]
+    top = raw[..., 0].copy()
+    for c in range(1, classes):
+        np.maximum(top, raw[..., c], out=top)
+    e = np.exp(raw - top[..., None])
+    if classes >= 8:  # numpy sums these pairwise
+        return e / e.sum(axis=-1, keepdims=True)
+    total = e[..., 0].copy()
+    for c in range(1, classes):
+        total += e[..., c]
+    return e / total[..., None]
 
 
 def _raw_scores_py(X, baseline, roots, feature, threshold, left, right, leaf, value, missing_left):
@@ -226,7 +238,173 @@ try:  # compiled: ~1 us per tree and query against ~1 ms in Python
 
     _raw_scores = numba.njit(cache=True, nogil=True)(_raw_scores_py)
 except ImportError:  # pragma: no cover - numba is a dependency
+    numba = None
     _raw_scores = _raw_scores_py
+
+
+# -- every learner's trees at once: QuickScorer ---------------------------------------------------
+# The most leaves a tree may have for ForestScorer (one bit each in a 64-bit word).
+SCORER_MAX_LEAVES = 64
+# x & -x isolates the lowest set bit; times this de Bruijn constant, its top six bits name it.
+_DE_BRUIJN = 0x03F79D71B4CB0A89
+_LOW_BIT = np.zeros(64, np.int64)
+for _bit in range(64):
+    _LOW_BIT[((1 << _bit) * _DE_BRUIJN & 0xFFFFFFFFFFFFFFFF) >> 58] = _bit
+
+
+def _leaf_ranges_py(roots, left, right, leaf, first, last, order, tree_of):
+    """For every node under ``roots`` (all -1 on entry): the in-order numbers, within its tree,
+    of the first and last leaf under it (``first``, ``last``), a leaf's own number (``order``)
+    and its tree, numbered as ``roots.flat`` (``tree_of``)."""
+    stack = np.empty(len(left) + 1, np.int64)
+    for t in range(roots.size):
+        count = 0
+        stack[0] = roots.flat[t]
+        top = 1
+        while top > 0:  # post-order, left before right: leaves are numbered left to right
+            node = stack[top - 1]
+            tree_of[node] = t
+            if leaf[node]:
+                order[node] = count
+                first[node] = count
+                last[node] = count
+                count += 1
+                top -= 1
+            elif first[left[node]] < 0:
+                stack[top] = left[node]
+                top += 1
+            elif first[right[node]] < 0:
+                stack[top] = right[node]
+                top += 1
+            else:
+                first[node] = first[left[node]]
+                last[node] = last[right[node]]
+                top -= 1
+
+
+def _forest_scores_py(X, start, threshold, tree, mask, leaf_value, tree_member, tree_class, baseline,
+                      low_bit, out):
+    """QuickScorer's pass over rows X (no NaN): out (members, n, classes) raw scores."""
+    n, features = X.shape[0], start.shape[0] - 1
+    trees = leaf_value.shape[0]
+    alive = np.empty(trees, np.uint64)
+    for s in range(n):
+        for k in range(trees):
+            alive[k] = np.uint64(0xFFFFFFFFFFFFFFFF)
+        # Every split whose test is false (x > threshold) rules out its left subtree's leaves;
+        # a feature's splits are sorted by threshold, so the false ones come first.
+        for f in range(features):
+            x = X[s, f]
+            for k in range(start[f], start[f + 1]):
+                if x > threshold[k]:
+                    alive[tree[k]] &= mask[k]
+                else:
+                    break
+        for m in range(out.shape[0]):
+            for c in range(out.shape[2]):
+                out[m, s, c] = baseline[m, c]
+        # The exit leaf is the leftmost one still alive; trees in (member, iteration, class)
+        # order, so each score adds its trees in the order Trees.raw does (the same floats).
+        for k in range(trees):
+            v = alive[k]
+            low = v & (~v + np.uint64(1))
+            out[tree_member[k], s, tree_class[k]] += leaf_value[k, low_bit[(low * np.uint64(_DE_BRUIJN)) >> np.uint64(58)]]
+
+
+if numba is not None:
+    _leaf_ranges = numba.njit(cache=True)(_leaf_ranges_py)
+    _forest_scores = numba.njit(cache=True, nogil=True)(_forest_scores_py)
+else:  # pragma: no cover - numba is a dependency
+    _leaf_ranges, _forest_scores = _leaf_ranges_py, _forest_scores_py
+
+
+class ForestScorer:
+    """The raw scores of several learners (an ensemble's members) in one pass, by QuickScorer
+    (Lucchese et al., "QuickScorer: a fast algorithm to rank documents with additive ensembles
+    of regression trees", SIGIR 2015): each tree's leaves are bits of a word; every split on a
+    feature, sorted by threshold, carries the mask that clears its left subtree's leaves; a row
+    ANDs the masks of the splits it fails (x > threshold: a prefix of each feature's list) and
+    exits every tree at its leftmost live leaf. No branch depends on a tree's shape, which is
+    where the node-by-node walk spends its time on trees 11-20 levels deep.
+
+    The sums are those of :meth:`Trees.raw`, bit for bit (each score adds its trees' leaves in
+    iteration order). Rows with a NaN take :meth:`Trees.raw` (a missing value may go right).
+    """
+
+    def __init__(self, members: list):
+        members = list(members)
+        classes = {int(t.roots.shape[1]) for t in members}
+        if len(classes) != 1:
+            raise ConfigError("ForestScorer: the learners have different class counts")
+        self.members, self.classes = members, classes.pop()
+        rows, thresholds, trees, masks, values, owners, columns = [], [], [], [], [], [], []
+        offset = 0
+        for m, t in enumerate(members):
+            n = len(t.feature)
+            first, last, order, tree_of = (np.full(n, -1, np.int64) for _ in range(4))
+            roots = np.ascontiguousarray(t.roots, dtype=np.int64)  # (iterations, classes)
+            _leaf_ranges(roots, t.left, t.right, t.leaf, first, last, order, tree_of)
+            if np.any(tree_of < 0):
+                raise ConfigError("ForestScorer: nodes outside every tree (not a file this code wrote)")
+            tree_of = tree_of + offset  # trees numbered across the members
+            width = last[roots.reshape(-1)] - first[roots.reshape(-1)] + 1
+            if width.max() > SCORER_MAX_LEAVES:
+                raise ConfigError(f"ForestScorer: a tree has {int(width.max())} leaves "
+                                  f"(at most {SCORER_MAX_LEAVES})")
+            internal = np.flatnonzero(~t.leaf)
+            lo, hi = first[t.left[internal]], last[t.left[internal]]
+            span = hi - lo + 1
+            left_bits = np.where(span >= 64, np.uint64(0xFFFFFFFFFFFFFFFF),
+                                 (np.uint64(1) << span.astype(np.uint64)) - np.uint64(1)) << lo.astype(np.uint64)
+            rows.append(t.feature[internal])
+            thresholds.append(t.threshold[internal])
+            trees.append(tree_of[internal])
+            masks.append(~left_bits)
+            value = np.zeros((roots.size, SCORER_MAX_LEAVES))
+            leaves = np.flatnonzero(t.leaf)
+            value[tree_of[leaves] - offset, order[leaves]] = t.value[leaves]
+            values.append(value)
+            owners.append(np.full(roots.size, m, np.int64))
+            columns.append(np.tile(np.arange(self.classes, dtype=np.int64), roots.shape[0]))
+            offset += roots.size
+        feature = np.concatenate(rows)
+        threshold = np.concatenate(thresholds)
+        by = np.lexsort((threshold, feature))
+        self.features = int(feature.max()) + 1 if feature.size else 0
+        self.start = np.searchsorted(feature[by], np.arange(self.features + 1)).astype(np.int64)
+        self.threshold = np.ascontiguousarray(threshold[by])
+        self.tree = np.ascontiguousarray(np.concatenate(trees)[by])
+        self.mask = np.ascontiguousarray(np.concatenate(masks)[by])
+        self.leaf_value = np.concatenate(values)
+        self.tree_member = np.concatenate(owners)
+        self.tree_class = np.concatenate(columns)
+        self.baseline = np.stack([t.baseline for t in members])
+
+    @classmethod
+    def of(cls, members: list) -> "ForestScorer | None":
+        """A scorer of these learners, or None where a tree has too many leaves for it."""
+        try:
+            return cls(members)
+        except ConfigError:
+            return None
+
+    def raw(self, X: np.ndarray) -> np.ndarray:
+        """(members, n, classes) raw scores of rows X (n, features)."""
+        X = np.ascontiguousarray(X, dtype=np.float64)
+        out = np.empty((len(self.members), X.shape[0], self.classes))
+        if X.shape[1] < self.features:
+            raise bad_value("X", f"array of shape {X.shape}", f"expected at least {self.features} columns")
+        _forest_scores(X, self.start, self.threshold, self.tree, self.mask, self.leaf_value,
+                       self.tree_member, self.tree_class, self.baseline, _LOW_BIT, out)
+        missing = np.flatnonzero(np.isnan(X).any(axis=1))
+        if missing.size:
+            for m, t in enumerate(self.members):
+                out[m, missing] = t.raw(X[missing])
+        return out
+
+    def probabilities(self, X: np.ndarray) -> np.ndarray:
+        """(members, n, classes) every learner's softmax (:func:`softmax`'s numbers)."""
+        return softmax(self.raw(X))
 
 
 # -- training ------------------------------------------------------------------------------------
@@ -471,6 +649,14 @@ class BoostedCapabilityModel(CapabilityModelBase):
     def members(self) -> list:
         return list(self._members)
 
+    @property
+    def scorer(self) -> "ForestScorer | None":
+        """Every member's trees as one ForestScorer (built on first use), None where a tree
+        has more leaves than it takes (then each member's trees are walked node by node)."""
+        if not hasattr(self, "_scorer"):
+            self._scorer = ForestScorer.of(self._members)
+        return self._scorer
+
     def network(self, topology: str, kind: str):
         """(topology, kind) if the model covers it; the model's error naming it otherwise."""
         P.check_kind(kind)
@@ -487,27 +673,35 @@ class BoostedCapabilityModel(CapabilityModelBase):
     def _member_outcomes_of_blocks(self, blocks: list) -> list:
         """member_outcomes of several query blocks (a map's topologies and turn directions) in
         one pass: each block's distinct rows, all evaluated together over the free cores."""
-        uniques, inverses = [], []
+        probs, index = self._distinct_outcomes(blocks)
+        return [probs[:, i] for i in index]
+
+    def _distinct_outcomes(self, blocks: list) -> tuple[np.ndarray, list]:
+        """(members, distinct rows, 3) outcomes of every block's distinct rows, and for each
+        block the index of its rows in them."""
+        uniques, index, count = [], [], 0
         for X in blocks:
             X = np.asarray(X, dtype=np.float64)
             first, inverse = distinct_rows(X)
             uniques.append(X[first])
-            inverses.append(inverse)
+            index.append(count + inverse)
+            count += len(first)
         unique = np.ascontiguousarray(np.concatenate(uniques))
+        scorer = self.scorer
 
         def rows(part):
+            if scorer is not None:
+                return scorer.probabilities(part)
             return np.stack([m.probabilities(part) for m in self._members])
 
         threads = min(inference_threads(), len(unique) // PARALLEL_ROWS)
         if threads <= 1:
-            probs = rows(unique)
-        else:  # the compiled loop releases the GIL: the rows split over the free cores
-            from concurrent.futures import ThreadPoolExecutor
+            return rows(unique), index
+        # The compiled loops release the GIL: the rows split over the free cores.
+        from concurrent.futures import ThreadPoolExecutor
 
-            with ThreadPoolExecutor(threads) as pool:
-                probs = np.concatenate(list(pool.map(rows, np.array_split(unique, threads))), axis=1)
-        ends = np.cumsum([len(u) for u in uniques])
-        return [probs[:, end - len(u):end][:, inverse] for u, end, inverse in zip(uniques, ends, inverses)]
+        with ThreadPoolExecutor(threads) as pool:
+            return np.concatenate(list(pool.map(rows, np.array_split(unique, threads))), axis=1), index
 
     def outcomes_of_features(self, X: np.ndarray) -> np.ndarray:
         return self.member_outcomes(X).mean(axis=0)
@@ -549,16 +743,18 @@ class BoostedCapabilityModel(CapabilityModelBase):
             if f.shape != batch + (6, 3):
                 raise _error(f"feet[{t}]", f"array of shape {f.shape}", f"expected {batch + (6, 3)} to match the patches")
             blocks += [features(flat, f.reshape(n, 6, 3), kind, t, d, patch_part=part) for d in directions]
-        # Every topology's and direction's queries in one pass over the free cores.
-        every = self._member_outcomes_of_blocks(blocks) if blocks else []
+        if not blocks:
+            return {}
+        # Every topology's and direction's queries in one pass over the free cores; the
+        # members' mean and spread once per distinct query, then spread to the queries.
+        probs, index = self._distinct_outcomes(blocks)
+        walked = probs[..., 0]
+        summary = [walked.mean(axis=0), (1.0 - probs[..., 1]).mean(axis=0),
+                   walked.std(axis=0) if len(self._members) > 1 else None]
         result = {}
         for i, t in enumerate(feet):
-            probs = np.stack(every[i * len(directions):(i + 1) * len(directions)], axis=1)  # (members, dirs, n, 3)
-            walked = probs[..., 0]
-            success = walked.mean(axis=0).reshape(shape)
-            plan = (1.0 - probs[..., 1]).mean(axis=0).reshape(shape)
-            spread = walked.std(axis=0).reshape(shape) if len(self._members) > 1 else None
-            result[t] = (success, plan, spread)
+            rows = np.stack(index[i * len(directions):(i + 1) * len(directions)])  # (dirs, n)
+            result[t] = tuple(None if a is None else a[rows].reshape(shape) for a in summary)
         return result
 
 

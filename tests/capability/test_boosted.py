@@ -41,6 +41,61 @@ def test_exported_trees_answer_as_scikit_learn():
         B.Trees.from_arrays(broken)
 
 
+def test_forest_scorer_adds_the_same_leaves_as_the_tree_walk():
+    """QuickScorer's pass over every member at once gives Trees.raw's sums bit for bit, rows
+    with missing values included (they may go right), and softmax's probabilities."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    rng = np.random.default_rng(1)
+    members = []
+    for seed, leaves in ((0, 31), (1, 63), (2, 2)):
+        X = rng.normal(size=(800, 7))
+        X[rng.random(X.shape) < 0.03] = np.nan
+        y = (np.nan_to_num(X[:, 0], nan=1.0) > 0.2).astype(int) + (np.nan_to_num(X[:, 3]) + X[:, 4] > 0.5).astype(int)
+        model = HistGradientBoostingClassifier(max_iter=12, max_leaf_nodes=leaves, min_samples_leaf=5,
+                                               random_state=seed).fit(X, y)
+        members.append(B.Trees.from_sklearn(model))
+    scorer = B.ForestScorer(members)
+    Xq = rng.normal(size=(500, 7))
+    Xq[rng.random(Xq.shape) < 0.05] = np.nan
+    Xq[:3] = np.nan
+    Xq[3:6] = [[float(members[0].threshold[0])] * 7] * 3  # on a split's threshold: left
+    expected = np.stack([t.raw(Xq) for t in members])
+    np.testing.assert_array_equal(scorer.raw(Xq), expected)
+    np.testing.assert_array_equal(scorer.probabilities(Xq), np.stack([t.probabilities(Xq) for t in members]))
+    np.testing.assert_allclose(scorer.probabilities(Xq).sum(axis=2), 1.0, rtol=0, atol=1e-12)
+
+
+def test_forest_scorer_declines_trees_wider_than_a_word(trained, monkeypatch):
+    """A tree with more than 64 leaves cannot be a 64-bit word: the scorer refuses it, and a
+    model whose trees it refuses walks them node by node, with the same answers."""
+    arrays, _, _, result, _ = trained
+    X = B.features(arrays["patch"][:300], arrays["feet"][:300], "orthogonal", "nominal")
+    scored = B.BoostedCapabilityModel(result.members, result.card)
+    assert scored.scorer is not None
+    monkeypatch.setattr(B, "SCORER_MAX_LEAVES", 2)
+    walked = B.BoostedCapabilityModel(result.members, result.card)
+    assert walked.scorer is None
+    np.testing.assert_array_equal(walked.member_outcomes(X), scored.member_outcomes(X))
+    monkeypatch.undo()
+    leaves = B.SCORER_MAX_LEAVES + 1
+    # A chain: node 2k splits feature 0 at k, its left child a leaf, its right the next split.
+    n = 2 * leaves - 1
+    feature, threshold = np.zeros(n, np.int64), np.zeros(n)
+    left, right, leaf, value = np.full(n, -1), np.full(n, -1), np.zeros(n, bool), np.zeros(n)
+    for k in range(leaves - 1):
+        threshold[2 * k], left[2 * k], right[2 * k] = k, 2 * k + 1, 2 * k + 2
+        leaf[2 * k + 1], value[2 * k + 1] = True, k
+    leaf[n - 1], value[n - 1] = True, leaves - 1
+    wide = B.Trees(baseline=np.zeros(1), roots=np.zeros((1, 1), np.int64), feature=feature, threshold=threshold,
+                   left=left, right=right, leaf=leaf, value=value, missing_left=np.ones(n, bool))
+    assert B.ForestScorer.of([wide]) is None
+    with pytest.raises(QzError, match="leaves"):
+        B.ForestScorer([wide])
+    X = np.arange(-1.0, leaves + 1.0)[:, None]
+    np.testing.assert_array_equal(wide.raw(X)[:, 0], np.clip(np.ceil(X[:, 0]), 0, leaves - 1))
+
+
 def _three_outcome_data(seed=0):
     arrays, manifest = synthetic_arrays(scenes=60, headings=6, topologies=("nominal", "split_up"),
                                         kinds=("orthogonal", "diagonal", "turn"), failure_band=0.06, label_noise=0.0, seed=seed)
