@@ -220,6 +220,9 @@ def _raw_scores_py(X, baseline, roots, feature, threshold, left, right, leaf, va
     return out
 
 
+# Patches whose queries (every topology and turn direction) success_all evaluates at once:
+# about 75 MB of features for turns in six topologies.
+MAP_CHUNK = 16384
 # Fewest distinct queries per thread worth a thread of their own (a map has ~20 000; one
 # query costs ~0.2 ms over five learners' trees).
 PARALLEL_ROWS = 1024
@@ -245,6 +248,8 @@ except ImportError:  # pragma: no cover - numba is a dependency
 # -- every learner's trees at once: QuickScorer ---------------------------------------------------
 # The most leaves a tree may have for ForestScorer (one bit each in a 64-bit word).
 SCORER_MAX_LEAVES = 64
+# Rows ForestScorer looks at together for the features that fail the same splits in all of them.
+SCORER_CHUNK = 256
 # x & -x isolates the lowest set bit; times this de Bruijn constant, its top six bits name it.
 _DE_BRUIJN = 0x03F79D71B4CB0A89
 _LOW_BIT = np.zeros(64, np.int64)
@@ -283,32 +288,69 @@ def _leaf_ranges_py(roots, left, right, leaf, first, last, order, tree_of):
 
 
 def _forest_scores_py(X, start, threshold, tree, mask, leaf_value, tree_member, tree_class, baseline,
-                      low_bit, out):
-    """QuickScorer's pass over rows X (no NaN): out (members, n, classes) raw scores."""
+                      low_bit, chunk, out):
+    """QuickScorer's pass over rows X: out (members, n, classes) raw scores (a row with NaN
+    gets a number here that the caller replaces)."""
     n, features = X.shape[0], start.shape[0] - 1
     trees = leaf_value.shape[0]
     alive = np.empty(trees, np.uint64)
-    for s in range(n):
+    common = np.empty(trees, np.uint64)
+    varying = np.empty(features, np.int64)
+    for a in range(0, n, chunk):
+        b = min(a + chunk, n)
+        # A feature whose values in these rows all lie between the same two of its thresholds
+        # fails the same splits in every row (a map block's kind, topology and direction, and
+        # its nominal feet along x and y): its masks are applied once, to the rows' common start.
         for k in range(trees):
-            alive[k] = np.uint64(0xFFFFFFFFFFFFFFFF)
-        # Every split whose test is false (x > threshold) rules out its left subtree's leaves;
-        # a feature's splits are sorted by threshold, so the false ones come first.
+            common[k] = np.uint64(0xFFFFFFFFFFFFFFFF)
+        count = 0
         for f in range(features):
-            x = X[s, f]
-            for k in range(start[f], start[f + 1]):
-                if x > threshold[k]:
-                    alive[tree[k]] &= mask[k]
-                else:
+            lo = X[a, f]
+            hi = lo
+            fixed = lo == lo
+            for s in range(a + 1, b):
+                x = X[s, f]
+                if x != x:
+                    fixed = False
                     break
-        for m in range(out.shape[0]):
-            for c in range(out.shape[2]):
-                out[m, s, c] = baseline[m, c]
-        # The exit leaf is the leftmost one still alive; trees in (member, iteration, class)
-        # order, so each score adds its trees in the order Trees.raw does (the same floats).
-        for k in range(trees):
-            v = alive[k]
-            low = v & (~v + np.uint64(1))
-            out[tree_member[k], s, tree_class[k]] += leaf_value[k, low_bit[(low * np.uint64(_DE_BRUIJN)) >> np.uint64(58)]]
+                if x < lo:
+                    lo = x
+                elif x > hi:
+                    hi = x
+            if fixed:
+                splits = threshold[start[f]:start[f + 1]]
+                fixed = np.searchsorted(splits, lo) == np.searchsorted(splits, hi)
+            if fixed:
+                for k in range(start[f], start[f + 1]):
+                    if lo > threshold[k]:
+                        common[tree[k]] &= mask[k]
+                    else:
+                        break
+            else:
+                varying[count] = f
+                count += 1
+        for s in range(a, b):
+            for k in range(trees):
+                alive[k] = common[k]
+            # Every split whose test is false (x > threshold) rules out its left subtree's
+            # leaves; a feature's splits are sorted by threshold, so the false ones come first.
+            for j in range(count):
+                f = varying[j]
+                x = X[s, f]
+                for k in range(start[f], start[f + 1]):
+                    if x > threshold[k]:
+                        alive[tree[k]] &= mask[k]
+                    else:
+                        break
+            for m in range(out.shape[0]):
+                for c in range(out.shape[2]):
+                    out[m, s, c] = baseline[m, c]
+            # The exit leaf is the leftmost one still alive; trees in (member, iteration, class)
+            # order, so each score adds its trees in the order Trees.raw does (the same floats).
+            for k in range(trees):
+                v = alive[k]
+                low = v & (~v + np.uint64(1))
+                out[tree_member[k], s, tree_class[k]] += leaf_value[k, low_bit[(low * np.uint64(_DE_BRUIJN)) >> np.uint64(58)]]
 
 
 if numba is not None:
@@ -395,7 +437,7 @@ class ForestScorer:
         if X.shape[1] < self.features:
             raise bad_value("X", f"array of shape {X.shape}", f"expected at least {self.features} columns")
         _forest_scores(X, self.start, self.threshold, self.tree, self.mask, self.leaf_value,
-                       self.tree_member, self.tree_class, self.baseline, _LOW_BIT, out)
+                       self.tree_member, self.tree_class, self.baseline, _LOW_BIT, SCORER_CHUNK, out)
         missing = np.flatnonzero(np.isnan(X).any(axis=1))
         if missing.size:
             for m, t in enumerate(self.members):
@@ -735,27 +777,36 @@ class BoostedCapabilityModel(CapabilityModelBase):
         flat = patches.reshape(n, P.PATCH_SIZE, P.PATCH_SIZE)
         directions = (P.TURN_LEFT, P.TURN_RIGHT) if kind == "turn" else (None,)
         shape = (len(directions),) + batch if kind == "turn" else batch
-        part = patch_features(flat)  # the same patches for every topology
-        blocks = []
+        checked = {}
         for t, f in feet.items():
             self.network(t, kind)
             f = np.asarray(f, dtype=np.float32)
             if f.shape != batch + (6, 3):
                 raise _error(f"feet[{t}]", f"array of shape {f.shape}", f"expected {batch + (6, 3)} to match the patches")
-            blocks += [features(flat, f.reshape(n, 6, 3), kind, t, d, patch_part=part) for d in directions]
-        if not blocks:
+            checked[t] = f.reshape(n, 6, 3)
+        if not checked:
             return {}
-        # Every topology's and direction's queries in one pass over the free cores; the
-        # members' mean and spread once per distinct query, then spread to the queries.
-        probs, index = self._distinct_outcomes(blocks)
-        walked = probs[..., 0]
-        summary = [walked.mean(axis=0), (1.0 - probs[..., 1]).mean(axis=0),
-                   walked.std(axis=0) if len(self._members) > 1 else None]
-        result = {}
-        for i, t in enumerate(feet):
-            rows = np.stack(index[i * len(directions):(i + 1) * len(directions)])  # (dirs, n)
-            result[t] = tuple(None if a is None else a[rows].reshape(shape) for a in summary)
-        return result
+        spread = len(self._members) > 1
+        out = {t: [np.empty((len(directions), n)), np.empty((len(directions), n)),
+                   np.empty((len(directions), n)) if spread else None] for t in checked}
+        # A map's queries a chunk of patches at a time (each query's answer is its own, so the
+        # numbers do not depend on the chunks): a 100 m map's features would be a gigabyte.
+        for a in range(0, n, MAP_CHUNK):
+            b = min(a + MAP_CHUNK, n)
+            part = patch_features(flat[a:b])  # the same patches for every topology
+            blocks = [features(flat[a:b], f[a:b], kind, t, d, patch_part=part)
+                      for t, f in checked.items() for d in directions]
+            # Every topology's and direction's queries in one pass over the free cores; the
+            # members' mean and spread once per distinct query, then spread to the queries.
+            probs, index = self._distinct_outcomes(blocks)
+            walked = probs[..., 0]
+            summary = [walked.mean(axis=0), (1.0 - probs[..., 1]).mean(axis=0), walked.std(axis=0) if spread else None]
+            for i, t in enumerate(checked):
+                rows = np.stack(index[i * len(directions):(i + 1) * len(directions)])  # (dirs, b - a)
+                for target, value in zip(out[t], summary):
+                    if target is not None:
+                        target[:, a:b] = value[rows]
+        return {t: tuple(None if v is None else v.reshape(shape) for v in values) for t, values in out.items()}
 
 
 def save_boosted(result: BoostedTrainingResult, out_dir) -> Path:

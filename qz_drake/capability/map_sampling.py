@@ -5,7 +5,10 @@ whole map (every cell, eight headings, two patch kinds: 20 x 20 samples each) it
 made the patch sampling a third of a 100 m plan (measured 2026-12-01: 14 s of 50 s). The kernel
 here computes the same bilinear interpolation (HeightMap.height's quad, clamping and operation
 order) in one compiled pass per patch, without temporaries. Training and the capability trials
-keep using ``patches.sample_patches``; a test holds the two equal.
+keep using ``patches.sample_patches``; a test holds the two equal. The same kernel writing
+float64 gives the cells' ground reference (``ground_reference_fast``, the median of the cell's
+heights as ``patches.ground_reference`` takes it) without the half-gigabyte of numpy
+temporaries a 100 m map's cells cost that way.
 """
 
 from __future__ import annotations
@@ -59,3 +62,18 @@ def sample_patches_fast(heightmap, x, y, yaw, kind: str, ground) -> np.ndarray:
     _bilinear_patches(h, float(heightmap.origin[0]), float(heightmap.origin[1]),
                       float(heightmap.resolution), *flat[:4], offsets, flat[4], out)
     return out.reshape(shape + (P.PATCH_SIZE, P.PATCH_SIZE))
+
+
+def ground_reference_fast(heightmap, x, y) -> np.ndarray:
+    """``patches.ground_reference(heightmap, x, y)``, the same numbers, for finite queries on a
+    map of at least 2 x 2 cells: the median of the 20 x 20 heights over each robot's cell."""
+    x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+    shape = x.shape
+    n = x.size
+    offsets = (np.arange(P.PATCH_SIZE) - (P.PATCH_SIZE - 1) / 2.0) * P.TURN_PATCH_SPACING
+    cell = np.empty((n, P.PATCH_SIZE, P.PATCH_SIZE))
+    h = np.ascontiguousarray(heightmap.heights, dtype=float)
+    _bilinear_patches(h, float(heightmap.origin[0]), float(heightmap.origin[1]), float(heightmap.resolution),
+                      np.ascontiguousarray(x.reshape(-1)), np.ascontiguousarray(y.reshape(-1)), np.ones(n),
+                      np.zeros(n), offsets, np.zeros(n), cell)
+    return np.median(cell, axis=(-2, -1)).reshape(shape)

@@ -216,7 +216,7 @@ def pose_inputs(heightmap, x: float, y: float, yaw: float, kind: str, feet_W) ->
 def sample_map_inputs(heightmap, topologies, *, cell_size: float = P.CELL_SIZE, anchor=None) -> MapInputs:
     """Patches (once per kind: they do not depend on the topology) and each topology's nominal
     feet for every cell and heading, vectorised over all of them (built on patches.py)."""
-    from qz_drake.capability.map_sampling import sample_patches_fast
+    from qz_drake.capability.map_sampling import ground_reference_fast, sample_patches_fast
     from qz_drake.robot.params import DEFAULT_PARAMS
     from qz_drake.robot.topology import get_topology
 
@@ -224,7 +224,7 @@ def sample_map_inputs(heightmap, topologies, *, cell_size: float = P.CELL_SIZE, 
     # Grid arrays (8, ny, nx): heading index first, as the planner's states.
     k, gy, gx = np.meshgrid(np.arange(8), ys, xs, indexing="ij")
     yaw = P.heading_yaw(k)
-    ground = np.broadcast_to(P.ground_reference(heightmap, gx[0], gy[0]), k.shape)
+    ground = np.broadcast_to(ground_reference_fast(heightmap, gx[0], gy[0]), k.shape)
     even = k % 2 == 0
     move_patches = np.empty(k.shape + (P.PATCH_SIZE, P.PATCH_SIZE), np.float32)
     for kind, mask in (("orthogonal", even), ("diagonal", ~even)):

@@ -186,6 +186,22 @@ def test_the_trees_answer_the_same_on_one_thread_or_several(trained, monkeypatch
     np.testing.assert_array_equal(model.member_outcomes(X)[:, :len(rows)], model.member_outcomes(X)[:, len(rows):])
 
 
+def test_a_map_taken_in_chunks_answers_as_in_one(trained, monkeypatch):
+    """success_all takes a map's patches a chunk at a time (memory): the chunks do not change a
+    number, turns' two directions and the members' spread included."""
+    arrays, _, _, result, _ = trained
+    model = B.BoostedCapabilityModel(result.members, result.card)
+    rows = np.arange(100)
+    patches, feet = arrays["patch"][rows].reshape(4, 25, 20, 20), arrays["feet"][rows].reshape(4, 25, 6, 3)
+    whole = model.success_all(patches, {"nominal": feet, "split_up": feet[::-1]}, "turn")
+    monkeypatch.setattr(B, "MAP_CHUNK", 7)
+    chunked = model.success_all(patches, {"nominal": feet, "split_up": feet[::-1]}, "turn")
+    for topology in ("nominal", "split_up"):
+        assert whole[topology][0].shape == (2, 4, 25)
+        for one, other in zip(whole[topology], chunked[topology]):
+            np.testing.assert_array_equal(one, other)
+
+
 def test_refuses_tampered_or_foreign_files_and_bad_queries(trained, tmp_path):
     _, manifest, _, result, folder = trained
     copy = B.save_boosted(result, tmp_path / "m")

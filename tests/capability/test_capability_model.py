@@ -360,6 +360,20 @@ def test_the_compiled_map_sampler_gives_exactly_the_training_patches(kind):
     assert np.array_equal(got.reshape(n, 20, 20), expected)
 
 
+def test_the_compiled_ground_reference_is_the_cells_median():
+    """A map's cells stand on patches.ground_reference's height; the compiled sampler gives the
+    same numbers, inside the map and off its edges."""
+    from qz_drake.capability.map_sampling import ground_reference_fast
+    from qz_drake.terrain import make_terrain
+
+    heightmap = make_terrain("long_range", seed=3)
+    xmin, xmax, ymin, ymax = heightmap.bounds
+    rng = np.random.default_rng(2)
+    x, y = rng.uniform(xmin - 2, xmax + 2, (30, 10)), rng.uniform(ymin - 2, ymax + 2, (30, 10))
+    got = ground_reference_fast(heightmap, x, y)
+    assert got.shape == (30, 10) and np.array_equal(got, P.ground_reference(heightmap, x, y))
+
+
 @pytest.mark.parametrize("kind", ["diagonal", "turn"])
 def test_an_ensembles_map_is_its_members_mean_with_their_spread(trained, saved, kind):
     """The default training makes deep ensembles (TrainingConfig.ensemble); saved and loaded,
