@@ -220,6 +220,9 @@ def _raw_scores_py(X, baseline, roots, feature, threshold, left, right, leaf, va
     return out
 
 
+# The columns of a query that depend on its patch and kind only (patch features, kind one-hot):
+# shared by a map cell's queries in every topology and turn direction.
+SHARED_FEATURES = 20 + len(P.KINDS)
 # Patches whose queries (every topology and turn direction) success_all evaluates at once:
 # about 75 MB of features for turns in six topologies.
 MAP_CHUNK = 16384
@@ -287,6 +290,47 @@ def _leaf_ranges_py(roots, left, right, leaf, first, last, order, tree_of):
                 top -= 1
 
 
+def _fail_splits_py(state, x, f, start, threshold, tree, mask):
+    """ANDs into ``state`` the masks of feature f's splits that x fails (x > threshold); the
+    splits are sorted by threshold, so the failed ones come first."""
+    for k in range(start[f], start[f + 1]):
+        if x > threshold[k]:
+            state[tree[k]] &= mask[k]
+        else:
+            break
+
+
+def _same_splits_py(values, start, threshold, f) -> bool:
+    """Whether every value (none NaN) lies between the same two of feature f's thresholds:
+    then each fails the same splits."""
+    lo = values[0]
+    hi = lo
+    if lo != lo:
+        return False
+    for x in values[1:]:
+        if x != x:
+            return False
+        if x < lo:
+            lo = x
+        elif x > hi:
+            hi = x
+    splits = threshold[start[f]:start[f + 1]]
+    return np.searchsorted(splits, lo) == np.searchsorted(splits, hi)
+
+
+def _add_leaves_py(alive, leaf_value, tree_member, tree_class, baseline, low_bit, out, s):
+    """out[:, s] = the raw scores of the trees' exit leaves: each tree's leftmost live leaf;
+    trees in (member, iteration, class) order, so each score adds its trees in the order
+    Trees.raw does (the same floats)."""
+    for m in range(out.shape[0]):
+        for c in range(out.shape[2]):
+            out[m, s, c] = baseline[m, c]
+    for k in range(alive.shape[0]):
+        v = alive[k]
+        low = v & (~v + np.uint64(1))
+        out[tree_member[k], s, tree_class[k]] += leaf_value[k, low_bit[(low * np.uint64(_DE_BRUIJN)) >> np.uint64(58)]]
+
+
 def _forest_scores_py(X, start, threshold, tree, mask, leaf_value, tree_member, tree_class, baseline,
                       low_bit, chunk, out):
     """QuickScorer's pass over rows X: out (members, n, classes) raw scores (a row with NaN
@@ -298,66 +342,87 @@ def _forest_scores_py(X, start, threshold, tree, mask, leaf_value, tree_member, 
     varying = np.empty(features, np.int64)
     for a in range(0, n, chunk):
         b = min(a + chunk, n)
-        # A feature whose values in these rows all lie between the same two of its thresholds
-        # fails the same splits in every row (a map block's kind, topology and direction, and
-        # its nominal feet along x and y): its masks are applied once, to the rows' common start.
-        for k in range(trees):
-            common[k] = np.uint64(0xFFFFFFFFFFFFFFFF)
+        # A feature whose values in these rows all fail the same splits (a map block's kind,
+        # topology and direction, its nominal feet along x and y) is applied once, to the
+        # rows' common start.
+        common[:] = np.uint64(0xFFFFFFFFFFFFFFFF)
         count = 0
         for f in range(features):
-            lo = X[a, f]
-            hi = lo
-            fixed = lo == lo
-            for s in range(a + 1, b):
-                x = X[s, f]
-                if x != x:
-                    fixed = False
-                    break
-                if x < lo:
-                    lo = x
-                elif x > hi:
-                    hi = x
-            if fixed:
-                splits = threshold[start[f]:start[f + 1]]
-                fixed = np.searchsorted(splits, lo) == np.searchsorted(splits, hi)
-            if fixed:
-                for k in range(start[f], start[f + 1]):
-                    if lo > threshold[k]:
-                        common[tree[k]] &= mask[k]
-                    else:
-                        break
+            if _same_splits(X[a:b, f], start, threshold, f):
+                _fail_splits(common, X[a, f], f, start, threshold, tree, mask)
             else:
                 varying[count] = f
                 count += 1
         for s in range(a, b):
-            for k in range(trees):
-                alive[k] = common[k]
-            # Every split whose test is false (x > threshold) rules out its left subtree's
-            # leaves; a feature's splits are sorted by threshold, so the false ones come first.
+            alive[:] = common
             for j in range(count):
-                f = varying[j]
-                x = X[s, f]
-                for k in range(start[f], start[f + 1]):
-                    if x > threshold[k]:
-                        alive[tree[k]] &= mask[k]
-                    else:
-                        break
-            for m in range(out.shape[0]):
-                for c in range(out.shape[2]):
-                    out[m, s, c] = baseline[m, c]
-            # The exit leaf is the leftmost one still alive; trees in (member, iteration, class)
-            # order, so each score adds its trees in the order Trees.raw does (the same floats).
-            for k in range(trees):
-                v = alive[k]
-                low = v & (~v + np.uint64(1))
-                out[tree_member[k], s, tree_class[k]] += leaf_value[k, low_bit[(low * np.uint64(_DE_BRUIJN)) >> np.uint64(58)]]
+                _fail_splits(alive, X[s, varying[j]], varying[j], start, threshold, tree, mask)
+            _add_leaves(alive, leaf_value, tree_member, tree_class, baseline, low_bit, out, s)
+
+
+def _grouped_scores_py(shared, variants, start, threshold, tree, mask, leaf_value, tree_member, tree_class,
+                       baseline, low_bit, chunk, out):
+    """QuickScorer's pass over groups of rows that share their first columns: row (p, v) is
+    shared[p] followed by variants[p, v]. out (members, n * V, classes), row p * V + v."""
+    n, V = variants.shape[0], variants.shape[1]
+    split = shared.shape[1]
+    trees = leaf_value.shape[0]
+    common = np.empty(trees, np.uint64)
+    per_variant = np.empty((V, trees), np.uint64)
+    shared_varying = np.empty(split, np.int64)
+    varying = np.empty((V, variants.shape[2]), np.int64)
+    counts = np.empty(V, np.int64)
+    state = np.empty(trees, np.uint64)
+    alive = np.empty(trees, np.uint64)
+    for a in range(0, n, chunk):
+        b = min(a + chunk, n)
+        # The columns that fail the same splits in all these groups, applied once: shared ones
+        # (the kind) to the common start, each variant's (its topology, direction and nominal
+        # feet along x and y) to that variant's.
+        common[:] = np.uint64(0xFFFFFFFFFFFFFFFF)
+        shared_count = 0
+        for j in range(split):
+            if _same_splits(shared[a:b, j], start, threshold, j):
+                _fail_splits(common, shared[a, j], j, start, threshold, tree, mask)
+            else:
+                shared_varying[shared_count] = j
+                shared_count += 1
+        for v in range(V):
+            per_variant[v, :] = common
+            counts[v] = 0
+            for j in range(variants.shape[2]):
+                f = split + j
+                if _same_splits(variants[a:b, v, j], start, threshold, f):
+                    _fail_splits(per_variant[v], variants[a, v, j], f, start, threshold, tree, mask)
+                else:
+                    varying[v, counts[v]] = j
+                    counts[v] += 1
+        for p in range(a, b):
+            # The group's shared columns once (a map cell's patch: every topology and turn
+            # direction reads the same), then each variant's own.
+            state[:] = np.uint64(0xFFFFFFFFFFFFFFFF)
+            for i in range(shared_count):
+                j = shared_varying[i]
+                _fail_splits(state, shared[p, j], j, start, threshold, tree, mask)
+            for v in range(V):
+                for k in range(trees):
+                    alive[k] = state[k] & per_variant[v, k]
+                for i in range(counts[v]):
+                    j = varying[v, i]
+                    _fail_splits(alive, variants[p, v, j], split + j, start, threshold, tree, mask)
+                _add_leaves(alive, leaf_value, tree_member, tree_class, baseline, low_bit, out, p * V + v)
 
 
 if numba is not None:
     _leaf_ranges = numba.njit(cache=True)(_leaf_ranges_py)
+    _fail_splits = numba.njit(cache=True, nogil=True)(_fail_splits_py)
+    _same_splits = numba.njit(cache=True, nogil=True)(_same_splits_py)
+    _add_leaves = numba.njit(cache=True, nogil=True)(_add_leaves_py)
     _forest_scores = numba.njit(cache=True, nogil=True)(_forest_scores_py)
+    _grouped_scores = numba.njit(cache=True, nogil=True)(_grouped_scores_py)
 else:  # pragma: no cover - numba is a dependency
-    _leaf_ranges, _forest_scores = _leaf_ranges_py, _forest_scores_py
+    _leaf_ranges, _fail_splits, _same_splits, _add_leaves = _leaf_ranges_py, _fail_splits_py, _same_splits_py, _add_leaves_py
+    _forest_scores, _grouped_scores = _forest_scores_py, _grouped_scores_py
 
 
 class ForestScorer:
@@ -443,6 +508,27 @@ class ForestScorer:
             for m, t in enumerate(self.members):
                 out[m, missing] = t.raw(X[missing])
         return out
+
+    def raw_grouped(self, shared: np.ndarray, variants: np.ndarray) -> np.ndarray:
+        """(members, n, V, classes) raw scores of the rows (shared[p], variants[p, v]): groups
+        of V rows whose first ``shared.shape[1]`` columns are the same (a map cell's patch in
+        every topology and turn direction), those columns' splits taken once per group. The
+        numbers of :meth:`raw` on the rows written out."""
+        shared = np.ascontiguousarray(shared, dtype=np.float64)
+        variants = np.ascontiguousarray(variants, dtype=np.float64)
+        n, V = variants.shape[:2]
+        if shared.ndim != 2 or variants.ndim != 3 or shared.shape[0] != n or shared.shape[1] + variants.shape[2] < self.features:
+            raise bad_value("variants", f"arrays of shapes {shared.shape} and {variants.shape}",
+                            f"expected (n, k) and (n, V, m) with k + m >= {self.features} columns")
+        out = np.empty((len(self.members), n * V, self.classes))
+        _grouped_scores(shared, variants, self.start, self.threshold, self.tree, self.mask, self.leaf_value,
+                        self.tree_member, self.tree_class, self.baseline, _LOW_BIT, SCORER_CHUNK, out)
+        missing = np.flatnonzero((np.isnan(shared).any(axis=1)[:, None] | np.isnan(variants).any(axis=2)).reshape(-1))
+        if missing.size:
+            rows = np.concatenate([np.repeat(shared, V, axis=0), variants.reshape(n * V, -1)], axis=1)[missing]
+            for m, t in enumerate(self.members):
+                out[m, missing] = t.raw(rows)
+        return out.reshape(len(self.members), n, V, self.classes)
 
     def probabilities(self, X: np.ndarray) -> np.ndarray:
         """(members, n, classes) every learner's softmax (:func:`softmax`'s numbers)."""
@@ -745,6 +831,32 @@ class BoostedCapabilityModel(CapabilityModelBase):
         with ThreadPoolExecutor(threads) as pool:
             return np.concatenate(list(pool.map(rows, np.array_split(unique, threads))), axis=1), index
 
+    def _grouped_outcomes(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(members, distinct groups, V, 3) outcomes of (n, V, features) rows whose first
+        SHARED_FEATURES columns are the same along V (a patch in every topology and direction),
+        and each group's index in them. Groups are compared whole (a flat world's cells repeat
+        one); the scorer takes each group's patch columns once; over the free cores."""
+        n, V, width = rows.shape
+        wide = np.concatenate([rows[:, 0, :SHARED_FEATURES], rows[:, :, SHARED_FEATURES:].reshape(n, -1)], axis=1)
+        first, inverse = distinct_rows(wide)
+        unique = rows[first]
+        scorer = self.scorer
+
+        def groups(part):
+            if scorer is not None:
+                return softmax(scorer.raw_grouped(part[:, 0, :SHARED_FEATURES], part[:, :, SHARED_FEATURES:]))
+            flat = part.reshape(-1, width)
+            return np.stack([m.probabilities(flat) for m in self._members]).reshape(-1, len(part), V, 3)
+
+        threads = min(inference_threads(), len(unique) * V // PARALLEL_ROWS)
+        if threads <= 1:
+            return groups(unique), inverse
+        # The compiled loops release the GIL: the groups split over the free cores.
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(threads) as pool:
+            return np.concatenate(list(pool.map(groups, np.array_split(unique, threads))), axis=1), inverse
+
     def outcomes_of_features(self, X: np.ndarray) -> np.ndarray:
         return self.member_outcomes(X).mean(axis=0)
 
@@ -794,18 +906,16 @@ class BoostedCapabilityModel(CapabilityModelBase):
         for a in range(0, n, MAP_CHUNK):
             b = min(a + MAP_CHUNK, n)
             part = patch_features(flat[a:b])  # the same patches for every topology
-            blocks = [features(flat[a:b], f[a:b], kind, t, d, patch_part=part)
-                      for t, f in checked.items() for d in directions]
-            # Every topology's and direction's queries in one pass over the free cores; the
-            # members' mean and spread once per distinct query, then spread to the queries.
-            probs, index = self._distinct_outcomes(blocks)
+            # (patches, variants, features): every topology's and direction's query of a patch.
+            rows = np.stack([features(flat[a:b], f[a:b], kind, t, d, patch_part=part)
+                             for t, f in checked.items() for d in directions], axis=1)
+            probs, inverse = self._grouped_outcomes(rows)  # (members, distinct patches, variants, 3)
             walked = probs[..., 0]
             summary = [walked.mean(axis=0), (1.0 - probs[..., 1]).mean(axis=0), walked.std(axis=0) if spread else None]
             for i, t in enumerate(checked):
-                rows = np.stack(index[i * len(directions):(i + 1) * len(directions)])  # (dirs, b - a)
                 for target, value in zip(out[t], summary):
                     if target is not None:
-                        target[:, a:b] = value[rows]
+                        target[:, a:b] = value[inverse, i * len(directions):(i + 1) * len(directions)].T
         return {t: tuple(None if v is None else v.reshape(shape) for v in values) for t, values in out.items()}
 
 

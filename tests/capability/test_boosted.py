@@ -64,6 +64,16 @@ def test_forest_scorer_adds_the_same_leaves_as_the_tree_walk():
     np.testing.assert_array_equal(scorer.raw(Xq), expected)
     np.testing.assert_array_equal(scorer.probabilities(Xq), np.stack([t.probabilities(Xq) for t in members]))
     np.testing.assert_allclose(scorer.probabilities(Xq).sum(axis=2), 1.0, rtol=0, atol=1e-12)
+    # Groups of rows sharing their first columns (a cell's patch in every topology): the same.
+    shared, variants = rng.normal(size=(120, 3)), rng.normal(size=(120, 4, 4))
+    variants[:, 1, 0] = 0.25  # a column that fails the same splits in every group
+    shared[5, 1] = variants[7, 2, 3] = np.nan
+    rows = np.concatenate([np.repeat(shared, 4, axis=0), variants.reshape(480, 4)], axis=1)
+    grouped = scorer.raw_grouped(shared, variants)
+    assert grouped.shape == (3, 120, 4, 3)
+    np.testing.assert_array_equal(grouped.reshape(3, 480, 3), np.stack([t.raw(rows) for t in members]))
+    with pytest.raises(QzError, match="variants"):
+        scorer.raw_grouped(shared[:, :2], variants)
 
 
 def test_forest_scorer_declines_trees_wider_than_a_word(trained, monkeypatch):
@@ -200,6 +210,15 @@ def test_a_map_taken_in_chunks_answers_as_in_one(trained, monkeypatch):
         assert whole[topology][0].shape == (2, 4, 25)
         for one, other in zip(whole[topology], chunked[topology]):
             np.testing.assert_array_equal(one, other)
+    # A cell's patch taken once for all its topologies and directions: the numbers of each
+    # query on its own.
+    for topology, f in (("nominal", feet), ("split_up", feet[::-1])):
+        for d in (0, 1):
+            X = B.features(patches.reshape(100, 20, 20), f.reshape(100, 6, 3), "turn", topology, d)
+            probs = model.member_outcomes(X)
+            np.testing.assert_array_equal(whole[topology][0][d].reshape(100), probs[..., 0].mean(axis=0))
+            np.testing.assert_array_equal(whole[topology][1][d].reshape(100), (1.0 - probs[..., 1]).mean(axis=0))
+            np.testing.assert_array_equal(whole[topology][2][d].reshape(100), probs[..., 0].std(axis=0))
 
 
 def test_refuses_tampered_or_foreign_files_and_bad_queries(trained, tmp_path):
