@@ -5,7 +5,11 @@ project's 2-core machine with a collection or a second walk beside it) its threa
 wait on each other and on the other work: `qz plan` on a 20 m world spent 12.7-14.9 s
 planning with two threads and 4.1-4.6 s with one, with the other core busy (BENCHMARKS
 "plan", session 34). So torch gets the cores that are free when the model is loaded: the
-process's cores less the load average (its own work included), at least one.
+process's cores less the tasks running elsewhere at that moment (the kernel's count of runnable
+tasks, /proc/loadavg), at least one. The last minute's load average was the first measure; it
+counts the process's own work of a moment ago (loading, a previous plan), so `qz plan` on an
+idle machine took one thread (BENCHMARKS "plan", session 41); it remains the measure where the
+kernel gives no count.
 ``QZ_TORCH_THREADS`` sets the number instead. The shipped boosted capability model's trees
 (qz_drake.capability.boosted) split a map's queries over the same number of threads.
 
@@ -33,13 +37,37 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
+# The kernel's load line: "1-min 5-min 15-min runnable/total last-pid".
+LOADAVG = "/proc/loadavg"
+
+
+def running_elsewhere() -> int | None:
+    """Tasks running or waiting for a core now, the caller not counted: the runnable count of
+    /proc/loadavg (median of three reads a millisecond apart, minus the reading thread); None
+    where the system has no such count."""
+    import time
+
+    counts = []
+    for _ in range(3):
+        try:
+            with open(LOADAVG) as f:
+                counts.append(int(f.read().split()[3].split("/")[0]) - 1)
+        except (OSError, IndexError, ValueError):
+            return None
+        time.sleep(0.001)
+    return max(0, sorted(counts)[1])
+
+
 def free_cores() -> int:
-    """Cores not taken by running work (the last minute's load average), at least one."""
+    """Cores not taken by work running elsewhere now, at least one (the last minute's load
+    average where the kernel gives no runnable count)."""
     cores = available_cores()
-    try:
-        busy = os.getloadavg()[0]
-    except OSError:  # no load average on this system
-        return cores
+    busy = running_elsewhere()
+    if busy is None:
+        try:
+            busy = os.getloadavg()[0]
+        except OSError:  # no load average on this system
+            return cores
     return max(1, min(cores, int(cores - busy + 0.5)))
 
 

@@ -8,8 +8,19 @@ from qz_drake import threads
 from qz_drake.errors import QzError
 
 
-def test_free_cores_leave_out_the_busy_ones(monkeypatch):
+def test_free_cores_leave_out_the_busy_ones(monkeypatch, tmp_path):
+    """The cores less the tasks running elsewhere now (the reader not counted); the load
+    average where the kernel gives no count."""
     monkeypatch.setattr(threads, "available_cores", lambda: 4)
+    monkeypatch.setattr(os, "getloadavg", lambda: (3.5, 3.5, 3.5))  # a minute of past work: not now
+    line = tmp_path / "loadavg"
+    monkeypatch.setattr(threads, "LOADAVG", str(line))
+    for running, free in ((1, 4), (2, 3), (4, 1), (12, 1)):
+        line.write_text(f"3.50 2.00 1.00 {running}/312 4242\n")
+        assert threads.running_elsewhere() == running - 1
+        assert threads.free_cores() == free, running
+    monkeypatch.setattr(threads, "LOADAVG", str(tmp_path / "absent"))
+    assert threads.running_elsewhere() is None
     for load, free in ((0.0, 4), (0.4, 4), (1.2, 3), (2.6, 1), (9.0, 1)):
         monkeypatch.setattr(os, "getloadavg", lambda load=load: (load, load, load))
         assert threads.free_cores() == free, load
