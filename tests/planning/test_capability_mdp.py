@@ -275,6 +275,22 @@ def test_policy_evaluation_reaches_value_iterations_fixed_point_in_fewer_iterati
     assert evaluated.iterations * 2 < alone.iterations
 
 
+def test_the_solver_answers_the_same_on_one_thread_or_two(corridors, monkeypatch):
+    """The solver's loops over the states split over the free cores (QZ_TORCH_THREADS sets how
+    many): the values, policy and Q are the same to the bit."""
+    from qz_drake.planning.capability_mdp import solve_capability_mdp
+
+    capability_map = predict_map(SharingStub(), corridors, ["nominal", "front_bend"])
+    solutions = []
+    for threads in ("1", "2"):
+        monkeypatch.setenv("QZ_TORCH_THREADS", threads)
+        solutions.append(solve_capability_mdp(build_capability_mdp(capability_map, GOAL, CapabilityMdpConfig())))
+    one, two = solutions
+    assert one.iterations == two.iterations
+    for a, b in ((one.V, two.V), (one.Q, two.Q), (one.policy, two.policy)):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_policy_evaluations_are_bounded_then_value_iteration_finishes(corridors, monkeypatch):
     """Past MAX_EVALUATIONS the solver iterates Eq. 9 alone, which always converges: with a bound
     of 2 it still reaches the same values."""
