@@ -41,21 +41,33 @@ def available_cores() -> int:
 LOADAVG = "/proc/loadavg"
 
 
+# A count younger than this is reused (a plan asks at each of its steps; a count costs ~3 ms). [s]
+RUNNING_MAX_AGE = 0.5
+_running = (-1.0, "", None)  # (when, from which file, the count)
+
+
 def running_elsewhere() -> int | None:
     """Tasks running or waiting for a core now, the caller not counted: the runnable count of
-    /proc/loadavg (median of three reads a millisecond apart, minus the reading thread); None
-    where the system has no such count."""
+    /proc/loadavg (median of three reads a millisecond apart, minus the reading thread; the
+    last count if it is under RUNNING_MAX_AGE old); None where the system has no such count."""
     import time
 
+    global _running
+    now = time.monotonic()
+    if _running[1] == LOADAVG and now - _running[0] < RUNNING_MAX_AGE:
+        return _running[2]
     counts = []
     for _ in range(3):
         try:
             with open(LOADAVG) as f:
                 counts.append(int(f.read().split()[3].split("/")[0]) - 1)
         except (OSError, IndexError, ValueError):
-            return None
+            counts = None
+            break
         time.sleep(0.001)
-    return max(0, sorted(counts)[1])
+    count = None if counts is None else max(0, sorted(counts)[1])
+    _running = (now, LOADAVG, count)
+    return count
 
 
 def free_cores() -> int:
@@ -92,6 +104,16 @@ def set_torch_threads() -> int:
     n = torch_threads()
     if torch.get_num_threads() != n:
         torch.set_num_threads(n)
+    return n
+
+
+def set_numba_threads() -> int:
+    """Sets the threads of numba's parallel loops (the map sampler, the MDP solver) to
+    torch_threads(), as far as numba has them, and returns the number."""
+    import numba
+
+    n = min(torch_threads(), numba.config.NUMBA_NUM_THREADS)
+    numba.set_num_threads(n)
     return n
 
 

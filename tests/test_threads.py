@@ -15,6 +15,7 @@ def test_free_cores_leave_out_the_busy_ones(monkeypatch, tmp_path):
     monkeypatch.setattr(os, "getloadavg", lambda: (3.5, 3.5, 3.5))  # a minute of past work: not now
     line = tmp_path / "loadavg"
     monkeypatch.setattr(threads, "LOADAVG", str(line))
+    monkeypatch.setattr(threads, "RUNNING_MAX_AGE", 0.0)  # every call counts afresh
     for running, free in ((1, 4), (2, 3), (4, 1), (12, 1)):
         line.write_text(f"3.50 2.00 1.00 {running}/312 4242\n")
         assert threads.running_elsewhere() == running - 1
@@ -24,6 +25,13 @@ def test_free_cores_leave_out_the_busy_ones(monkeypatch, tmp_path):
     for load, free in ((0.0, 4), (0.4, 4), (1.2, 3), (2.6, 1), (9.0, 1)):
         monkeypatch.setattr(os, "getloadavg", lambda load=load: (load, load, load))
         assert threads.free_cores() == free, load
+    # A count is reused for RUNNING_MAX_AGE seconds: a plan asks at each of its steps.
+    monkeypatch.setattr(threads, "RUNNING_MAX_AGE", 60.0)
+    monkeypatch.setattr(threads, "LOADAVG", str(line))
+    line.write_text("0.1 0.1 0.1 2/300 1\n")
+    assert threads.running_elsewhere() == 1
+    line.write_text("0.1 0.1 0.1 5/300 1\n")
+    assert threads.running_elsewhere() == 1
 
 
 def test_the_variable_sets_the_threads_and_bad_values_name_it(monkeypatch):

@@ -17,13 +17,15 @@ import numba
 import numpy as np
 
 from qz_drake.capability import patches as P
+from qz_drake.threads import set_numba_threads
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _bilinear_patches(h, ox, oy, resolution, cx, cy, c, s, offsets, ground, out):
+    # Queries split over the free cores (set_numba_threads): each patch is its own.
     rows, cols = h.shape
     n = offsets.shape[0]
-    for q in range(cx.shape[0]):
+    for q in numba.prange(cx.shape[0]):
         for i in range(n):
             du = offsets[i]
             for j in range(n):
@@ -59,6 +61,7 @@ def sample_patches_fast(heightmap, x, y, yaw, kind: str, ground) -> np.ndarray:
     # Written as float32 element by element: the same rounding as casting the float64 patch.
     out = np.empty((flat[0].size, P.PATCH_SIZE, P.PATCH_SIZE), dtype=np.float32)
     h = np.ascontiguousarray(heightmap.heights, dtype=float)
+    set_numba_threads()
     _bilinear_patches(h, float(heightmap.origin[0]), float(heightmap.origin[1]),
                       float(heightmap.resolution), *flat[:4], offsets, flat[4], out)
     return out.reshape(shape + (P.PATCH_SIZE, P.PATCH_SIZE))
@@ -73,6 +76,7 @@ def ground_reference_fast(heightmap, x, y) -> np.ndarray:
     offsets = (np.arange(P.PATCH_SIZE) - (P.PATCH_SIZE - 1) / 2.0) * P.TURN_PATCH_SPACING
     cell = np.empty((n, P.PATCH_SIZE, P.PATCH_SIZE))
     h = np.ascontiguousarray(heightmap.heights, dtype=float)
+    set_numba_threads()
     _bilinear_patches(h, float(heightmap.origin[0]), float(heightmap.origin[1]), float(heightmap.resolution),
                       np.ascontiguousarray(x.reshape(-1)), np.ascontiguousarray(y.reshape(-1)), np.ones(n),
                       np.zeros(n), offsets, np.zeros(n), cell)

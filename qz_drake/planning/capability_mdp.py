@@ -774,11 +774,9 @@ def solve_capability_mdp(mdp: CapabilityMdp, V0=None) -> ValueIterationResult:
     if not stand.any() and not config.policy_evaluation:
         return value_iteration(mdp.P, mdp.R, gamma, epsilon=config.epsilon, max_iter=config.max_iter, V0=V0)
     kernels = _kernels()
-    import numba
+    from qz_drake.threads import set_numba_threads
 
-    from qz_drake.threads import torch_threads
-
-    numba.set_num_threads(min(torch_threads(), numba.config.NUMBA_NUM_THREADS))
+    set_numba_threads()
     # The MDP's arrays state-major, as the compiled kernels read them: (S, A). (Built
     # state-major, the arrays took a 100 m plan's build 3.2 s instead of 0.7 s: a column written
     # at a time visits every cache line 18 times; the copies here cost less.)
