@@ -57,10 +57,66 @@ _UNSUPPORTED = ("lorentz_cone_constraints", "rotated_lorentz_cone_constraints",
 def available() -> bool:
     """Whether the MUMPS build of Ipopt (package ``cyipopt-wheels``) can be imported."""
     try:
-        import cyipopt  # noqa: F401
+        _problem_class()
     except ImportError:
         return False
     return True
+
+
+_PROBLEM = None
+
+
+def _problem_class():
+    """cyipopt's ``Problem``, loaded without cyipopt's SciPy interface where that is possible.
+
+    ``import cyipopt`` runs the package's ``__init__``, which imports its ``minimize_ipopt``
+    and with it ``scipy.optimize``: 0.3 s of a process's first BLC solve (`qz blc`, each
+    collection worker) of about 0.6 s (BENCHMARKS "blc", session 41). The wheel's compiled
+    module (``ipopt_wrapper``, a top-level module of cyipopt-wheels) needs only
+    ``cyipopt.exceptions``. So ``cyipopt`` is registered as its package without running its
+    ``__init__``, and the ``__init__`` runs in that same module the first time anything asks
+    the package for a name it lacks (``cyipopt.minimize_ipopt``, ``from cyipopt import ...``):
+    one package, one compiled module, the same classes. Where cyipopt is imported already, or
+    the layout is another, ``import cyipopt``."""
+    global _PROBLEM
+    if _PROBLEM is not None:
+        return _PROBLEM
+    import importlib
+    import importlib.util
+    import sys
+    import types
+
+    if "cyipopt" not in sys.modules:
+        spec = importlib.util.find_spec("cyipopt")
+        if spec is None:
+            raise ImportError("no module named 'cyipopt' (the package cyipopt-wheels)")
+        if (importlib.util.find_spec("ipopt_wrapper") is not None and spec.submodule_search_locations
+                and spec.origin):
+            package = types.ModuleType("cyipopt")
+            package.__path__ = list(spec.submodule_search_locations)
+            package.__spec__, package.__file__, package.__package__ = spec, spec.origin, "cyipopt"
+
+            def complete(name):
+                # The package's own __init__, once, in this module (PEP 562's __getattr__).
+                del package.__dict__["__getattr__"]
+                with open(spec.origin) as f:
+                    exec(compile(f.read(), spec.origin, "exec"), package.__dict__)
+                return getattr(package, name)
+
+            package.__getattr__ = complete
+            sys.modules["cyipopt"] = package
+            try:
+                wrapper = importlib.import_module("ipopt_wrapper")
+            except BaseException:
+                del sys.modules["cyipopt"]
+                raise
+            if hasattr(wrapper, "Problem"):
+                _PROBLEM = wrapper.Problem
+                return _PROBLEM
+    import cyipopt
+
+    _PROBLEM = cyipopt.Problem
+    return _PROBLEM
 
 
 @dataclasses.dataclass
@@ -268,15 +324,14 @@ def solve(prog, x0, options: dict | None = None,
             always the limited-memory approximation).
         vectorised: generic bindings evaluated together (VectorisedRows).
     """
-    import cyipopt
-
+    problem_class = _problem_class()
     clock = time.perf_counter()
     nlp = ProgramNlp(prog, vectorised)
     x0 = np.asarray(x0, dtype=float).reshape(-1)
     if x0.shape != (nlp.num_vars,):
         raise ValueError(f"ipopt_mumps: x0 has {x0.size} values, the program "
                          f"{nlp.num_vars} decision variables")
-    problem = cyipopt.Problem(n=nlp.num_vars, m=nlp.num_constraints, problem_obj=nlp,
+    problem = problem_class(n=nlp.num_vars, m=nlp.num_constraints, problem_obj=nlp,
                               lb=nlp.lower, ub=nlp.upper, cl=nlp.constraint_lower,
                               cu=nlp.constraint_upper)
     settings = {"linear_solver": "mumps", "print_level": 0, "sb": "yes"}

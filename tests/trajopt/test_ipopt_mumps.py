@@ -190,3 +190,33 @@ def test_the_blc_program_for_mumps_is_a_whole_drake_program_its_rows_agree_with(
         np.testing.assert_allclose(through_drake, rows.evaluate(x), rtol=0, atol=1e-12)
     nlp = ProgramNlp(program.prog, program.vectorised)
     assert nlp.num_constraints == f.num_constraints
+
+
+def test_ipopt_loads_without_scipy_optimize_and_cyipopt_stays_whole():
+    """The first solve in a process does not import cyipopt's SciPy interface (scipy.optimize,
+    0.3 s); a later ``import cyipopt`` is the whole package, with the same compiled module and
+    exception classes (run in a fresh interpreter: the test's own imports would hide it)."""
+    import subprocess
+    import sys
+
+    script = """
+import sys
+import numpy as np
+from pydrake.solvers import MathematicalProgram
+from qz_drake.trajopt import ipopt_mumps
+prog = MathematicalProgram()
+x = prog.NewContinuousVariables(2)
+prog.AddQuadraticCost(np.eye(2), -np.ones(2), x)
+result = ipopt_mumps.solve(prog, np.zeros(2), {"print_level": 0})
+assert result.success and np.allclose(result.x, 1.0, atol=1e-6), result
+assert "scipy.optimize" not in sys.modules
+import cyipopt
+import cyipopt.exceptions
+assert cyipopt.Problem is ipopt_mumps._problem_class()
+assert cyipopt.CyIpoptEvaluationError is cyipopt.exceptions.CyIpoptEvaluationError
+assert np.allclose(cyipopt.minimize_ipopt(lambda z: ((z - 2.0) ** 2).sum(), np.zeros(2)).x, 2.0, atol=1e-6)
+print("ok")
+"""
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.strip().splitlines()[-1] == "ok"
