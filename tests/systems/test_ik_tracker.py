@@ -11,7 +11,7 @@ from qz_drake.robot import kinematics
 from qz_drake.robot.topology import get_topology
 from qz_drake.simulation import add_tracking_controller
 from qz_drake.station import make_station
-from qz_drake.systems.ik_tracker import joint_reference
+from qz_drake.systems.ik_tracker import InverseKinematicsTracker, joint_reference, joint_references
 from qz_drake.systems.reference_gait import TripodGaitPlan
 from qz_drake.state_layout import tilt_deg
 from qz_drake.terrain import make_terrain
@@ -54,6 +54,47 @@ def test_joint_reference_reproduces_the_planned_feet():
     shift = kinematics.all_foot_positions(joint_reference(plan, mid_stance, plan.topology)[0]) - \
         kinematics.all_foot_positions(joint_reference(plan, mid_stance, plan.topology, roll_compensation=False)[0])
     assert np.linalg.norm(shift[0]) > 1e-3
+
+
+def test_a_plans_references_solved_at_once_are_those_solved_one_by_one():
+    """The tracker solves a plan's references together when it arrives (joint_references): the
+    same numbers as joint_reference time by time, the rolling compensation included, before the
+    plan, along it and past its end."""
+    plan = _plan("front_bend")
+    times = np.concatenate([[0.2, 0.5], np.arange(0.5, 4.6, 0.005) + 0.005, [5.0]])
+    q, ok = joint_references(plan, times, plan.topology)
+    assert q.shape == (len(times), 18) and ok.shape == (len(times), 6)
+    for k, t in enumerate(times):
+        q_one, ok_one = joint_reference(plan, t, plan.topology)
+        np.testing.assert_array_equal(q[k], q_one)
+        np.testing.assert_array_equal(ok[k], ok_one)
+    np.testing.assert_array_equal(joint_references(plan, times[:7], plan.topology, roll_compensation=False)[0],
+                                  [joint_reference(plan, t, plan.topology, roll_compensation=False)[0] for t in times[:7]])
+
+
+def test_the_tracker_holds_the_same_references_solved_at_once_or_one_by_one(monkeypatch):
+    """Every update reads the reference solved when the plan arrived: the walk is the one of
+    solving at each update, to the bit."""
+    def walk():
+        scenario = Scenario(terrain=TerrainConfig(kind="flat", contact="boxes", region=[-2, 4, -2, 2]))
+        builder = DiagramBuilder()
+        station, info = make_station(scenario)
+        builder.AddSystem(station)
+        plan = _plan()
+        tracker, _ = add_tracking_controller(builder, station, info, plan, kp=1500.0, kd=30.0)
+        log = LogVectorOutput(tracker.GetOutputPort("desired_state"), builder)
+        state = LogVectorOutput(station.GetOutputPort("state"), builder)
+        simulator = Simulator(builder.Build())
+        simulator.AdvanceTo(1.2)
+        context = simulator.get_context()
+        return tracker, log.FindLog(context).data(), state.FindLog(context).data()
+
+    tracker, *at_once = walk()
+    assert tracker._solved is not None and len(tracker._solved[1]) > 800  # the plan solved at once
+    monkeypatch.setattr(InverseKinematicsTracker, "_solve_plan", lambda self, plan, t: None)
+    _, *one_by_one = walk()
+    for a, b in zip(at_once, one_by_one):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_walks_one_metre_on_flat_ground():
