@@ -153,7 +153,11 @@ def joint_references(trajectory: BodyFeetTrajectory, times, topology: Topology,
             dphi = _rotation_vectors(R_rel)
             shift_W = np.cross(dphi, [0.0, 0.0, params.foot_radius])
             targets = p_BF.copy()
-            targets[k, i] += np.einsum("pj,pjk->pk", shift_W, R_WB[k])  # R_WB^T shift, row-wise
+            # R_WB^T shift, row-wise, one time's legs at a time: the (legs, 3) @ (3, 3) product
+            # joint_reference takes (einsum over all pairs rounds differently in the last bit).
+            bounds = np.flatnonzero(np.diff(k)) + 1
+            for rows in np.split(np.arange(len(k)), bounds):
+                targets[k[rows[0]], i[rows]] += shift_W[rows] @ R_WB[k[rows[0]]]
             shifted = np.unique(k)
             q_s, ok_s = kinematics.all_legs_inverse_kinematics(targets[shifted], topology.bends, params)
             q[shifted] = np.where(ok_s[..., None], q_s, q[shifted])

@@ -60,14 +60,18 @@ def test_a_plans_references_solved_at_once_are_those_solved_one_by_one():
     """The tracker solves a plan's references together when it arrives (joint_references): the
     same numbers as joint_reference time by time, the rolling compensation included, before the
     plan, along it and past its end."""
-    plan = _plan("front_bend")
-    times = np.concatenate([[0.2, 0.5], np.arange(0.5, 4.6, 0.005) + 0.005, [5.0]])
-    q, ok = joint_references(plan, times, plan.topology)
-    assert q.shape == (len(times), 18) and ok.shape == (len(times), 6)
-    for k, t in enumerate(times):
-        q_one, ok_one = joint_reference(plan, t, plan.topology)
-        np.testing.assert_array_equal(q[k], q_one)
-        np.testing.assert_array_equal(ok[k], ok_one)
+    for topology, start, goal in (("front_bend", (0.0, 0.0, 0.0), (1.0, 0.0, 0.0)),
+                                  ("split_up", (0.3, -0.2, 0.7), (1.2, 0.5, 1.2)),
+                                  ("nominal", (0.3, -0.2, -2.1), (1.2, 0.5, -1.6))):
+        plan = TripodGaitPlan(heightmap=make_terrain("flat"), topology=get_topology(topology), start_xy_yaw=start,
+                              goal_xy_yaw=goal, start_time=0.5, duration=4.0)
+        times = np.concatenate([[0.2, 0.5], np.arange(0.5, 4.6, 0.005) + 0.005, [5.0]])
+        q, ok = joint_references(plan, times, plan.topology)
+        assert q.shape == (len(times), 18) and ok.shape == (len(times), 6)
+        for k, t in enumerate(times):
+            q_one, ok_one = joint_reference(plan, t, plan.topology)
+            np.testing.assert_array_equal(q[k], q_one, err_msg=f"{topology} at t = {t}")
+            np.testing.assert_array_equal(ok[k], ok_one)
     np.testing.assert_array_equal(joint_references(plan, times[:7], plan.topology, roll_compensation=False)[0],
                                   [joint_reference(plan, t, plan.topology, roll_compensation=False)[0] for t in times[:7]])
 
