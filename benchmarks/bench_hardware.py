@@ -38,7 +38,7 @@ SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "walk_flat.yaml"
 def _percentiles(values_s) -> dict:
     a = np.asarray(values_s) * 1e3
     return {"median_ms": float(np.median(a)), "p90_ms": float(np.percentile(a, 90)),
-            "p99_ms": float(np.percentile(a, 99)), "samples": int(a.size)}
+            "p99_ms": float(np.percentile(a, 99)), "max_ms": float(a.max()), "samples": int(a.size)}
 
 
 # The tracker's reference update period (InverseKinematicsTracker at 200 Hz). [us]
