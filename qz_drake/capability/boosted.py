@@ -226,6 +226,8 @@ SHARED_FEATURES = 20 + len(P.KINDS)
 # Patches whose queries (every topology and turn direction) success_all evaluates at once:
 # about 75 MB of features for turns in six topologies.
 MAP_CHUNK = 16384
+# Pieces per thread a map's groups are cut into, taken as threads come free.
+PIECES_PER_THREAD = 8
 # Fewest distinct queries per thread worth a thread of their own (a map has ~20 000; one
 # query costs ~0.2 ms over five learners' trees).
 PARALLEL_ROWS = 1024
@@ -851,11 +853,15 @@ class BoostedCapabilityModel(CapabilityModelBase):
         threads = min(inference_threads(), len(unique) * V // PARALLEL_ROWS)
         if threads <= 1:
             return groups(unique), inverse
-        # The compiled loops release the GIL: the groups split over the free cores.
+        # The compiled loops release the GIL: the groups split over the free cores, in pieces
+        # taken as threads come free (the distinct groups come sorted by their projection, so
+        # one half of them can be flat ground, cheap, and the other rough: halves kept one
+        # core idle for a third of a 100 m map).
         from concurrent.futures import ThreadPoolExecutor
 
+        pieces = min(PIECES_PER_THREAD * threads, max(threads, len(unique) * V // PARALLEL_ROWS))
         with ThreadPoolExecutor(threads) as pool:
-            return np.concatenate(list(pool.map(groups, np.array_split(unique, threads))), axis=1), inverse
+            return np.concatenate(list(pool.map(groups, np.array_split(unique, pieces))), axis=1), inverse
 
     def outcomes_of_features(self, X: np.ndarray) -> np.ndarray:
         return self.member_outcomes(X).mean(axis=0)
