@@ -100,6 +100,18 @@ def patch_features(patches) -> np.ndarray:
     return np.column_stack([blocks, top - bottom, top, bottom, patches.std(axis=(1, 2))])
 
 
+def _patch_features_threaded(patches) -> np.ndarray:
+    """patch_features over the free cores (numpy's loops release the GIL; each patch's
+    features are its own, so the numbers are those of one call)."""
+    threads = min(inference_threads(), len(patches) // PARALLEL_ROWS)
+    if threads <= 1:
+        return patch_features(patches)
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(threads) as pool:
+        return np.concatenate(list(pool.map(patch_features, np.array_split(np.asarray(patches), threads))))
+
+
 # -- the trees as arrays -------------------------------------------------------------------------
 @dataclasses.dataclass
 class Trees:
@@ -911,7 +923,7 @@ class BoostedCapabilityModel(CapabilityModelBase):
         # numbers do not depend on the chunks): a 100 m map's features would be a gigabyte.
         for a in range(0, n, MAP_CHUNK):
             b = min(a + MAP_CHUNK, n)
-            part = patch_features(flat[a:b])  # the same patches for every topology
+            part = _patch_features_threaded(flat[a:b])  # the same patches for every topology
             # (patches, variants, features): every topology's and direction's query of a patch.
             rows = np.stack([features(flat[a:b], f[a:b], kind, t, d, patch_part=part)
                              for t, f in checked.items() for d in directions], axis=1)
