@@ -748,6 +748,9 @@ class BoostedCapabilityModel(CapabilityModelBase):
     ``"learner": "boosted"`` (CapabilityModel.load dispatches here). It runs on the CPU (no
     torch): ``QZ_TORCH_DEVICE`` does not apply, and an explicit other device is refused."""
 
+    # Each query's answer is its own (no batch statistics): predict_map may take a map in bands.
+    queries_independent = True
+
     def __init__(self, members: list, card: dict, device: str | None = None):
         if not members:
             raise ConfigError("a boosted capability model needs at least one learner")

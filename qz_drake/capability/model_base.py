@@ -213,14 +213,18 @@ def pose_inputs(heightmap, x: float, y: float, yaw: float, kind: str, feet_W) ->
             P.feet_in_heading_frame(np.asarray(feet_W, dtype=float), x, y, yaw, ground))
 
 
-def sample_map_inputs(heightmap, topologies, *, cell_size: float = P.CELL_SIZE, anchor=None) -> MapInputs:
+def sample_map_inputs(heightmap, topologies, *, cell_size: float = P.CELL_SIZE, anchor=None,
+                      rows: slice | None = None) -> MapInputs:
     """Patches (once per kind: they do not depend on the topology) and each topology's nominal
-    feet for every cell and heading, vectorised over all of them (built on patches.py)."""
+    feet for every cell and heading, vectorised over all of them (built on patches.py);
+    ``rows``: only the grid's rows of cells (ys) in that slice."""
     from qz_drake.capability.map_sampling import ground_reference_fast, sample_patches_fast
     from qz_drake.robot.params import DEFAULT_PARAMS
     from qz_drake.robot.topology import get_topology
 
     xs, ys = P.grid_centres(heightmap, cell_size, anchor)
+    if rows is not None:
+        ys = ys[rows]
     # Grid arrays (8, ny, nx): heading index first, as the planner's states.
     k, gy, gx = np.meshgrid(np.arange(8), ys, xs, indexing="ij")
     yaw = P.heading_yaw(k)
@@ -253,7 +257,29 @@ def predict_map(model, heightmap, topologies=None, *, cell_size: float = P.CELL_
         for t in topologies:
             for kind in P.KINDS:
                 model.network(t, kind)  # a missing network fails before any work
-    return evaluate_map(model, sample_map_inputs(heightmap, topologies, cell_size=cell_size, anchor=anchor))
+    xs, ys = P.grid_centres(heightmap, cell_size, anchor)
+    band = max(1, MAP_BAND_QUERIES // (8 * len(xs)))
+    if not getattr(model, "queries_independent", False) or band >= len(ys):
+        return evaluate_map(model, sample_map_inputs(heightmap, topologies, cell_size=cell_size, anchor=anchor))
+    # A model whose every query's answer is its own (the boosted trees): the map a band of rows
+    # at a time, so that a 100 m map's patches never all exist at once (half a gigabyte).
+    parts = [evaluate_map(model, sample_map_inputs(heightmap, topologies, cell_size=cell_size, anchor=anchor,
+                                                   rows=slice(a, a + band)))
+             for a in range(0, len(ys), band)]
+    first = parts[0]
+    joined = {}
+    for field in dataclasses.fields(CapabilityMap):
+        value = getattr(first, field.name)
+        if isinstance(value, np.ndarray) and value.ndim == 4:  # (T, 8, ny, nx)
+            joined[field.name] = np.concatenate([getattr(part, field.name) for part in parts], axis=2)
+        else:
+            joined[field.name] = value
+    joined["ys"] = ys
+    return CapabilityMap(**joined)
+
+
+# Queries (cells x headings) a band of a map holds when the model answers each on its own.
+MAP_BAND_QUERIES = 16384
 
 
 def evaluate_map(model, inputs: MapInputs) -> CapabilityMap:

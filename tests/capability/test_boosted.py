@@ -266,6 +266,26 @@ def test_plans_a_capability_map(trained):
     assert capability.forward[0, 0, :, near].mean() < capability.forward[0, 0, :, far].mean() - 0.3
 
 
+def test_a_map_taken_in_bands_of_rows_is_the_whole_map(trained, monkeypatch):
+    """A boosted model answers each query on its own, so predict_map takes a large map a band
+    of rows at a time (memory): every array the same as in one pass."""
+    from qz_drake.capability import model_base
+    from qz_drake.terrain import make_terrain
+
+    _, _, _, _, folder = trained
+    model = CapabilityModel.load(folder)
+    terrain = make_terrain("long_range", seed=3)
+    whole = model_base.predict_map(model, terrain, ["nominal", "split_up"], anchor=(1.0, 1.0))
+    monkeypatch.setattr(model_base, "MAP_BAND_QUERIES", 8 * len(whole.xs) * 3)  # bands of 3 rows
+    banded = model_base.predict_map(model, terrain, ["nominal", "split_up"], anchor=(1.0, 1.0))
+    assert len(whole.ys) > 6
+    for field in ("xs", "ys", "forward", "turn_left", "turn_right", "forward_plan", "turn_left_plan",
+                  "turn_right_plan", "forward_spread", "turn_left_spread", "turn_right_spread",
+                  "plan_failure_share"):
+        np.testing.assert_array_equal(getattr(banded, field), getattr(whole, field), err_msg=field)
+    assert banded.topologies == whole.topologies and banded.cell_size == whole.cell_size
+
+
 def test_cli_trains_a_boosted_model(tmp_path, monkeypatch, capsys):
     from qz_drake.capability import model_commands
     from qz_drake.cli import main
