@@ -501,6 +501,11 @@ class ForestScorer:
         self.tree_class = np.concatenate(columns)
         self.baseline = np.stack([t.baseline for t in members])
 
+    def _starts(self, columns: int) -> np.ndarray:
+        """Each of ``columns`` features' first split (and the end): columns past the last one
+        any tree splits on have none (the kernels visit every column of the rows)."""
+        return np.concatenate([self.start, np.full(max(columns - self.features, 0), self.start[-1])])
+
     @classmethod
     def of(cls, members: list) -> "ForestScorer | None":
         """A scorer of these learners, or None where a tree has too many leaves for it."""
@@ -515,7 +520,7 @@ class ForestScorer:
         out = np.empty((len(self.members), X.shape[0], self.classes))
         if X.shape[1] < self.features:
             raise bad_value("X", f"array of shape {X.shape}", f"expected at least {self.features} columns")
-        _forest_scores(X, self.start, self.threshold, self.tree, self.mask, self.leaf_value,
+        _forest_scores(X, self._starts(X.shape[1]), self.threshold, self.tree, self.mask, self.leaf_value,
                        self.tree_member, self.tree_class, self.baseline, _LOW_BIT, SCORER_CHUNK, out)
         missing = np.flatnonzero(np.isnan(X).any(axis=1))
         if missing.size:
@@ -535,7 +540,7 @@ class ForestScorer:
             raise bad_value("variants", f"arrays of shapes {shared.shape} and {variants.shape}",
                             f"expected (n, k) and (n, V, m) with k + m >= {self.features} columns")
         out = np.empty((len(self.members), n * V, self.classes))
-        _grouped_scores(shared, variants, self.start, self.threshold, self.tree, self.mask, self.leaf_value,
+        _grouped_scores(shared, variants, self._starts(shared.shape[1] + variants.shape[2]), self.threshold, self.tree, self.mask, self.leaf_value,
                         self.tree_member, self.tree_class, self.baseline, _LOW_BIT, SCORER_CHUNK, out)
         missing = np.flatnonzero((np.isnan(shared).any(axis=1)[:, None] | np.isnan(variants).any(axis=2)).reshape(-1))
         if missing.size:

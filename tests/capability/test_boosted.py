@@ -74,6 +74,11 @@ def test_forest_scorer_adds_the_same_leaves_as_the_tree_walk():
     np.testing.assert_array_equal(grouped.reshape(3, 480, 3), np.stack([t.raw(rows) for t in members]))
     with pytest.raises(QzError, match="variants"):
         scorer.raw_grouped(shared[:, :2], variants)
+    # Columns past the last one a tree splits on are read and ignored.
+    wider = np.column_stack([Xq, rng.normal(size=len(Xq))])
+    np.testing.assert_array_equal(scorer.raw(wider), expected)
+    np.testing.assert_array_equal(scorer.raw_grouped(shared, np.concatenate([variants, variants[..., :1]], axis=2)),
+                                  grouped)
 
 
 def test_forest_scorer_declines_trees_wider_than_a_word(trained, monkeypatch):
