@@ -116,6 +116,10 @@ def joint_reference(trajectory: BodyFeetTrajectory, t: float, topology: Topology
     return q.reshape(-1), ok
 
 
+# The most updates the tracker solves at once when a plan arrives (10 s at 200 Hz, ~0.1 s).
+SOLVE_AHEAD = 2000
+
+
 def joint_references(trajectory: BodyFeetTrajectory, times, topology: Topology,
                      params: QingzhuiParams = DEFAULT_PARAMS, *,
                      roll_compensation: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -264,7 +268,9 @@ class InverseKinematicsTracker(LeafSystem):
         if hasattr(plan, "topology_at") or hasattr(plan, "joint_override"):
             return
         k = round(t / self._dt)
-        count = max(0, math.ceil((plan.end_time - t) / self._dt)) + 2
+        left = (plan.end_time - t) / self._dt
+        # At most SOLVE_AHEAD updates at a time (a long plan is solved a window at a time).
+        count = (SOLVE_AHEAD if not math.isfinite(left) else min(SOLVE_AHEAD, max(0, math.ceil(left)))) + 2
         times = [t] + [(k + j) * self._dt + self._dt for j in range(count)]
         topology = getattr(plan, "topology", None) or self._topology
         q, _ = joint_references(plan, times, topology, self._params)
@@ -285,7 +291,9 @@ class InverseKinematicsTracker(LeafSystem):
         t = context.get_time()
         if len(self._touchdown_cache) > 64:
             self._touchdown_cache.clear()
-        if self._solved is None or self._solved[0] is not plan:
+        solved = self._solved
+        if (solved is None or solved[0] is not plan
+                or (t + self._dt not in solved[1] and t < plan.end_time)):  # a new plan or window
             self._solve_plan(plan, t)
         ahead = self._ahead
         if ahead is not None and ahead[0] is plan and abs(ahead[1] - t) <= 1e-9:

@@ -95,10 +95,16 @@ def test_the_tracker_holds_the_same_references_solved_at_once_or_one_by_one(monk
 
     tracker, *at_once = walk()
     assert tracker._solved is not None and len(tracker._solved[1]) > 800  # the plan solved at once
+    from qz_drake.systems import ik_tracker
+
+    monkeypatch.setattr(ik_tracker, "SOLVE_AHEAD", 30)  # a long plan: a window at a time
+    tracker, *windows = walk()
+    assert 30 <= len(tracker._solved[1]) <= 33
     monkeypatch.setattr(InverseKinematicsTracker, "_solve_plan", lambda self, plan, t: None)
     _, *one_by_one = walk()
-    for a, b in zip(at_once, one_by_one):
-        np.testing.assert_array_equal(a, b)
+    for a, b, c in zip(at_once, windows, one_by_one):
+        np.testing.assert_array_equal(a, c)
+        np.testing.assert_array_equal(b, c)
 
 
 def test_walks_one_metre_on_flat_ground():
