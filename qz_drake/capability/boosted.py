@@ -345,32 +345,46 @@ def _add_leaves_py(alive, leaf_value, tree_member, tree_class, baseline, low_bit
         out[tree_member[k], s, tree_class[k]] += leaf_value[k, low_bit[(low * np.uint64(_DE_BRUIJN)) >> np.uint64(58)]]
 
 
+def _fixed_columns_py(block, offset, start, threshold, tree, mask, state, varying) -> int:
+    """The columns of ``block`` (rows, columns; column j is feature offset + j) whose values
+    all fail the same splits are applied once, to ``state`` (the rows' common start); the others'
+    indices go to ``varying``. Returns how many vary."""
+    count = 0
+    for j in range(block.shape[1]):
+        if _same_splits(block[:, j], start, threshold, offset + j):
+            _fail_splits(state, block[0, j], offset + j, start, threshold, tree, mask)
+        else:
+            varying[count] = j
+            count += 1
+    return count
+
+
+def _vary_columns_py(state, row, offset, varying, count, start, threshold, tree, mask):
+    """Applies a row's varying columns (``varying[:count]``, features offset + j) to ``state``."""
+    for i in range(count):
+        j = varying[i]
+        _fail_splits(state, row[j], offset + j, start, threshold, tree, mask)
+
+
 def _forest_scores_py(X, start, threshold, tree, mask, leaf_value, tree_member, tree_class, baseline,
                       low_bit, chunk, out):
     """QuickScorer's pass over rows X: out (members, n, classes) raw scores (a row with NaN
     gets a number here that the caller replaces)."""
-    n, features = X.shape[0], start.shape[0] - 1
+    n = X.shape[0]
     trees = leaf_value.shape[0]
     alive = np.empty(trees, np.uint64)
     common = np.empty(trees, np.uint64)
-    varying = np.empty(features, np.int64)
+    varying = np.empty(X.shape[1], np.int64)
     for a in range(0, n, chunk):
         b = min(a + chunk, n)
         # A feature whose values in these rows all fail the same splits (a map block's kind,
         # topology and direction, its nominal feet along x and y) is applied once, to the
         # rows' common start.
         common[:] = np.uint64(0xFFFFFFFFFFFFFFFF)
-        count = 0
-        for f in range(features):
-            if _same_splits(X[a:b, f], start, threshold, f):
-                _fail_splits(common, X[a, f], f, start, threshold, tree, mask)
-            else:
-                varying[count] = f
-                count += 1
+        count = _fixed_columns(X[a:b], 0, start, threshold, tree, mask, common, varying)
         for s in range(a, b):
             alive[:] = common
-            for j in range(count):
-                _fail_splits(alive, X[s, varying[j]], varying[j], start, threshold, tree, mask)
+            _vary_columns(alive, X[s], 0, varying, count, start, threshold, tree, mask)
             _add_leaves(alive, leaf_value, tree_member, tree_class, baseline, low_bit, out, s)
 
 
@@ -394,36 +408,20 @@ def _grouped_scores_py(shared, variants, start, threshold, tree, mask, leaf_valu
         # (the kind) to the common start, each variant's (its topology, direction and nominal
         # feet along x and y) to that variant's.
         common[:] = np.uint64(0xFFFFFFFFFFFFFFFF)
-        shared_count = 0
-        for j in range(split):
-            if _same_splits(shared[a:b, j], start, threshold, j):
-                _fail_splits(common, shared[a, j], j, start, threshold, tree, mask)
-            else:
-                shared_varying[shared_count] = j
-                shared_count += 1
+        shared_count = _fixed_columns(shared[a:b], 0, start, threshold, tree, mask, common, shared_varying)
         for v in range(V):
             per_variant[v, :] = common
-            counts[v] = 0
-            for j in range(variants.shape[2]):
-                f = split + j
-                if _same_splits(variants[a:b, v, j], start, threshold, f):
-                    _fail_splits(per_variant[v], variants[a, v, j], f, start, threshold, tree, mask)
-                else:
-                    varying[v, counts[v]] = j
-                    counts[v] += 1
+            counts[v] = _fixed_columns(variants[a:b, v], split, start, threshold, tree, mask, per_variant[v],
+                                       varying[v])
         for p in range(a, b):
             # The group's shared columns once (a map cell's patch: every topology and turn
             # direction reads the same), then each variant's own.
             state[:] = np.uint64(0xFFFFFFFFFFFFFFFF)
-            for i in range(shared_count):
-                j = shared_varying[i]
-                _fail_splits(state, shared[p, j], j, start, threshold, tree, mask)
+            _vary_columns(state, shared[p], 0, shared_varying, shared_count, start, threshold, tree, mask)
             for v in range(V):
                 for k in range(trees):
                     alive[k] = state[k] & per_variant[v, k]
-                for i in range(counts[v]):
-                    j = varying[v, i]
-                    _fail_splits(alive, variants[p, v, j], split + j, start, threshold, tree, mask)
+                _vary_columns(alive, variants[p, v], split, varying[v], counts[v], start, threshold, tree, mask)
                 _add_leaves(alive, leaf_value, tree_member, tree_class, baseline, low_bit, out, p * V + v)
 
 
@@ -432,10 +430,13 @@ if numba is not None:
     _fail_splits = numba.njit(cache=True, nogil=True)(_fail_splits_py)
     _same_splits = numba.njit(cache=True, nogil=True)(_same_splits_py)
     _add_leaves = numba.njit(cache=True, nogil=True)(_add_leaves_py)
+    _fixed_columns = numba.njit(cache=True, nogil=True)(_fixed_columns_py)
+    _vary_columns = numba.njit(cache=True, nogil=True)(_vary_columns_py)
     _forest_scores = numba.njit(cache=True, nogil=True)(_forest_scores_py)
     _grouped_scores = numba.njit(cache=True, nogil=True)(_grouped_scores_py)
 else:  # pragma: no cover - numba is a dependency
     _leaf_ranges, _fail_splits, _same_splits, _add_leaves = _leaf_ranges_py, _fail_splits_py, _same_splits_py, _add_leaves_py
+    _fixed_columns, _vary_columns = _fixed_columns_py, _vary_columns_py
     _forest_scores, _grouped_scores = _forest_scores_py, _grouped_scores_py
 
 
