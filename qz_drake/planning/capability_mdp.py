@@ -849,8 +849,9 @@ def _compile_kernels():
 
     import numba
 
-    # The states' loops split over the free cores (set_num_threads in solve_capability_mdp):
-    # each state's entries are its own, so the numbers do not depend on the split.
+    # The states' loops split over the free cores (threads.set_numba_threads, called by
+    # solve_capability_mdp): each state's entries are its own, so the numbers do not depend on
+    # the split.
     @numba.njit(cache=True, parallel=True)
     def backup(success, stand, r, next_state, V, best, second, gamma, first_absorbing, failure, out):
         """out[s, a] = r + gamma (p V(n) + (1 - p - q) V(failure) + q stay), the stay worth
