@@ -100,16 +100,21 @@ def patch_features(patches) -> np.ndarray:
     return np.column_stack([blocks, top - bottom, top, bottom, patches.std(axis=(1, 2))])
 
 
-def _patch_features_threaded(patches) -> np.ndarray:
-    """patch_features over the free cores (numpy's loops release the GIL; each patch's
-    features are its own, so the numbers are those of one call)."""
-    threads = min(inference_threads(), len(patches) // PARALLEL_ROWS)
+def _over_free_cores(function, array: np.ndarray, queries: int, axis: int = 0) -> np.ndarray:
+    """``function(array)``, the array's first axis cut into pieces evaluated over the free
+    cores and joined along ``axis`` of the results (each row's answer is its own, so the
+    numbers are those of one call). The compiled loops and numpy's release the GIL. Pieces,
+    not halves, taken as threads come free: a map's distinct groups come sorted by their
+    projection, so one half can be flat ground, cheap, and the other rough (halves kept one
+    core idle for a third of a 100 m map)."""
+    threads = min(inference_threads(), queries // PARALLEL_ROWS)
     if threads <= 1:
-        return patch_features(patches)
+        return function(array)
     from concurrent.futures import ThreadPoolExecutor
 
+    pieces = min(PIECES_PER_THREAD * threads, max(threads, queries // PARALLEL_ROWS))
     with ThreadPoolExecutor(threads) as pool:
-        return np.concatenate(list(pool.map(patch_features, np.array_split(np.asarray(patches), threads))))
+        return np.concatenate(list(pool.map(function, np.array_split(array, pieces))), axis=axis)
 
 
 # -- the trees as arrays -------------------------------------------------------------------------
@@ -819,25 +824,9 @@ class BoostedCapabilityModel(CapabilityModelBase):
     def member_outcomes(self, X: np.ndarray) -> np.ndarray:
         """(members, n, 3) outcome probabilities of every learner; each distinct row of X is
         evaluated once (a map's flat ground repeats one query from cell to cell)."""
-        return self._member_outcomes_of_blocks([X])[0]
-
-    def _member_outcomes_of_blocks(self, blocks: list) -> list:
-        """member_outcomes of several query blocks (a map's topologies and turn directions) in
-        one pass: each block's distinct rows, all evaluated together over the free cores."""
-        probs, index = self._distinct_outcomes(blocks)
-        return [probs[:, i] for i in index]
-
-    def _distinct_outcomes(self, blocks: list) -> tuple[np.ndarray, list]:
-        """(members, distinct rows, 3) outcomes of every block's distinct rows, and for each
-        block the index of its rows in them."""
-        uniques, index, count = [], [], 0
-        for X in blocks:
-            X = np.asarray(X, dtype=np.float64)
-            first, inverse = distinct_rows(X)
-            uniques.append(X[first])
-            index.append(count + inverse)
-            count += len(first)
-        unique = np.ascontiguousarray(np.concatenate(uniques))
+        X = np.asarray(X, dtype=np.float64)
+        first, inverse = distinct_rows(X)
+        unique = np.ascontiguousarray(X[first])
         scorer = self.scorer
 
         def rows(part):
@@ -845,14 +834,7 @@ class BoostedCapabilityModel(CapabilityModelBase):
                 return scorer.probabilities(part)
             return np.stack([m.probabilities(part) for m in self._members])
 
-        threads = min(inference_threads(), len(unique) // PARALLEL_ROWS)
-        if threads <= 1:
-            return rows(unique), index
-        # The compiled loops release the GIL: the rows split over the free cores.
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(threads) as pool:
-            return np.concatenate(list(pool.map(rows, np.array_split(unique, threads))), axis=1), index
+        return _over_free_cores(rows, unique, len(unique), axis=1)[:, inverse]
 
     def _grouped_outcomes(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(members, distinct groups, V, 3) outcomes of (n, V, features) rows whose first
@@ -871,18 +853,7 @@ class BoostedCapabilityModel(CapabilityModelBase):
             flat = part.reshape(-1, width)
             return np.stack([m.probabilities(flat) for m in self._members]).reshape(-1, len(part), V, 3)
 
-        threads = min(inference_threads(), len(unique) * V // PARALLEL_ROWS)
-        if threads <= 1:
-            return groups(unique), inverse
-        # The compiled loops release the GIL: the groups split over the free cores, in pieces
-        # taken as threads come free (the distinct groups come sorted by their projection, so
-        # one half of them can be flat ground, cheap, and the other rough: halves kept one
-        # core idle for a third of a 100 m map).
-        from concurrent.futures import ThreadPoolExecutor
-
-        pieces = min(PIECES_PER_THREAD * threads, max(threads, len(unique) * V // PARALLEL_ROWS))
-        with ThreadPoolExecutor(threads) as pool:
-            return np.concatenate(list(pool.map(groups, np.array_split(unique, pieces))), axis=1), inverse
+        return _over_free_cores(groups, unique, len(unique) * V, axis=1), inverse
 
     def outcomes_of_features(self, X: np.ndarray) -> np.ndarray:
         return self.member_outcomes(X).mean(axis=0)
@@ -932,7 +903,7 @@ class BoostedCapabilityModel(CapabilityModelBase):
         # numbers do not depend on the chunks): a 100 m map's features would be a gigabyte.
         for a in range(0, n, MAP_CHUNK):
             b = min(a + MAP_CHUNK, n)
-            part = _patch_features_threaded(flat[a:b])  # the same patches for every topology
+            part = _over_free_cores(patch_features, flat[a:b], b - a)  # the same patches for every topology
             # (patches, variants, features): every topology's and direction's query of a patch.
             rows = np.stack([features(flat[a:b], f[a:b], kind, t, d, patch_part=part)
                              for t, f in checked.items() for d in directions], axis=1)
