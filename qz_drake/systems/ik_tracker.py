@@ -129,14 +129,11 @@ def joint_references(trajectory: BodyFeetTrajectory, times, topology: Topology,
     references this way when the plan arrives: 0.5 ms of numpy per reference, one by one)."""
     times = np.asarray(times, dtype=float).reshape(-1)
     n = times.size
+    if not n:
+        return np.zeros((0, 3 * NUM_LEGS)), np.zeros((0, NUM_LEGS), bool)
     ts = [_clamp(t, trajectory.start_time, trajectory.end_time) for t in times]
-    R_WB = np.empty((n, 3, 3))
-    p_BF = np.empty((n, NUM_LEGS, 3))
-    for k, t in enumerate(ts):
-        R_WB[k] = RollPitchYaw(trajectory.base_rpy(t)).ToRotationMatrix().matrix()
-        p_BF[k] = (trajectory.foot_positions(t) - trajectory.base_position(t)) @ R_WB[k]
-    q, ok = kinematics.all_legs_inverse_kinematics(p_BF, topology.bends, params)
-    if roll_compensation and hasattr(trajectory, "stance_start") and n:
+    q, ok, R_WB, p_BF = _leg_ik_many(trajectory, ts, topology, params)
+    if roll_compensation and hasattr(trajectory, "stance_start"):
         # (time, leg) pairs of stance feet past their touchdown, and each touchdown's IK once.
         pairs, touchdowns = [], {}
         for k, t in enumerate(ts):
@@ -169,7 +166,8 @@ def joint_references(trajectory: BodyFeetTrajectory, times, topology: Topology,
 
 
 def _leg_ik_many(trajectory, times, topology, params):
-    """_leg_ik at several times: q (n, 6, 3), ok (n, 6), R_WB (n, 3, 3), p_BF (n, 6, 3)."""
+    """_leg_ik at several times (the plan read time by time, the IK once over all of them):
+    q (n, 6, 3), ok (n, 6), R_WB (n, 3, 3), p_BF (n, 6, 3)."""
     R_WB = np.stack([RollPitchYaw(trajectory.base_rpy(t)).ToRotationMatrix().matrix() for t in times])
     p_BF = np.stack([(trajectory.foot_positions(t) - trajectory.base_position(t)) @ R for t, R in zip(times, R_WB)])
     q, ok = kinematics.all_legs_inverse_kinematics(p_BF, topology.bends, params)
