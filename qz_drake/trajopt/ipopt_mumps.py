@@ -12,11 +12,21 @@ are evaluated by that function once per point, with their analytic Jacobian and 
 
 Only what Ipopt can take is accepted: a program with conic, LMI or complementarity constraints
 or l2-norm costs raises ValueError naming them.
+
+Ipopt is called through its C interface (``IpStdCInterface.h``) in the library that wheel ships,
+with ctypes (:class:`_CIpopt`): cyipopt's compiled wrapper copies the Jacobian to Ipopt one
+Python-indexed entry at a time (about 60 ns each: a tenth of a solve of the BLC's 40 000-130 000
+entries), where a numpy copy into Ipopt's buffer takes microseconds. Ipopt sees the same numbers
+in the same calls, so the solves are the same, bit for bit. Where that library is not found (a
+cyipopt built against another Ipopt), cyipopt's ``Problem`` runs the solve.
 """
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
+import glob
+import os
 import time
 from typing import Callable, Sequence
 
@@ -55,7 +65,9 @@ _UNSUPPORTED = ("lorentz_cone_constraints", "rotated_lorentz_cone_constraints",
 
 
 def available() -> bool:
-    """Whether the MUMPS build of Ipopt (package ``cyipopt-wheels``) can be imported."""
+    """Whether the MUMPS build of Ipopt (package ``cyipopt-wheels``) can be used."""
+    if _ipopt_library() is not None:
+        return True
     try:
         _problem_class()
     except ImportError:
@@ -117,6 +129,188 @@ def _problem_class():
 
     _PROBLEM = cyipopt.Problem
     return _PROBLEM
+
+
+# Ipopt 3.14's C interface: ipindex is int, ipnumber double, its flags C99 bool.
+_INDEX, _NUMBER, _BOOL = ctypes.c_int, ctypes.c_double, ctypes.c_bool
+_NUMBERS, _INDICES = ctypes.POINTER(_NUMBER), ctypes.POINTER(_INDEX)
+_EVAL_F = ctypes.CFUNCTYPE(_BOOL, _INDEX, _NUMBERS, _BOOL, _NUMBERS, ctypes.c_void_p)
+_EVAL_GRAD_F = ctypes.CFUNCTYPE(_BOOL, _INDEX, _NUMBERS, _BOOL, _NUMBERS, ctypes.c_void_p)
+_EVAL_G = ctypes.CFUNCTYPE(_BOOL, _INDEX, _NUMBERS, _BOOL, _INDEX, _NUMBERS, ctypes.c_void_p)
+_EVAL_JAC_G = ctypes.CFUNCTYPE(_BOOL, _INDEX, _NUMBERS, _BOOL, _INDEX, _INDEX, _INDICES, _INDICES, _NUMBERS,
+                               ctypes.c_void_p)
+_EVAL_H = ctypes.CFUNCTYPE(_BOOL, _INDEX, _NUMBERS, _BOOL, _NUMBER, _INDEX, _NUMBERS, _BOOL, _INDEX, _INDICES,
+                           _INDICES, _NUMBERS, ctypes.c_void_p)
+_INTERMEDIATE = ctypes.CFUNCTYPE(_BOOL, _INDEX, _INDEX, _NUMBER, _NUMBER, _NUMBER, _NUMBER, _NUMBER, _NUMBER,
+                                 _NUMBER, _NUMBER, _INDEX, ctypes.c_void_p)
+_LIBRARY: list = []  # [CDLL or None], once looked for
+
+
+def _ipopt_library():
+    """The Ipopt 3.14 library cyipopt-wheels ships (beside its compiled module), its C
+    interface's functions typed; None where there is none."""
+    if _LIBRARY:
+        return _LIBRARY[0]
+    import importlib.util
+
+    library = None
+    spec = importlib.util.find_spec("ipopt_wrapper")
+    if spec is not None and spec.origin:
+        folder = os.path.join(os.path.dirname(spec.origin), "cyipopt_wheels.libs")
+        found = sorted(glob.glob(os.path.join(folder, "libipopt-*.so.3.14*")))
+        if found:
+            # The wheel's libraries find each other through its compiled module's RPATH, which
+            # a library opened on its own lacks: its dependencies (MUMPS, BLAS, gfortran) are
+            # opened first, by path, each once the ones it needs are (the loader then matches
+            # them by name).
+            waiting = [f for f in sorted(glob.glob(os.path.join(folder, "*.so*"))) if f != found[-1]]
+            while waiting:
+                failed = []
+                for path in waiting:
+                    try:
+                        ctypes.CDLL(path)
+                    except OSError:
+                        failed.append(path)
+                if len(failed) == len(waiting):
+                    break
+                waiting = failed
+            try:
+                library = ctypes.CDLL(found[-1])
+            except OSError:
+                found = []
+        if found:
+            library.CreateIpoptProblem.restype = ctypes.c_void_p
+            library.CreateIpoptProblem.argtypes = [_INDEX, _NUMBERS, _NUMBERS, _INDEX, _NUMBERS, _NUMBERS, _INDEX,
+                                                   _INDEX, _INDEX, _EVAL_F, _EVAL_G, _EVAL_GRAD_F, _EVAL_JAC_G,
+                                                   _EVAL_H]
+            library.FreeIpoptProblem.restype = None
+            library.FreeIpoptProblem.argtypes = [ctypes.c_void_p]
+            library.AddIpoptStrOption.restype = _BOOL
+            library.AddIpoptStrOption.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_char_p]
+            library.AddIpoptNumOption.restype = _BOOL
+            library.AddIpoptNumOption.argtypes = [ctypes.c_void_p, ctypes.c_char_p, _NUMBER]
+            library.AddIpoptIntOption.restype = _BOOL
+            library.AddIpoptIntOption.argtypes = [ctypes.c_void_p, ctypes.c_char_p, _INDEX]
+            library.SetIntermediateCallback.restype = _BOOL
+            library.SetIntermediateCallback.argtypes = [ctypes.c_void_p, _INTERMEDIATE]
+            library.IpoptSolve.restype = ctypes.c_int
+            library.IpoptSolve.argtypes = [ctypes.c_void_p, _NUMBERS, _NUMBERS, _NUMBERS, _NUMBERS, _NUMBERS,
+                                           _NUMBERS, ctypes.c_void_p]
+    _LIBRARY.append(library)
+    return library
+
+
+def _pointer(array: np.ndarray):
+    return array.ctypes.data_as(_NUMBERS)
+
+
+class _CIpopt:
+    """One solve of a ProgramNlp through Ipopt's C interface, with cyipopt's ``Problem``'s
+    calls and results (objective, gradient, constraints, Jacobian and its structure,
+    ``intermediate``; the limited-memory Hessian): each callback gets a copy of Ipopt's x and
+    writes its answer into Ipopt's buffer with one numpy copy. An exception in a callback stops
+    the solve (the callback reports failure, the next intermediate call stops Ipopt) and is
+    raised from :meth:`solve`, as cyipopt does."""
+
+    def __init__(self, library, nlp: "ProgramNlp"):
+        self._library, self._nlp = library, nlp
+        self._error: BaseException | None = None
+        n, m = nlp.num_vars, nlp.num_constraints
+        rows, cols = nlp.jacobianstructure()
+        self._rows = np.ascontiguousarray(rows, dtype=np.int32)
+        self._cols = np.ascontiguousarray(cols, dtype=np.int32)
+        bounds = [np.ascontiguousarray(b, dtype=np.float64) for b in
+                  (nlp.lower, nlp.upper, nlp.constraint_lower, nlp.constraint_upper)]
+        # The callbacks must outlive the problem: ctypes frees a trampoline with its object.
+        self._callbacks = (_EVAL_F(self._objective), _EVAL_G(self._constraints), _EVAL_GRAD_F(self._gradient),
+                           _EVAL_JAC_G(self._jacobian), _EVAL_H(self._hessian))
+        self._intermediate_cb = _INTERMEDIATE(self._intermediate)
+        self._problem = library.CreateIpoptProblem(n, *(_pointer(b) for b in bounds[:2]), m,
+                                                   *(_pointer(b) for b in bounds[2:]), len(self._rows), 0, 0,
+                                                   *self._callbacks)
+        if not self._problem:
+            raise RuntimeError("ipopt_mumps: Ipopt could not create the problem (check the bounds)")
+        library.SetIntermediateCallback(self._problem, self._intermediate_cb)
+
+    def __del__(self):
+        problem, self._problem = getattr(self, "_problem", None), None
+        if problem:
+            self._library.FreeIpoptProblem(problem)
+
+    def add_option(self, key: str, value) -> None:
+        """An Ipopt option, typed as cyipopt's ``add_option`` types it (str, float or int)."""
+        name = key.encode("utf-8")
+        if isinstance(value, str):
+            done = self._library.AddIpoptStrOption(self._problem, name, value.encode("utf-8"))
+        elif type(value) is float:
+            done = self._library.AddIpoptNumOption(self._problem, name, value)
+        elif type(value) is int:
+            done = self._library.AddIpoptIntOption(self._problem, name, value)
+        else:
+            raise TypeError(f"ipopt_mumps: option {key} = {value!r} is not a str, float or int")
+        if not done:
+            raise TypeError(f"ipopt_mumps: Ipopt refused option {key} = {value!r}")
+
+    def solve(self, x0: np.ndarray) -> tuple[np.ndarray, int, float]:
+        """(x, Ipopt's return status, objective) from x0; the problem is freed after it (one
+        solve per object)."""
+        if not self._problem:
+            raise RuntimeError("ipopt_mumps: this problem has been solved already")
+        n, m = self._nlp.num_vars, self._nlp.num_constraints
+        x = np.array(x0, dtype=np.float64)
+        g, mult_g = np.zeros(m), np.zeros(m)
+        mult_lower, mult_upper = np.zeros(n), np.zeros(n)
+        objective = _NUMBER(0.0)
+        try:
+            status = self._library.IpoptSolve(self._problem, _pointer(x), _pointer(g), ctypes.byref(objective),
+                                              _pointer(mult_g), _pointer(mult_lower), _pointer(mult_upper), None)
+        finally:
+            self._library.FreeIpoptProblem(self._problem)
+            # The callbacks refer to this object: dropped with the problem, no cycle is left.
+            self._problem, self._callbacks, self._intermediate_cb = None, None, None
+        if self._error is not None:
+            raise self._error
+        return x, int(status), float(objective.value)
+
+    # -- the callbacks: Ipopt's pointers in, one copy out ---------------------------------------
+    def _call(self, function, n, x, out, size):
+        if self._error is not None:
+            return False
+        try:
+            value = function(np.ctypeslib.as_array(x, shape=(n,)).copy())
+            np.ctypeslib.as_array(out, shape=(size,))[:] = value
+        except BaseException as e:  # raised again by solve()
+            self._error = e
+            return False
+        return True
+
+    def _objective(self, n, x, new_x, value, user_data):
+        return self._call(lambda z: [self._nlp.objective(z)], n, x, value, 1)
+
+    def _gradient(self, n, x, new_x, out, user_data):
+        return self._call(self._nlp.gradient, n, x, out, n)
+
+    def _constraints(self, n, x, new_x, m, out, user_data):
+        return self._call(self._nlp.constraints, n, x, out, m)
+
+    def _jacobian(self, n, x, new_x, m, count, rows, cols, values, user_data):
+        if not values:  # the structure, asked once
+            np.ctypeslib.as_array(rows, shape=(count,))[:] = self._rows
+            np.ctypeslib.as_array(cols, shape=(count,))[:] = self._cols
+            return True
+        return self._call(self._nlp.jacobian, n, x, values, count)
+
+    def _hessian(self, *args):  # never asked: the Hessian is the limited-memory approximation
+        return False
+
+    def _intermediate(self, alg_mod, iter_count, *args):
+        if self._error is not None:
+            return False
+        try:
+            return bool(self._nlp.intermediate(alg_mod, iter_count, *args[:-1]))
+        except BaseException as e:
+            self._error = e
+            return False
 
 
 @dataclasses.dataclass
@@ -314,7 +508,7 @@ class ProgramNlp:
 
 
 def solve(prog, x0, options: dict | None = None,
-          vectorised: Sequence[VectorisedRows] = ()) -> IpoptResult:
+          vectorised: Sequence[VectorisedRows] = (), *, interface: str = "c") -> IpoptResult:
     """Solves ``prog`` from ``x0`` (all its decision variables) with Ipopt and MUMPS.
 
     Args:
@@ -323,17 +517,25 @@ def solve(prog, x0, options: dict | None = None,
         options: Ipopt options by name (``linear_solver`` defaults to ``mumps``; the Hessian is
             always the limited-memory approximation).
         vectorised: generic bindings evaluated together (VectorisedRows).
+        interface: "c": Ipopt's C interface where its library is found (cyipopt's otherwise);
+            "cyipopt": cyipopt's ``Problem`` (the same solve, slower; kept to compare).
     """
-    problem_class = _problem_class()
+    library = _ipopt_library() if interface == "c" else None
+    if interface not in ("c", "cyipopt"):
+        raise ValueError(f"ipopt_mumps: interface {interface!r} (expected 'c' or 'cyipopt')")
+    problem_class = None if library is not None else _problem_class()
     clock = time.perf_counter()
     nlp = ProgramNlp(prog, vectorised)
     x0 = np.asarray(x0, dtype=float).reshape(-1)
     if x0.shape != (nlp.num_vars,):
         raise ValueError(f"ipopt_mumps: x0 has {x0.size} values, the program "
                          f"{nlp.num_vars} decision variables")
-    problem = problem_class(n=nlp.num_vars, m=nlp.num_constraints, problem_obj=nlp,
-                              lb=nlp.lower, ub=nlp.upper, cl=nlp.constraint_lower,
-                              cu=nlp.constraint_upper)
+    if library is not None:
+        problem = _CIpopt(library, nlp)
+    else:
+        problem = problem_class(n=nlp.num_vars, m=nlp.num_constraints, problem_obj=nlp,
+                                lb=nlp.lower, ub=nlp.upper, cl=nlp.constraint_lower,
+                                cu=nlp.constraint_upper)
     settings = {"linear_solver": "mumps", "print_level": 0, "sb": "yes"}
     settings.update(options or {})
     settings["hessian_approximation"] = "limited-memory"
@@ -345,8 +547,11 @@ def solve(prog, x0, options: dict | None = None,
         elif isinstance(value, (np.floating,)):
             value = float(value)
         problem.add_option(key, value)
-    x, info = problem.solve(x0)
-    code = int(info["status"])
+    if library is not None:
+        x, code, objective = problem.solve(x0)
+    else:
+        x, info = problem.solve(x0)
+        code, objective = int(info["status"]), float(info["obj_val"])
     return IpoptResult(x=np.asarray(x, dtype=float), status=STATUS.get(code, f"Ipopt status {code}"),
                        status_code=code, iterations=nlp.iterations,
-                       objective=float(info["obj_val"]), solve_time=time.perf_counter() - clock)
+                       objective=objective, solve_time=time.perf_counter() - clock)

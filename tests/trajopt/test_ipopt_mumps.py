@@ -220,3 +220,53 @@ print("ok")
     run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr[-2000:]
     assert run.stdout.strip().splitlines()[-1] == "ok"
+
+
+def test_ipopts_c_interface_solves_as_cyipopt_does_bit_for_bit():
+    """The solve goes through Ipopt's C interface (the library cyipopt-wheels ships is found
+    here) and gives cyipopt's solve exactly: the same plan, iterations and status."""
+    from qz_drake.trajopt import solver
+
+    assert ipopt_mumps._ipopt_library() is not None
+    task = BlcTask(target=(1.0, 0.0, 0.0), duration=2.0)
+    robot = qingzhui()
+    original = ipopt_mumps.solve
+    results = {}
+    try:
+        for interface in ("cyipopt", "c"):
+            def through(*args, interface=interface, **kwargs):
+                return original(*args, interface=interface, **kwargs)
+
+            solver.ipopt_mumps.solve = through
+            results[interface] = solve_blc(task, robot, None, BlcParameters(time_limit=60.0))
+    finally:
+        solver.ipopt_mumps.solve = original
+    c, cy = results["c"], results["cyipopt"]
+    assert c.success and cy.success
+    assert np.array_equal(c.x, cy.x)
+    assert (c.iterations, c.status) == (cy.iterations, cy.status)
+    prog, _, _, groups = _hs071(True)
+    x0 = np.array([1.0, 5.0, 5.0, 1.0])
+    a, b = (ipopt_mumps.solve(prog, x0, {"tol": 1e-9}, groups, interface=i) for i in ("c", "cyipopt"))
+    assert np.array_equal(a.x, b.x) and (a.iterations, a.status_code, a.objective) == (b.iterations, b.status_code,
+                                                                                      b.objective)
+
+
+def test_an_error_in_a_constraint_is_raised_from_the_solve_and_a_bad_option_is_refused():
+    prog, _, _, groups = _hs071(True)
+    calls = {"n": 0}
+    group = groups[0]
+
+    def failing(v):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise ArithmeticError("constraint blew up")
+        return group.evaluate_with_jacobian(v)
+
+    broken = VectorisedRows(group.bindings, group.rows, group.cols, group.evaluate, failing)
+    with pytest.raises(ArithmeticError, match="blew up"):
+        ipopt_mumps.solve(prog, np.array([1.0, 5.0, 5.0, 1.0]), {}, [broken])
+    with pytest.raises(TypeError, match="no_such_option"):
+        ipopt_mumps.solve(prog, np.array([1.0, 5.0, 5.0, 1.0]), {"no_such_option": 3}, groups)
+    with pytest.raises(ValueError, match="interface 'fortran'"):
+        ipopt_mumps.solve(prog, np.array([1.0, 5.0, 5.0, 1.0]), {}, groups, interface="fortran")
