@@ -3,8 +3,9 @@
 ``make_sim_station(scenario, meshcat)`` (make_station's "sim" backend) returns a Diagram with
 
 * input ``joint_torque`` (18, leg-major URDF joint order, [N*m]); in position mode
-  (``scenario.station.control_mode``) also ``joint_position_command`` (18, [rad]), held by the
-  drives' PD (the plant's implicit PD actuators), with ``joint_torque`` as feedforward;
+  (``scenario.station.control_mode``) also ``joint_position_command`` (18, [rad]) and
+  ``joint_velocity_command`` (18, [rad/s]), tracked by the drives' PD (the plant's implicit PD
+  actuators), with ``joint_torque`` as feedforward;
 * outputs ``state`` (49, see qz_drake.state_layout), ``joint_torque_measured`` (18),
   ``imu`` (10: orientation quaternion, gyro, accelerometer), ``foot_contact`` (6, 1.0 = in
   contact);
@@ -28,13 +29,13 @@ from pydrake.geometry import (CollisionFilterDeclaration, GeometrySet, Meshcat,
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.multibody.tree import PdControllerGains
-from pydrake.systems.primitives import MatrixGain
+from pydrake.systems.primitives import Multiplexer
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
 from qz_drake.config import Scenario
 from qz_drake.robot.model import JointOrder, add_qingzhui
-from qz_drake.robot.params import DEFAULT_PARAMS, LEG_NAMES
+from qz_drake.robot.params import DEFAULT_PARAMS, LEG_NAMES, NUM_JOINTS
 from qz_drake.robot.topology import get_topology
 from qz_drake.scene import StationInfo, crop_to_region, default_region, make_heightmap, standing_state
 from qz_drake.systems.sensors import FootContactSensor, ImuAssembler
@@ -130,10 +131,12 @@ def make_sim_station(scenario: Scenario, meshcat: Meshcat | None = None, *,
 
     builder.ExportInput(plant.get_actuation_input_port(instance), "joint_torque")
     if position_mode:
-        # Desired state [q_cmd, 0]: the drives hold positions; rates are left to their damping.
-        to_state = builder.AddSystem(MatrixGain(np.vstack([np.eye(18), np.zeros((18, 18))])))
-        builder.Connect(to_state.get_output_port(), plant.get_desired_state_input_port(instance))
-        builder.ExportInput(to_state.get_input_port(), "joint_position_command")
+        # Desired state [q_cmd, v_cmd]: the drives track positions and rates (Eq. 7's PD, solved
+        # implicitly with the contact in the plant's step).
+        to_state = builder.AddSystem(Multiplexer([NUM_JOINTS, NUM_JOINTS]))
+        builder.Connect(to_state.get_output_port(0), plant.get_desired_state_input_port(instance))
+        builder.ExportInput(to_state.get_input_port(0), "joint_position_command")
+        builder.ExportInput(to_state.get_input_port(1), "joint_velocity_command")
     builder.ExportOutput(plant.get_state_output_port(instance), "state")
     builder.ExportOutput(plant.get_net_actuation_output_port(instance), "joint_torque_measured")
     builder.ExportOutput(imu.GetOutputPort("imu"), "imu")

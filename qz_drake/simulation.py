@@ -68,8 +68,9 @@ def add_tracking_controller(builder, station, info, plan=None, *, kp: float, kd:
 
     The plan is either a fixed BodyFeetTrajectory (``plan``, held in a constant source) or an
     output port that provides one (``plan_port``, e.g. the MissionSequencer's). In position
-    mode the tracker's q_des goes to the station's ``joint_position_command`` (the drives' PD
-    tracks it) and the controller adds only the compensation and force feedforward.
+    mode the tracker's q_des and v_des go to the station's ``joint_position_command`` and
+    ``joint_velocity_command`` (the drives' PD tracks them: Eq. 7's PD in the drives) and the
+    controller adds only the compensation and force feedforward, at the tracker's rate.
     """
     from pydrake.common.value import AbstractValue
     from pydrake.systems.primitives import ConstantValueSource
@@ -79,11 +80,15 @@ def add_tracking_controller(builder, station, info, plan=None, *, kp: float, kd:
     if plan_port is None:
         plan_port = builder.AddSystem(ConstantValueSource(AbstractValue.Make(plan))).get_output_port()
     tracker = builder.AddSystem(InverseKinematicsTracker(topology=info.topology, params=info.params))
-    controller = builder.AddSystem(JointPdController(kp=0.0 if position_mode else kp,
-                                                     kd=0.0 if position_mode else kd, params=info.params))
+    if position_mode:
+        controller = builder.AddSystem(JointPdController(kp=0.0, kd=0.0, params=info.params,
+                                                         update_period=tracker.update_period))
+    else:
+        controller = builder.AddSystem(JointPdController(kp=kp, kd=kd, params=info.params))
     builder.Connect(plan_port, tracker.GetInputPort("trajectory"))
     if position_mode:
         builder.Connect(tracker.GetOutputPort("position_command"), station.GetInputPort("joint_position_command"))
+        builder.Connect(tracker.GetOutputPort("velocity_command"), station.GetInputPort("joint_velocity_command"))
     builder.Connect(station.GetOutputPort("state"), controller.GetInputPort("state"))
     builder.Connect(tracker.GetOutputPort("desired_state"), controller.GetInputPort("desired_state"))
     builder.Connect(tracker.GetOutputPort("foot_force_feedforward"),

@@ -84,7 +84,7 @@ def test_holds_other_topologies_on_the_grid_map_terrain(topology):
 
 def test_position_mode_holds_a_commanded_pose():
     """Position mode (the paper's real-robot interface): the drives' PD holds the standing pose
-    from a joint position command alone, and the same state/sensor ports are there."""
+    from a joint position command and zero rates, and the same state/sensor ports are there."""
     from pydrake.systems.primitives import ConstantVectorSource
 
     scenario = Scenario()
@@ -92,11 +92,13 @@ def test_position_mode_holds_a_commanded_pose():
     builder = DiagramBuilder()
     diagram, info = make_station(scenario)
     assert diagram.GetInputPort("joint_position_command").size() == 18
+    assert diagram.GetInputPort("joint_velocity_command").size() == 18
     station = builder.AddSystem(diagram)
     command = builder.AddSystem(ConstantVectorSource(info.initial_state[7:25]))
     zero = builder.AddSystem(ConstantVectorSource(np.zeros(18)))
     builder.Connect(command.get_output_port(), station.GetInputPort("joint_position_command"))
     builder.Connect(zero.get_output_port(), station.GetInputPort("joint_torque"))
+    builder.Connect(zero.get_output_port(), station.GetInputPort("joint_velocity_command"))
     simulator = Simulator(builder.Build())
     simulator.AdvanceTo(3.0)
     context = station.GetMyContextFromRoot(simulator.get_context())

@@ -164,7 +164,8 @@ def fingerprints(trial_config, criteria=None) -> dict[str, str]:
         "robot": _robot_config(),
         "blc": (repr(BlcParameters()),),
         "controller": (repr((trial_config.speed, trial_config.phase_duration, trial_config.kp,
-                             trial_config.kd, trial_config.settle_after)),),
+                             trial_config.kd, trial_config.settle_after, trial_config.control_mode,
+                             trial_config.time_step)),),
         "verdict": (repr(criteria or SuccessCriteria()),),
         "scenes": (repr(trial_config),),
     }

@@ -162,7 +162,7 @@ def episode_scenario(spec: EpisodeSpec, missions: list[Mission], heading: float,
     each (the map is passed to the station apart); the simulated region the route's
     surroundings."""
     from qz_drake.capability.trials import TRIAL_REGION_MARGIN
-    from qz_drake.config import (ControllerConfig, RobotConfig, Scenario, SimulationConfig,
+    from qz_drake.config import (ControllerConfig, RobotConfig, Scenario,
                                  SuccessCriteria, TerrainConfig, Waypoint)
 
     # Every mission's duration rounds up to whole tripod cycles, at most two more than its
@@ -173,6 +173,7 @@ def episode_scenario(spec: EpisodeSpec, missions: list[Mission], heading: float,
         + 6.0 * (len(missions) - len(moves)) + 1.0
     xs = [0.0] + [m.target[0] for m in missions]
     ys = [0.0] + [m.target[1] for m in missions]
+    station, simulation = config.station_and_simulation(duration)
     r = TRIAL_REGION_MARGIN
     region = [max(min(xs) - r, -half_size), min(max(xs) + r, half_size),
               max(min(ys) - r, -half_size), min(max(ys) + r, half_size)]
@@ -182,7 +183,8 @@ def episode_scenario(spec: EpisodeSpec, missions: list[Mission], heading: float,
         terrain=TerrainConfig(kind="flat", region=region),
         robot=RobotConfig(topology=spec.topology, initial_xy=[0.0, 0.0], initial_yaw=heading,
                           initial_foot_offsets=offsets.tolist()),
-        simulation=SimulationConfig(duration=duration),
+        simulation=simulation,
+        station=station,
         controller=ControllerConfig(kind="walk", planner="blc",
                                     # A switch is the next move's topology (the BLC system switches
                                     # the standing robot before it plans that move).

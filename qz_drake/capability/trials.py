@@ -71,6 +71,42 @@ class TrialConfig:
     # under heavy load (6 processes on 2 cores) 30 iterations took up to 34 s. [iterations], [s]
     blc_max_iterations: int = 30
     blc_time_limit: float = 120.0
+    # How the joints are driven (StationConfig.control_mode) and the plant's step. "torque":
+    # the controller computes Eq. 7 (kp, kd above) at every plant step, which must then be at
+    # most 2 ms (3 ms measured: slips and missed targets). "position": the drives run Eq. 7's
+    # PD on the tracker's q_des and v_des (the plant's implicit PD actuators, the same kp and
+    # kd), the controller adds the compensation and force feedforward at the tracker's rate,
+    # and no Python runs at the plant's step: stable at 4 ms (BENCHMARKS "capability", session
+    # 42). A dataset is labelled by one of them. [s]
+    control_mode: str = "torque"
+    time_step: float = 0.002
+
+    def __post_init__(self):
+        from qz_drake.config import CONTROL_MODES
+        from qz_drake.errors import bad_value
+
+        if self.control_mode not in CONTROL_MODES:
+            raise bad_value("trials.control_mode", self.control_mode, f"expected one of {', '.join(CONTROL_MODES)}")
+        if not (isinstance(self.time_step, (int, float)) and 0 < self.time_step <= MAX_TRIAL_STEP):
+            raise bad_value("trials.time_step", self.time_step, f"expected a step in (0, {MAX_TRIAL_STEP:g}] s")
+        if self.control_mode == "torque" and self.time_step > MAX_EXPLICIT_PD_STEP:
+            raise bad_value("trials.time_step", self.time_step,
+                            f"the explicit joint PD (control_mode torque) needs steps of at most "
+                            f"{MAX_EXPLICIT_PD_STEP:g} s; use control_mode position for longer ones")
+
+    def station_and_simulation(self, duration: float):
+        """(StationConfig, SimulationConfig) of a trial's or episode's scenario lasting
+        ``duration`` simulated seconds."""
+        from qz_drake.config import SimulationConfig, StationConfig
+
+        station = (StationConfig() if self.control_mode == "torque" else
+                   StationConfig(control_mode="position", position_kp=self.kp, position_kd=self.kd))
+        return station, SimulationConfig(duration=duration, time_step=self.time_step)
+
+
+# Longest plant step a trial may take, and the longest the explicit joint PD stays stable at. [s]
+MAX_TRIAL_STEP = 0.01
+MAX_EXPLICIT_PD_STEP = 0.002
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,7 +166,7 @@ def mission_target(kind: str, heading: float, direction: int) -> tuple[float, fl
 
 def trial_scenario(spec: TrialSpec, config: TrialConfig, criteria=None):
     """The walking scenario of a trial (the scene's map is passed to the station apart)."""
-    from qz_drake.config import (ControllerConfig, RobotConfig, Scenario, SimulationConfig,
+    from qz_drake.config import (ControllerConfig, RobotConfig, Scenario,
                                  SuccessCriteria, TerrainConfig, Waypoint)
 
     heading, offsets, direction = start_of(spec, config)
@@ -139,14 +175,16 @@ def trial_scenario(spec: TrialSpec, config: TrialConfig, criteria=None):
     # the base), not the whole scene: contact geometry costs grow with the area.
     r = TRIAL_REGION_MARGIN
     region = [min(0.0, x) - r, max(0.0, x) + r, min(0.0, y) - r, max(0.0, y) + r]
+    # A mission is at most 2 tripod cycles longer than distance / speed (blc_plan).
+    station, simulation = config.station_and_simulation(move_distance(spec.kind) / config.speed + 4.0)
     return Scenario(
         name=f"trial_{spec.trial_id}",
         description="capability trial",
         terrain=TerrainConfig(kind="flat", region=region),
         robot=RobotConfig(topology=spec.topology, initial_xy=[0.0, 0.0], initial_yaw=heading,
                           initial_foot_offsets=offsets.tolist()),
-        # A mission is at most 2 tripod cycles longer than distance / speed (blc_plan).
-        simulation=SimulationConfig(duration=move_distance(spec.kind) / config.speed + 4.0),
+        simulation=simulation,
+        station=station,
         controller=ControllerConfig(kind="walk", planner="blc",
                                     route=[Waypoint(x=x, y=y, yaw=yaw, topology=spec.topology)],
                                     mission_length=2.0, speed=config.speed,

@@ -58,7 +58,7 @@ def run_collect(args) -> int:
     from qz_drake.capability.collect import collect
     from qz_drake.capability.trials import TrialConfig
 
-    config = TrialConfig(headings_per_scene=args.headings)
+    config = TrialConfig(headings_per_scene=args.headings, control_mode=args.control_mode, time_step=args.time_step)
     summary = collect(args.out, seed=args.seed, scenes=args.scenes,
                       topologies=parse_names(args.topologies, "--topologies", topology_names()),
                       kinds=parse_names(args.kinds, "--kinds", _kinds()), config=config,
@@ -152,6 +152,11 @@ def register(subparsers) -> None:
                    help="moves: one-move trials from a standing start (paper 000), every topology and "
                         "kind per scene; episodes: per scene and topology a chain of the planner's "
                         "actions walked like a walk, a record per mission (issue 37)")
+    p.add_argument("--control-mode", default="torque",
+                   help="how the joints are driven: torque (Eq. 7 in the controller, at 2 ms steps) or position "
+                        "(Eq. 7's PD in the drives: the plant's implicit PD on the tracker's q and v)")
+    p.add_argument("--time-step", type=float, default=0.002,
+                   help="the plant's step [s] (torque: at most 0.002; position: 0.004 measured stable)")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--ray-address", default=None, help="run the trials on this Ray cluster (host:port)")
     p.add_argument("--seed", type=int, default=0)

@@ -113,7 +113,7 @@ def command_problem(m: qz_command, position_mode: bool) -> str:
         return f"mode = {m.mode}, the robot runs in mode {expected}"
     if m.num_joints != NUM_JOINTS:
         return f"num_joints = {m.num_joints}, expected {NUM_JOINTS}"
-    for name in ("joint_position", "joint_torque"):
+    for name in ("joint_position", "joint_velocity", "joint_torque"):
         problem = _sized(getattr(m, name), NUM_JOINTS, name) or _finite(getattr(m, name), name)
         if problem:
             return problem

@@ -51,8 +51,9 @@ class DriverCommandState:
     # Applied joint torques (torque mode) or feedforward (position mode), (18,) never written
     # to after construction. [N*m]
     torque: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_JOINTS))
-    # Applied joint position command (position mode). [rad]
+    # Applied joint position and velocity commands (position mode). [rad], [rad/s]
     position: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_JOINTS))
+    velocity: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NUM_JOINTS))
     # The newest accepted command asked for a safe stop.
     commanded_stop: bool = False
     # Holding the joint angles ``hold`` (safe stop, or waiting for the first command).
@@ -84,6 +85,7 @@ class CommandReceiver(LeafSystem):
         output_ports:
         - joint_torque
         - joint_position_command (position mode)
+        - joint_velocity_command (position mode)
         - safe_stop
 
     Before each control tick the newest command is checked (mode, sizes, finite values) and passed
@@ -117,6 +119,8 @@ class CommandReceiver(LeafSystem):
         self.DeclareVectorOutputPort("joint_torque", NUM_JOINTS, self._calc_torque)
         if position_mode:
             self.DeclareVectorOutputPort("joint_position_command", NUM_JOINTS, self._calc_position,
+                                         prerequisites_of_calc={self.abstract_state_ticket(self._applied)})
+            self.DeclareVectorOutputPort("joint_velocity_command", NUM_JOINTS, self._calc_velocity,
                                          prerequisites_of_calc={self.abstract_state_ticket(self._applied)})
         self.DeclareVectorOutputPort("safe_stop", 1, self._calc_safe_stop,
                                      prerequisites_of_calc={self.abstract_state_ticket(self._applied)})
@@ -169,7 +173,8 @@ class CommandReceiver(LeafSystem):
             clamped_q = np.clip(q, self._lower, self._upper)
             n_q = int(np.count_nonzero(clamped_q != q))
             q = clamped_q
-        return dict(torque=clamped_tau, position=q, clamped_commands=s.clamped_commands + int(n_tau + n_q > 0),
+        v = np.asarray(m.joint_velocity, dtype=float) if self._position_mode else np.zeros(NUM_JOINTS)
+        return dict(torque=clamped_tau, position=q, velocity=v, clamped_commands=s.clamped_commands + int(n_tau + n_q > 0),
                     clamped_torques=s.clamped_torques + n_tau, clamped_positions=s.clamped_positions + n_q)
 
     def _hold_target(self, context, s: DriverCommandState) -> np.ndarray:
@@ -191,6 +196,11 @@ class CommandReceiver(LeafSystem):
     def _calc_position(self, context, output: BasicVector):
         s = self.applied(context)
         output.SetFromVector(self._hold_target(context, s) if s.holding else s.position)
+
+    def _calc_velocity(self, context, output: BasicVector):
+        # A hold asks the drives for rest.
+        s = self.applied(context)
+        output.SetFromVector(np.zeros(NUM_JOINTS) if s.holding else s.velocity)
 
     def _calc_safe_stop(self, context, output: BasicVector):
         output.SetFromVector([float(self.applied(context).holding)])
@@ -331,6 +341,8 @@ class QingzhuiRobotDriver(Diagram):
         if position_mode:
             builder.Connect(self._receiver.GetOutputPort("joint_position_command"),
                             station.GetInputPort("joint_position_command"))
+            builder.Connect(self._receiver.GetOutputPort("joint_velocity_command"),
+                            station.GetInputPort("joint_velocity_command"))
         for name in ("state", "joint_torque_measured", "imu", "foot_contact"):
             builder.Connect(station.GetOutputPort(name), publisher.GetInputPort(name))
         builder.Connect(self._receiver.GetOutputPort("safe_stop"), publisher.GetInputPort("safe_stop"))

@@ -222,6 +222,7 @@ class CommandSender(LeafSystem):
         input_ports:
         - joint_torque
         - joint_position_command (position mode)
+        - joint_velocity_command (position mode)
         - watchdog
         output_ports:
         - lcm_command
@@ -236,8 +237,9 @@ class CommandSender(LeafSystem):
 
     Args:
         config: protocol settings (period).
-        position_mode: send MODE_POSITION (joint_position_command, joint_torque as
-            feedforward) instead of MODE_TORQUE.
+        position_mode: send MODE_POSITION (joint_position_command and
+            joint_velocity_command for the drives' PD, joint_torque as feedforward) instead of
+            MODE_TORQUE.
         command_filter: a hook that may alter (fault tests) or observe (benchmarks)
             each command before it is published.
     """
@@ -250,6 +252,8 @@ class CommandSender(LeafSystem):
         self._filter = command_filter
         self._torque = self.DeclareVectorInputPort("joint_torque", NUM_JOINTS)
         self._position = (self.DeclareVectorInputPort("joint_position_command", NUM_JOINTS)
+                          if position_mode else None)
+        self._velocity = (self.DeclareVectorInputPort("joint_velocity_command", NUM_JOINTS)
                           if position_mode else None)
         self._watchdog = self.DeclareAbstractInputPort("watchdog", AbstractValue.Make(LinkState()))
         # The last command computed from a new status (encoded; b"" before the first).
@@ -268,6 +272,7 @@ class CommandSender(LeafSystem):
         tau = self._torque.Eval(context) if self._torque.HasValue(context) else np.zeros(NUM_JOINTS)
         m.joint_torque = tau.tolist()
         m.joint_position = self._position.Eval(context).tolist() if self._position_mode else [0.0] * NUM_JOINTS
+        m.joint_velocity = self._velocity.Eval(context).tolist() if self._position_mode else [0.0] * NUM_JOINTS
 
     def _keep(self, context, state):
         # After the period's command went out (a publish precedes the updates of its time).
@@ -357,6 +362,7 @@ class QingzhuiHardwareInterface(Diagram):
         builder.ExportInput(sender.GetInputPort("joint_torque"), "joint_torque")
         if position_mode:
             builder.ExportInput(sender.GetInputPort("joint_position_command"), "joint_position_command")
+            builder.ExportInput(sender.GetInputPort("joint_velocity_command"), "joint_velocity_command")
         for name in ("state", "joint_torque_measured", "imu", "foot_contact"):
             builder.ExportOutput(self._receiver.GetOutputPort(name), name)
         builder.BuildInto(self)

@@ -37,6 +37,7 @@ class LcmLoopbackStation(Diagram):
         input_ports:
         - joint_torque
         - joint_position_command (position mode)
+        - joint_velocity_command (position mode)
         output_ports:
         - state
         - joint_torque_measured
@@ -74,6 +75,7 @@ class LcmLoopbackStation(Diagram):
         builder.ExportInput(self.interface.GetInputPort("joint_torque"), "joint_torque")
         if scenario.station.control_mode == "position":
             builder.ExportInput(self.interface.GetInputPort("joint_position_command"), "joint_position_command")
+            builder.ExportInput(self.interface.GetInputPort("joint_velocity_command"), "joint_velocity_command")
         for name in CONTROLLER_OUTPUTS:
             builder.ExportOutput(self.interface.GetOutputPort(name), name)
         for name in DRIVER_OUTPUTS:
@@ -115,6 +117,7 @@ class RemoteLcmStation(Diagram):
         input_ports:
         - joint_torque
         - joint_position_command (position mode)
+        - joint_velocity_command (position mode)
         output_ports:
         - state
         - joint_torque_measured
@@ -135,6 +138,7 @@ class RemoteLcmStation(Diagram):
         builder.ExportInput(self.interface.GetInputPort("joint_torque"), "joint_torque")
         if scenario.station.control_mode == "position":
             builder.ExportInput(self.interface.GetInputPort("joint_position_command"), "joint_position_command")
+            builder.ExportInput(self.interface.GetInputPort("joint_velocity_command"), "joint_velocity_command")
         for name in CONTROLLER_OUTPUTS:
             builder.ExportOutput(self.interface.GetOutputPort(name), name)
         builder.ExportOutput(unknown.get_output_port(), "trunk_contact")

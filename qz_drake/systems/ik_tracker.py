@@ -186,12 +186,14 @@ class InverseKinematicsTracker(LeafSystem):
         - desired_state
         - foot_force_feedforward
         - position_command
+        - velocity_command
         - contact_plan
 
     ``trajectory`` is an abstract input holding a BodyFeetTrajectory (or None: keep the
     references held so far; a planner must provide a plan at initialization). ``desired_state`` is q_des (18) then v_des (18) for JointPdController;
     ``foot_force_feedforward`` the planned stance forces (18, world); ``position_command``
-    q_des alone; ``contact_plan`` the planned contact flags (6).
+    q_des alone and ``velocity_command`` v_des alone (the station's position-mode inputs);
+    ``contact_plan`` the planned contact flags (6).
 
     The references are updated at ``rate`` (the paper's controllers exchange them at 200 Hz)
     and held in between; the joint PD runs at every plant step.
@@ -236,7 +238,13 @@ class InverseKinematicsTracker(LeafSystem):
         self.DeclareVectorOutputPort("desired_state", 2 * n, self._output(0, 2 * n), held)
         self.DeclareVectorOutputPort("foot_force_feedforward", 3 * NUM_LEGS, self._output(2 * n, 3 * n), held)
         self.DeclareVectorOutputPort("position_command", n, self._output(0, n), held)
+        self.DeclareVectorOutputPort("velocity_command", n, self._output(n, 2 * n), held)
         self.DeclareVectorOutputPort("contact_plan", NUM_LEGS, self._output(3 * n, 3 * n + NUM_LEGS), held)
+
+    @property
+    def update_period(self) -> float:
+        """The references' update period (1 / rate). [s]"""
+        return self._dt
 
     def _output(self, start: int, stop: int):
         def calc(context, output: BasicVector):

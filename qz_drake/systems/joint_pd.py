@@ -17,6 +17,7 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.systems.framework import BasicVector, LeafSystem
 
+from qz_drake.errors import bad_value
 from qz_drake.robot.model import JointOrder, add_qingzhui
 from qz_drake.robot.params import DEFAULT_PARAMS, LEG_NAMES, NUM_JOINTS, QingzhuiParams
 from qz_drake.state_layout import JOINT_Q, JOINT_V, STATE_SIZE
@@ -87,10 +88,16 @@ class JointPdController(LeafSystem):
         kd: joint damping Kd. [N*m*s/rad]
         params: robot parameters of the controller's model.
         effort_limit: torques are clipped to +-effort_limit. [N*m]
+        update_period: None: the torque is computed whenever it is read (Eq. 7's explicit PD
+            must see every plant step). A period: computed at initialization and then every
+            period, reading the inputs as they were before that time's other updates, and held
+            in between: for the compensation and feedforward alone (kp = kd = 0) beside drives
+            that run the PD themselves (the station's position mode), where a reference rate
+            is enough and the plant may step without calling into Python. [s]
     """
 
     def __init__(self, *, kp: float, kd: float, params: QingzhuiParams = DEFAULT_PARAMS,
-                 effort_limit: float | None = None):
+                 effort_limit: float | None = None, update_period: float | None = None):
         super().__init__()
         self._kp = np.broadcast_to(np.asarray(kp, dtype=float), (NUM_JOINTS,)).copy()
         self._kd = np.broadcast_to(np.asarray(kd, dtype=float), (NUM_JOINTS,)).copy()
@@ -99,11 +106,22 @@ class JointPdController(LeafSystem):
         self._state = self.DeclareVectorInputPort("state", STATE_SIZE)
         self._desired = self.DeclareVectorInputPort("desired_state", 2 * NUM_JOINTS)
         self._feedforward = self.DeclareVectorInputPort("foot_force_feedforward", 3 * 6)
-        self.DeclareVectorOutputPort("joint_torque", NUM_JOINTS, self._calc_torque)
+        if update_period is None:
+            self.DeclareVectorOutputPort("joint_torque", NUM_JOINTS, self._calc_torque)
+        else:
+            if not (update_period > 0 and np.isfinite(update_period)):
+                raise bad_value("update_period", update_period, "must be a positive period in seconds")
+            held = self.DeclareDiscreteState(NUM_JOINTS)
+            self.DeclarePeriodicDiscreteUpdateEvent(update_period, 0.0, self._update)
+            self.DeclareInitializationDiscreteUpdateEvent(self._update)
+            self.DeclareStateOutputPort("joint_torque", held)
 
     @property
     def model(self) -> RobotControlModel:
         return self._model
+
+    def _update(self, context, discrete_state):
+        self._calc_torque(context, discrete_state.get_mutable_vector(0))
 
     def _calc_torque(self, context, output: BasicVector):
         x = self._state.Eval(context)

@@ -78,9 +78,15 @@ def test_wrong_sizes_and_wrong_types_are_rejected():
 def test_command_checks():
     c = qz_command()
     c.mode, c.num_joints = qz_command.MODE_TORQUE, 18
-    c.joint_position, c.joint_torque = [0.0] * 18, [0.0] * 18
+    c.joint_position, c.joint_velocity, c.joint_torque = [0.0] * 18, [0.0] * 18, [0.0] * 18
     assert command_problem(c, position_mode=False) == ""
     assert "mode = 0" in command_problem(c, position_mode=True)
+    c.joint_velocity = [0.0] * 17
+    assert "joint_velocity has 17 values" in command_problem(c, position_mode=False)
+    c.joint_velocity = [0.0] * 18
+    c.joint_velocity[5] = float("inf")
+    assert "joint_velocity[5] = inf" in command_problem(c, position_mode=False)
+    c.joint_velocity[5] = 0.0
     c.joint_torque[3] = float("nan")
     assert "joint_torque[3] = nan" in command_problem(c, position_mode=False)
     stop = qz_command()

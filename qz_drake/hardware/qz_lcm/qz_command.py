@@ -13,11 +13,11 @@ class qz_command(object):
     Joints are leg-major (MF_j0, MF_j1, MF_j2, RF_j0, ...) in URDF coordinates; SI units.
     """
 
-    __slots__ = ["utime", "sequence", "status_sequence", "mode", "num_joints", "joint_position", "joint_torque"]
+    __slots__ = ["utime", "sequence", "status_sequence", "mode", "num_joints", "joint_position", "joint_velocity", "joint_torque"]
 
-    __typenames__ = ["int64_t", "int64_t", "int64_t", "int8_t", "int32_t", "double", "double"]
+    __typenames__ = ["int64_t", "int64_t", "int64_t", "int8_t", "int32_t", "double", "double", "double"]
 
-    __dimensions__ = [None, None, None, None, None, ["num_joints"], ["num_joints"]]
+    __dimensions__ = [None, None, None, None, None, ["num_joints"], ["num_joints"], ["num_joints"]]
 
     MODE_TORQUE = 0
     MODE_POSITION = 1
@@ -44,9 +44,10 @@ class qz_command(object):
 
         self.mode = 0
         """
-        MODE_TORQUE: apply joint_torque. MODE_POSITION: the drives hold joint_position with their
-        own PD, joint_torque added as feedforward. MODE_SAFE_STOP: hold joint_position with the
-        driver's safe-stop gains, no feedforward; sent while the interface's watchdog is latched.
+        MODE_TORQUE: apply joint_torque. MODE_POSITION: the drives track joint_position and
+        joint_velocity with their own PD, joint_torque added as feedforward. MODE_SAFE_STOP: hold
+        joint_position with the driver's safe-stop gains, no feedforward; sent while the
+        interface's watchdog is latched.
         LCM Type: int8_t
         """
 
@@ -55,6 +56,12 @@ class qz_command(object):
         self.joint_position = []
         """
         [rad]
+        LCM Type: double[num_joints]
+        """
+
+        self.joint_velocity = []
+        """
+        The rates the drives track with joint_position (MODE_POSITION; zeros otherwise). [rad/s]
         LCM Type: double[num_joints]
         """
 
@@ -74,6 +81,7 @@ class qz_command(object):
     def _encode_one(self, buf):
         buf.write(struct.pack(">qqqbi", self.utime, self.sequence, self.status_sequence, self.mode, self.num_joints))
         buf.write(struct.pack('>%dd' % self.num_joints, *self.joint_position[:self.num_joints]))
+        buf.write(struct.pack('>%dd' % self.num_joints, *self.joint_velocity[:self.num_joints]))
         buf.write(struct.pack('>%dd' % self.num_joints, *self.joint_torque[:self.num_joints]))
 
     @staticmethod
@@ -91,13 +99,14 @@ class qz_command(object):
         self = qz_command()
         self.utime, self.sequence, self.status_sequence, self.mode, self.num_joints = struct.unpack(">qqqbi", buf.read(29))
         self.joint_position = struct.unpack('>%dd' % self.num_joints, buf.read(self.num_joints * 8))
+        self.joint_velocity = struct.unpack('>%dd' % self.num_joints, buf.read(self.num_joints * 8))
         self.joint_torque = struct.unpack('>%dd' % self.num_joints, buf.read(self.num_joints * 8))
         return self
 
     @staticmethod
     def _get_hash_recursive(parents):
         if qz_command in parents: return 0
-        tmphash = (0x8b0e0315dea2c2c) & 0xffffffffffffffff
+        tmphash = (0x55aa9253a1981dfe) & 0xffffffffffffffff
         tmphash  = (((tmphash<<1)&0xffffffffffffffff) + (tmphash>>63)) & 0xffffffffffffffff
         return tmphash
     _packed_fingerprint = None
