@@ -765,6 +765,24 @@ class ConstraintGroupCache:
         return self.constraint.evaluate_with_jacobian(x)
 
 
+def _entries_in_rows(c, start: int, stop: int) -> np.ndarray:
+    """The indices, ascending, of a constraint's Jacobian entries in rows [start, stop); the
+    entries' order by row is found once per constraint."""
+    order = c.binding_structure.get("row order")
+    if order is None:
+        order = c.binding_structure["row order"] = np.argsort(c.rows, kind="stable")
+        c.binding_structure["sorted rows"] = c.rows[order]
+    rows = c.binding_structure["sorted rows"]
+    return np.sort(order[np.searchsorted(rows, start):np.searchsorted(rows, stop)])
+
+
+def _distinct(values: np.ndarray, size: int) -> np.ndarray:
+    """np.unique(values) of integers in [0, size)."""
+    seen = np.zeros(size, dtype=bool)
+    seen[values] = True
+    return np.flatnonzero(seen)
+
+
 def add_constraint_rows(prog: MathematicalProgram, group: ConstraintGroupCache, start: int,
                         stop: int, x_vars, counter: dict | None = None):
     """Binds rows [start, stop) of a constraint to prog on only the variables they touch, with
@@ -772,11 +790,13 @@ def add_constraint_rows(prog: MathematicalProgram, group: ConstraintGroupCache, 
     c = group.constraint
     structure = c.binding_structure.get((start, stop))
     if structure is None:
-        entries = np.flatnonzero((c.rows >= start) & (c.rows < stop))
-        columns = np.unique(c.cols[entries])
+        entries = _entries_in_rows(c, start, stop)
+        # The sorted distinct columns and positions, as np.unique gives them, marked in arrays
+        # of their range (a leg-clearance binding: 4000 entries in a few microseconds).
+        columns = _distinct(c.cols[entries], len(x_vars))
         n = len(columns)
         flat = (c.rows[entries] - start) * n + np.searchsorted(columns, c.cols[entries])
-        pattern = np.unique(flat)
+        pattern = _distinct(flat, (stop - start) * n)
         structure = c.binding_structure[(start, stop)] = (
             entries, columns, flat, list(zip((pattern // n).tolist(), (pattern % n).tolist())))
     entries, columns, flat, pattern = structure
