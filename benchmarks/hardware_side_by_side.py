@@ -7,7 +7,7 @@ Each run is a fresh interpreter importing qz_drake from the tree given (the edit
 finder taken out of sys.meta_path); the trees alternate. Prints each run's latencies (median,
 p99 in ms), interface overhead, tracking RMS and wall time over LCM.
 """
-import subprocess, sys, json
+import os, subprocess, sys, json
 RUN = r'''
 import sys, json
 sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in type(f).__name__.lower() and "editable" not in str(getattr(f, "__module__", "")).lower()]
@@ -21,7 +21,7 @@ if len(sys.argv) != 4:
     sys.exit("usage: hardware_side_by_side.py BASE_TREE NEW_TREE REPEATS")
 for rep in range(int(sys.argv[3])):
     for label, root in (("base", sys.argv[1]), ("new", sys.argv[2])):
-        o = subprocess.run([sys.executable, "-c", RUN, root], capture_output=True, text=True)
+        o = subprocess.run([sys.executable, "-c", RUN, os.path.abspath(root)], capture_output=True, text=True)
         if o.returncode: print(o.stderr[-2000:]); sys.exit(1)
         d = json.loads(o.stdout.strip().splitlines()[-1])
         print(label, {k: (round(v["median_ms"], 3), round(v["p99_ms"], 3)) if isinstance(v, dict) else v for k, v in d.items()}, flush=True)
