@@ -4,7 +4,8 @@ trial's time split into station build, BLC solve and simulation, per kind.
 The collection is ``qz capability collect`` itself (seed 0, the first ``scenes`` scenes, all six
 topologies and three kinds) into a temporary folder; the split comes from the wall times every
 record carries. Throughput is executed trials per hour of wall time, two workers on the
-machine's cores.
+machine's cores. ``control_mode`` and ``time_step`` are TrialConfig's (how the joints are
+driven; the default is the datasets').
 """
 
 import statistics
@@ -16,9 +17,11 @@ import numpy as np
 
 from qz_drake.capability.collect import collect
 from qz_drake.capability.dataset import load_records
+from qz_drake.capability.trials import TrialConfig
 
 
-def run(repeats: int = 1, quick: bool = False, scenes: int = 3, workers: int = 2) -> dict:
+def run(repeats: int = 1, quick: bool = False, scenes: int = 3, workers: int = 2, control_mode: str = "torque",
+        time_step: float = 0.002) -> dict:
     if quick:
         scenes = 1
     rates, per_kind = [], {}
@@ -26,7 +29,8 @@ def run(repeats: int = 1, quick: bool = False, scenes: int = 3, workers: int = 2
         with tempfile.TemporaryDirectory() as tmp:
             out = Path(tmp) / "bench"
             clock = time.perf_counter()
-            summary = collect(out, seed=0, scenes=scenes, workers=workers, progress=False)
+            summary = collect(out, seed=0, scenes=scenes, workers=workers, progress=False,
+                              config=TrialConfig(control_mode=control_mode, time_step=time_step))
             wall = time.perf_counter() - clock
             arrays, _ = load_records(out)
         executed = arrays["status"] == "executed"
