@@ -295,8 +295,9 @@ class _CIpopt:
 
     def _jacobian(self, n, x, new_x, m, count, rows, cols, values, user_data):
         if not values:  # the structure, asked once
-            np.ctypeslib.as_array(rows, shape=(count,))[:] = self._rows
-            np.ctypeslib.as_array(cols, shape=(count,))[:] = self._cols
+            if count:  # (no entries: Ipopt's arrays may be null)
+                np.ctypeslib.as_array(rows, shape=(count,))[:] = self._rows
+                np.ctypeslib.as_array(cols, shape=(count,))[:] = self._cols
             return True
         return self._call(self._nlp.jacobian, n, x, values, count)
 
