@@ -30,7 +30,7 @@ class Subset:
     def jacobian(self, x): return self.nlp.jacobian(x)[self.entry]
     def intermediate(self, alg, it, *a): self.iterations = int(it); return True
 
-MARGIN = float(sys.argv[2]) if len(sys.argv) > 2 else 0.05
+MARGIN = 0.1  # main() sets it from the command line
 def solve(prog, x0, options=None, vectorised=(), interface="c"):
     clock = time.perf_counter()
     nlp = M.ProgramNlp(prog, vectorised)
@@ -68,19 +68,29 @@ def solve(prog, x0, options=None, vectorised=(), interface="c"):
     return M.IpoptResult(x=x, status=M.STATUS.get(code, str(code)), status_code=code, iterations=total_it, objective=obj, solve_time=time.perf_counter() - clock)
 
 STATS = []
-import bench_blc
-cases = {k: v for k, v in bench_blc.all_cases(sys.argv[1] == "quick").items() if "impossible" not in k and "block" not in k and "rise0.20_d2.0" not in k}
-orig = M.solve
-for name, (robot, terrain, task) in cases.items():
-    out = [name]
-    for label, fn in (("full", orig), ("screened", solve)):
-        S.ipopt_mumps.solve = fn
-        S.solve_blc(task, robot, terrain)
-        STATS.clear()
-        ts = []
-        for _ in range(2):
-            t = time.perf_counter(); s = S.solve_blc(task, robot, terrain); ts.append(time.perf_counter() - t)
-        extra = f" rows {STATS[-1][0]}/{STATS[-1][1]} rounds {STATS[-1][2]}" if STATS else ""
-        out.append(f"{label} {min(ts):.3f}s it {s.iterations} {'ok' if s.success else 'FAIL ' + s.reason[:60]}{extra}")
-    S.ipopt_mumps.solve = orig
-    print(" | ".join(out), flush=True)
+
+
+def main():
+    global MARGIN
+    MARGIN = float(sys.argv[2]) if len(sys.argv) > 2 else 0.1
+    import bench_blc
+    cases = {k: v for k, v in bench_blc.all_cases(sys.argv[1] == "quick").items()
+             if "impossible" not in k and "block" not in k and "rise0.20_d2.0" not in k}
+    orig = M.solve
+    for name, (robot, terrain, task) in cases.items():
+        out = [name]
+        for label, fn in (("full", orig), ("screened", solve)):
+            S.ipopt_mumps.solve = fn
+            S.solve_blc(task, robot, terrain)
+            STATS.clear()
+            ts = []
+            for _ in range(2):
+                t = time.perf_counter(); s = S.solve_blc(task, robot, terrain); ts.append(time.perf_counter() - t)
+            extra = f" rows {STATS[-1][0]}/{STATS[-1][1]} rounds {STATS[-1][2]}" if STATS else ""
+            out.append(f"{label} {min(ts):.3f}s it {s.iterations} {'ok' if s.success else 'FAIL ' + s.reason[:60]}{extra}")
+        S.ipopt_mumps.solve = orig
+        print(" | ".join(out), flush=True)
+
+
+if __name__ == "__main__":
+    main()
