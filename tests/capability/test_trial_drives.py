@@ -40,3 +40,21 @@ def test_a_trial_with_the_drives_pd_builds_its_scenario_and_walks_as_the_default
         assert record["final_xy_error_m"] < 0.05 and record["max_joint_error_deg"] < 5.0
     # The labels of one setting are not the other's: the controller's fingerprint tells them apart.
     assert fingerprints(DRIVES)["controller"] != fingerprints(TrialConfig())["controller"]
+
+
+def test_a_dataset_records_its_drive_setting_and_refuses_trials_driven_otherwise(tmp_path):
+    """The setting is part of what labels a dataset: collected with the drives' PD, the folder
+    says so, and a collection with the default joint PD into it is refused by name."""
+    import json
+
+    from qz_drake.capability.collect import collect
+    from qz_drake.errors import ConfigError
+
+    out = tmp_path / "drives"
+    # Seed 0's first scene is a start no topology stands on: 18 invalid trials, no simulation.
+    summary = collect(out, seed=0, scenes=1, workers=1, progress=False, config=DRIVES)
+    assert summary.errors == 0
+    settings = json.loads((out / "manifest.json").read_text())["settings"]
+    assert (settings["control_mode"], settings["time_step"]) == ("position", 0.004)
+    with pytest.raises(ConfigError, match="controller|control_mode"):
+        collect(out, seed=0, scenes=1, workers=1, progress=False, config=TrialConfig())
