@@ -14,22 +14,14 @@ of the decision vector).
 """
 
 import argparse
-import json
-import os
 import statistics
-import subprocess
-import sys
+
+from tree_runs import run_in_tree
 
 _RUN = r"""
-import hashlib, json, statistics, sys, time
-sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in type(f).__name__.lower()
-                    and "editable" not in str(getattr(f, "__module__", "")).lower()]
-root, repeats, quick = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "1"
-sys.path.insert(0, root)
-sys.path.insert(0, root + "/benchmarks")
+import hashlib, json, statistics, time
+repeats, quick = int(sys.argv[2]), sys.argv[3] == "1"
 clock = time.perf_counter()
-import qz_drake
-assert qz_drake.__file__.startswith(root), qz_drake.__file__
 from qz_drake.trajopt.solver import BlcTask, solve_blc
 from qz_drake.trajopt.robot_model import qingzhui
 solve_blc(BlcTask(target=(1.0, 0.0, 0.0), duration=2.0), qingzhui())
@@ -59,11 +51,7 @@ def main() -> None:
     results = {"base": [], "new": []}
     for _ in range(args.runs):
         for label, root in (("base", args.base), ("new", args.new)):
-            run = subprocess.run([sys.executable, "-c", _RUN, os.path.abspath(root), str(args.repeats), "1" if args.quick else "0"],
-                                 capture_output=True, text=True)
-            if run.returncode:
-                sys.exit(run.stderr[-3000:])
-            results[label].append(json.loads(run.stdout.strip().splitlines()[-1]))
+            results[label].append(run_in_tree(root, _RUN, args.repeats, "1" if args.quick else "0"))
             print(label, "cold", round(results[label][-1]["cold_s"], 3), flush=True)
     base, new = results["base"], results["new"]
     print(f"{'case':34s} {'base s':>8s} {'new s':>8s} {'ratio':>6s}  it.  same plan")

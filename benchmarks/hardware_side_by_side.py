@@ -7,12 +7,10 @@ Each run is a fresh interpreter importing qz_drake from the tree given (the edit
 finder taken out of sys.meta_path); the trees alternate. Prints each run's latencies (median,
 p99 in ms), interface overhead, tracking RMS and wall time over LCM.
 """
-import os, subprocess, sys, json
+import sys
+from tree_runs import run_in_tree
 RUN = r'''
-import sys, json
-sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in type(f).__name__.lower() and "editable" not in str(getattr(f, "__module__", "")).lower()]
-sys.path.insert(0, sys.argv[1]); sys.path.insert(0, sys.argv[1] + "/benchmarks")
-import qz_drake; assert qz_drake.__file__.startswith(sys.argv[1])
+import json
 import bench_hardware
 r = bench_hardware.run()["walk_flat_10s"]
 print(json.dumps({k: r[k] for k in ("latency", "latency_joint_pd_only", "latency_with_ik_update", "interface_overhead", "tracking_rms_lcm_m", "wall_time_lcm_s")}))
@@ -21,7 +19,5 @@ if len(sys.argv) != 4:
     sys.exit("usage: hardware_side_by_side.py BASE_TREE NEW_TREE REPEATS")
 for rep in range(int(sys.argv[3])):
     for label, root in (("base", sys.argv[1]), ("new", sys.argv[2])):
-        o = subprocess.run([sys.executable, "-c", RUN, os.path.abspath(root)], capture_output=True, text=True)
-        if o.returncode: print(o.stderr[-2000:]); sys.exit(1)
-        d = json.loads(o.stdout.strip().splitlines()[-1])
+        d = run_in_tree(root, RUN)
         print(label, {k: (round(v["median_ms"], 3), round(v["p99_ms"], 3)) if isinstance(v, dict) else v for k, v in d.items()}, flush=True)

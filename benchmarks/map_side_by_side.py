@@ -13,19 +13,14 @@ with their ratios (new / base).
 
 import json
 import statistics
-import subprocess
 import sys
-from pathlib import Path
+
+from tree_runs import run_in_tree
 
 _RUN = r"""
-import json, sys, time
-sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in type(f).__name__.lower()
-                    and "editable" not in str(getattr(f, "__module__", "")).lower()]
-sys.path.insert(0, sys.argv[1])
+import json, time
 import torch
 torch.set_num_threads(1)
-import qz_drake
-assert qz_drake.__file__.startswith(sys.argv[1]), qz_drake.__file__
 from qz_drake.capability.model import CapabilityModel, predict_map
 from qz_drake.capability.networks import CapabilityEnsemble, CapabilityNet
 from qz_drake.terrain import make_terrain
@@ -69,10 +64,7 @@ def main(argv=None) -> int:
     times = {"base": [], "new": []}
     for _ in range(args.repeats):
         for label in ("base", "new"):
-            root = str(Path(getattr(args, label)).resolve())
-            run = subprocess.run([sys.executable, "-c", _RUN, root, args.world, "shipped" if args.shipped else "random"],
-                                 capture_output=True, text=True, check=True)
-            result = json.loads(run.stdout.strip().splitlines()[-1])
+            result = run_in_tree(getattr(args, label), _RUN, args.world, "shipped" if args.shipped else "random")
             print(json.dumps({"tree": label, **result}))
             times[label].append(result)
     medians = {label: {k: statistics.median(r[k] for r in rows) for k in rows[0]} for label, rows in times.items()}

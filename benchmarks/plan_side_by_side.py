@@ -22,20 +22,13 @@ import json
 import multiprocessing
 import os
 import statistics
-import subprocess
 import sys
-from pathlib import Path
+
+from tree_runs import run_in_tree
 
 _RUN = r"""
-import hashlib, json, sys, time
-sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in type(f).__name__.lower()
-                    and "editable" not in str(getattr(f, "__module__", "")).lower()]
-root = sys.argv[1]
-sys.path.insert(0, root)
-sys.path.insert(0, root + "/benchmarks")
+import hashlib, json, time
 import numpy as np
-import qz_drake
-assert qz_drake.__file__.startswith(root), qz_drake.__file__
 from bench_plan import _world
 from qz_drake.capability.model import CapabilityModel, predict_map
 from qz_drake.planning.capability_mdp import CapabilityMdpConfig, plan_on_map
@@ -92,13 +85,7 @@ def main(argv=None) -> int:
     try:
         for _ in range(args.repeats):
             for label in ("base", "new"):
-                root = str(Path(getattr(args, label)).resolve())
-                run = subprocess.run([sys.executable, "-c", _RUN, root, str(args.size)], capture_output=True,
-                                     text=True, env=env)
-                if run.returncode:
-                    sys.stderr.write(run.stderr)
-                    return 1
-                result = json.loads(run.stdout.strip().splitlines()[-1])
+                result = run_in_tree(getattr(args, label), _RUN, args.size, env=env)
                 print(json.dumps({"tree": label, **result}), flush=True)
                 runs[label].append(result)
     finally:

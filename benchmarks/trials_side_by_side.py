@@ -9,12 +9,10 @@ timing: imports and caches), and reports each trial's wall, simulation and solve
 hash of its verdict and measurements. The trees alternate. Prints the medians, their ratio and
 whether every record is identical.
 """
-import subprocess, sys, json, statistics
+import sys, statistics
+from tree_runs import run_in_tree
 RUN = r'''
-import sys, json, time, random, hashlib
-sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in type(f).__name__.lower() and "editable" not in str(getattr(f, "__module__", "")).lower()]
-sys.path.insert(0, sys.argv[1])
-import qz_drake; assert qz_drake.__file__.startswith(sys.argv[1])
+import json, time, random, hashlib
 from qz_drake.capability.trials import trial_specs, run_trial
 specs = trial_specs(11, 40); random.Random(2).shuffle(specs); specs = specs[:int(sys.argv[2])]
 run_trial(specs[-1])  # the process's first trial (imports, caches) outside the timing
@@ -31,9 +29,7 @@ if len(sys.argv) != 5:
 res = {}
 for rep in range(int(sys.argv[4])):
     for label, root in (("base", sys.argv[1]), ("new", sys.argv[2])):
-        o = subprocess.run([sys.executable, "-c", RUN, root, sys.argv[3]], capture_output=True, text=True)
-        if o.returncode: print(o.stderr[-2000:]); sys.exit(1)
-        d = json.loads(o.stdout.strip().splitlines()[-1]); res.setdefault(label, []).append(d)
+        d = run_in_tree(root, RUN, sys.argv[3]); res.setdefault(label, []).append(d)
         print(label, round(d["total"], 1), "sim", round(sum(t["sim"] for t in d["trials"]), 1), "solve", round(sum(t["solve"] for t in d["trials"]), 1), flush=True)
 b, n = res["base"], res["new"]
 same = all(x["digest"] == y["digest"] for rb, rn in zip(b, n) for x, y in zip(rb["trials"], rn["trials"]))
