@@ -29,9 +29,11 @@ def _collect(scenes: int, config):
         collect(Path(tmp) / "bench", seed=0, scenes=scenes, workers=2, progress=False, config=config)
         wall = time.perf_counter() - clock
         arrays, _ = load_records(Path(tmp) / "bench")
+    from qz_drake.capability.training import OUTCOMES, outcome_classes
+
     executed = arrays["status"] == "executed"
-    outcome = np.where(~executed, "not executed", np.where(arrays["success"], "walked",
-                                                          np.where(arrays["blc_success"], "failed", "no_plan")))
+    outcome = np.where(executed, np.asarray(OUTCOMES)[outcome_classes(arrays["success"], arrays["blc_success"])],
+                       "not executed")
     return 3600.0 * int(executed.sum()) / wall, dict(zip(arrays["index"].tolist(), outcome.tolist()))
 
 

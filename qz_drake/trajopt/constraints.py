@@ -149,8 +149,9 @@ class SampledConstraint(abc.ABC):
         self._blocks = blocks
         self.rows = np.concatenate([b.rows for b in blocks])
         self.cols = np.concatenate([b.cols for b in blocks])
-        # (start, stop) -> the Drake binding's columns and sparsity (formulation.py), shared
-        # by the copies ``on`` makes: they have the same rows and columns.
+        # (start, stop) -> the Drake binding's columns and sparsity, and the rows' order by row
+        # (formulation.add_constraint_rows), shared by the copies ``on`` makes: they have the
+        # same rows and columns.
         self.binding_structure: dict = {}
 
     def on(self, **data) -> "SampledConstraint":
