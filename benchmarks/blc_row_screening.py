@@ -5,6 +5,9 @@ guess is MARGIN or more above their bound; every other row is kept. Each bench c
 twice with the full program and twice screened (the best of two each).
 
     python benchmarks/blc_row_screening.py full|quick MARGIN
+
+On stored capability episodes: ``python benchmarks/trial_drives.py data/capability_episodes 60
+OUT.jsonl --control-mode torque --time-step 0.002 --setup blc_row_screening:use``.
 """
 import sys, time, numpy as np
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
@@ -68,6 +71,19 @@ def solve(prog, x0, options=None, vectorised=(), interface="c"):
     return M.IpoptResult(x=x, status=M.STATUS.get(code, str(code)), status_code=code, iterations=total_it, objective=obj, solve_time=time.perf_counter() - clock)
 
 STATS = []
+
+
+def use(margin: float = 0.1):
+    """Makes the BLC solve screened (``trial_drives.py --setup blc_row_screening:use``);
+    returns the function that undoes it."""
+    global MARGIN
+    MARGIN = margin
+    original = M.solve
+    M.solve = solve
+
+    def undo():
+        M.solve = original
+    return undo
 
 
 def main():

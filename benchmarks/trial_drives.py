@@ -3,13 +3,16 @@
 time side by side with the dataset's own settings.
 
     python benchmarks/trial_drives.py data/capability_episodes EPISODES OUT.jsonl \\
-        [--control-mode position] [--time-step 0.004] [--workers 2]
+        [--control-mode position] [--time-step 0.004] [--setup MODULE:FUNCTION] [--workers 2]
 
 EPISODES episodes are drawn as a recertification draws them (spread over every status, kind,
 topology, outcome and scene kind: failures are over-represented against the dataset) from a
 fixed key; each is run twice in worker processes, with the dataset's settings ("stored": they
 reproduce the stored records, the dataset being certified for this code) and with the
-variant, the two jobs of an episode side by side. Writes one JSON line per (episode, setting)
+variant, the two jobs of an episode side by side. ``--setup MODULE:FUNCTION`` (a module of
+benchmarks/) is called in the worker before each of the variant's episodes and the function
+it returns after it (a solver variant such as ``blc_row_screening:use``; with ``--control-mode
+torque --time-step 0.002`` it is then the only difference). Writes one JSON line per (episode, setting)
 with its missions' outcomes (walked / no_plan / failed), reasons, final position errors and
 the episode's wall time; prints the missions whose outcome differs from the stored one and the
 time ratio.
@@ -23,17 +26,22 @@ import sys
 import time
 from multiprocessing import get_context
 
-OUTCOMES = ("walked", "no_plan", "failed")
 
 
 def _run(job):
-    settings, spec = job
+    settings, spec, setup = job
     from qz_drake.capability.collect import execute_episode
     from qz_drake.capability.trials import TrialConfig
 
-    clock = time.perf_counter()
-    records = execute_episode(spec, TrialConfig(**settings))
-    wall = time.perf_counter() - clock
+    # The setup, and its undo after the episode: a worker also runs the other setting's jobs.
+    undo = getattr(__import__(setup.split(":")[0]), setup.split(":")[1])() if setup else None
+    try:
+        clock = time.perf_counter()
+        records = execute_episode(spec, TrialConfig(**settings))
+        wall = time.perf_counter() - clock
+    finally:
+        if undo is not None:
+            undo()
     missions = []
     for r in records:
         missions.append({"status": r.get("status"),
@@ -41,14 +49,14 @@ def _run(job):
                          "reason": r.get("reason"), "final_xy_error_m": _num(r.get("final_xy_error_m")),
                          "max_joint_error_deg": _num(r.get("max_joint_error_deg")),
                          "blc_iterations": int(r.get("blc_iterations") or 0)})
-    return settings, spec.index, wall, missions
+    return settings, spec.index, wall, missions, setup
 
 
 def _outcome(status: str, success: bool, planned: bool) -> str:
-    """A mission's label: walked / no_plan / failed when executed, else its status."""
-    if status != "executed":
-        return status
-    return OUTCOMES[0] if success else OUTCOMES[2] if planned else OUTCOMES[1]
+    """A mission's label: its outcome (training.OUTCOMES) when executed, else its status."""
+    from qz_drake.capability.training import OUTCOMES, outcome_classes
+
+    return OUTCOMES[int(outcome_classes(success, planned))] if status == "executed" else status
 
 
 def _num(x):
@@ -62,6 +70,7 @@ def main() -> None:
     parser.add_argument("out")
     parser.add_argument("--control-mode", default="position")
     parser.add_argument("--time-step", type=float, default=0.004)
+    parser.add_argument("--setup", default=None, help="MODULE:FUNCTION of benchmarks/ around the variant's episodes")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--summary-only", action="store_true", help="summarise OUT's runs again, run nothing")
     args = parser.parse_args()
@@ -85,10 +94,10 @@ def main() -> None:
             d = json.loads(line)
             results[(d["episode"], d["setting"])] = (d["wall_s"], d["missions"])
     else:
-        jobs = [(s, spec) for spec in specs for s in (settings, variant)]
+        jobs = [(s, spec, setup) for spec in specs for s, setup in ((settings, None), (variant, args.setup))]
         with get_context("spawn").Pool(args.workers, maxtasksperchild=20) as pool, open(args.out, "w") as out:
-            for used, index, wall, missions in pool.imap_unordered(_run, jobs):
-                name = "stored" if used == settings else "variant"
+            for used, index, wall, missions, setup in pool.imap_unordered(_run, jobs):
+                name = "stored" if used == settings and setup is None else "variant"
                 results[(index, name)] = (wall, missions)
                 out.write(json.dumps({"episode": index, "setting": name, "wall_s": wall, "missions": missions,
                                       "stored_outcomes": labels[index]}) + "\n")
