@@ -160,5 +160,4 @@ def plot_plan(heightmap, plan, path, *, title: str = "", walked_xy=None) -> Path
     right.set_title(f"VI: {plan.solution.iterations} iterations, {len(plan.steps)} actions, {outcome}")
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
-    return _save(fig, path)
+    return _save(fig, path)  # laid out there (a second tight_layout cost 50 ms, the same PNG)
