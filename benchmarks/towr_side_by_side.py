@@ -4,15 +4,17 @@ most half of TOWR's HyQ flat 1 m / 2 s, measured side by side on the same machin
 TOWR (https://github.com/ethz-adrl/towr, BSD-3) and ifopt (https://github.com/ethz-adrl/ifopt)
 are not part of this repository; give their source trees (git clones) and the script builds
 them (CMake, Release: -O3) against Debian's Ipopt with MUMPS, the solver TOWR uses, and
-compiles ``benchmarks/towr/hyq_flat.cc`` (TOWR's HyQ, its trot, flat ground, fixed phase
-durations, towr_ros's defaults; each solve a fresh problem, as TOWR's own app does):
+compiles ``benchmarks/towr/hyq_flat.cc`` (TOWR's HyQ on flat ground, fixed phase durations as
+towr_ros leaves them, each solve a fresh problem, as TOWR's own app does; two of TOWR's gaits:
+towr_ros's default overlap-walk and its trot stride, the gait of the BLC's HyQ preset):
 
     sudo apt-get install coinor-libipopt-dev libeigen3-dev cmake g++
     git clone https://github.com/ethz-adrl/towr /tmp/towr-src
     git clone https://github.com/ethz-adrl/ifopt /tmp/ifopt-src
     python benchmarks/towr_side_by_side.py --towr /tmp/towr-src --ifopt /tmp/ifopt-src [--rounds 3]
 
-Each round runs TOWR's HyQ flat 1 m / 2 s and 2 m / 3 s (``--repeats`` solves each, median),
+Each round runs TOWR's HyQ flat 1 m / 2 s and 2 m / 3 s in both gaits (``--repeats`` solves each,
+median),
 then, in a fresh interpreter, the BLC's Qingzhui and HyQ flat cases of ``qz bench blc``
 (``--repeats`` + 1 solves each; the first, which builds the schedule's parts, is left out: the
 "warm" median). Prints every round and the medians over the rounds with their ratios.
@@ -43,7 +45,10 @@ print(json.dumps(out))
 
 
 def _run(command, cwd=None) -> None:
-    result = subprocess.run(command, cwd=cwd, capture_output=True, text=True)
+    try:
+        result = subprocess.run(command, cwd=cwd, capture_output=True, text=True)
+    except FileNotFoundError:
+        sys.exit(f"{command[0]}: not found (apt-get install cmake g++ coinor-libipopt-dev libeigen3-dev)")
     if result.returncode:
         sys.exit(f"{' '.join(map(str, command))} failed:\n{(result.stdout + result.stderr)[-3000:]}")
 
@@ -66,8 +71,9 @@ def build(towr: Path, ifopt: Path, work: Path) -> Path:
     return binary
 
 
-def towr_case(binary: Path, repeats: int, distance: float, duration: float) -> dict:
-    run = subprocess.run([str(binary), str(repeats), str(distance), str(duration)], capture_output=True, text=True)
+def towr_case(binary: Path, repeats: int, distance: float, duration: float, gait: str) -> dict:
+    run = subprocess.run([str(binary), str(repeats), str(distance), str(duration), gait], capture_output=True,
+                         text=True)
     if run.returncode:
         sys.exit(f"{binary} failed:\n{run.stderr[-2000:]}")
     line = [s for s in run.stdout.splitlines() if s.startswith("{")][-1]
@@ -86,8 +92,8 @@ def main() -> None:
     binary = build(args.towr.resolve(), args.ifopt.resolve(), args.work)
     rounds = []
     for r in range(args.rounds):
-        entry = {"towr_hyq_flat_1m_2s": towr_case(binary, args.repeats, 1.0, 2.0),
-                 "towr_hyq_flat_2m_3s": towr_case(binary, args.repeats, 2.0, 3.0)}
+        entry = {f"towr_hyq_flat_{d:g}m_{t:g}s_{gait}": towr_case(binary, args.repeats, d, t, gait)
+                 for gait in ("walk", "trot") for d, t in ((1.0, 2.0), (2.0, 3.0))}
         ours = subprocess.run([sys.executable, "-c", _OURS, str(HERE), str(args.repeats)],
                               capture_output=True, text=True)
         if ours.returncode:
@@ -97,12 +103,11 @@ def main() -> None:
         print(f"round {r + 1}: " + ", ".join(f"{k} {v['s']:.3f} s ({v['iterations']} it.)" for k, v in entry.items()),
               flush=True)
     median = {k: statistics.median(e[k]["s"] for e in rounds) for k in rounds[0]}
-    print(json.dumps({"rounds": rounds, "median_s": median,
-                      "qz_flat_1m_2s_over_towr_hyq_flat_1m_2s": median["qz_flat_1m_2s"] / median["towr_hyq_flat_1m_2s"],
-                      "hyq_flat_1m_2s_over_towr": median["hyq_flat_1m_2s"] / median["towr_hyq_flat_1m_2s"],
-                      "qz_flat_2m_3s_over_towr_hyq_flat_2m_3s": median["qz_flat_2m_3s"] / median["towr_hyq_flat_2m_3s"],
-                      "hyq_flat_2m_3s_over_towr": median["hyq_flat_2m_3s"] / median["towr_hyq_flat_2m_3s"]}))
-
+    ratios = {f"{ours}_over_towr_{gait}": median[ours] / median[f"towr_hyq_flat_{length}_{gait}"]
+              for ours, length in (("qz_flat_1m_2s", "1m_2s"), ("hyq_flat_1m_2s", "1m_2s"),
+                                   ("qz_flat_2m_3s", "2m_3s"), ("hyq_flat_2m_3s", "2m_3s"))
+              for gait in ("walk", "trot")}
+    print(json.dumps({"rounds": rounds, "median_s": median, "ratios": ratios}))
 
 if __name__ == "__main__":
     main()
