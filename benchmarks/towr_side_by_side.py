@@ -14,10 +14,10 @@ towr_ros's default overlap-walk and its trot stride, the gait of the BLC's HyQ p
     python benchmarks/towr_side_by_side.py --towr /tmp/towr-src --ifopt /tmp/ifopt-src [--rounds 3]
 
 Each round runs TOWR's HyQ flat 1 m / 2 s and 2 m / 3 s in both gaits (``--repeats`` solves each,
-median),
-then, in a fresh interpreter, the BLC's Qingzhui and HyQ flat cases of ``qz bench blc``
-(``--repeats`` + 1 solves each; the first, which builds the schedule's parts, is left out: the
-"warm" median). Prints every round and the medians over the rounds with their ratios.
+median), then, in a fresh interpreter on this tree (tree_runs.run_in_tree), the BLC's Qingzhui
+and HyQ flat cases of ``qz bench blc`` (``--repeats`` + 1 solves each; the first, which builds
+the schedule's parts, is left out: the "warm" median). Prints every round and the medians over
+the rounds with their ratios.
 """
 
 import argparse
@@ -28,11 +28,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+from tree_runs import run_in_tree
+
 HERE = Path(__file__).resolve().parent
 
 _OURS = r"""
-import json, statistics, sys
-sys.path.insert(0, sys.argv[1])
+import json
 from bench_blc import hyq_cases, qingzhui_cases, solve_case
 repeats = int(sys.argv[2])
 cases = {**qingzhui_cases(True), **hyq_cases(True)}
@@ -94,11 +95,7 @@ def main() -> None:
     for r in range(args.rounds):
         entry = {f"towr_hyq_flat_{d:g}m_{t:g}s_{gait}": towr_case(binary, args.repeats, d, t, gait)
                  for gait in ("walk", "trot") for d, t in ((1.0, 2.0), (2.0, 3.0))}
-        ours = subprocess.run([sys.executable, "-c", _OURS, str(HERE), str(args.repeats)],
-                              capture_output=True, text=True)
-        if ours.returncode:
-            sys.exit(ours.stderr[-3000:])
-        entry.update(json.loads(ours.stdout.strip().splitlines()[-1]))
+        entry.update(run_in_tree(HERE.parent, _OURS, args.repeats))
         rounds.append(entry)
         print(f"round {r + 1}: " + ", ".join(f"{k} {v['s']:.3f} s ({v['iterations']} it.)" for k, v in entry.items()),
               flush=True)
