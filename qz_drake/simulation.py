@@ -119,7 +119,7 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
         out.mkdir(parents=True, exist_ok=True)
         if meshcat is None:
             meshcat = recording_meshcat()
-    station_diagram, info = station_factory(scenario, meshcat, mesh_dir=None if out is None else out / "terrain_mesh")
+    station_diagram, info = station_factory(scenario, meshcat)
     station = builder.AddSystem(station_diagram)
     _standing_controller(builder, station, info, scenario)
     state_log, contact_log, trunk_log = _log_station(builder, station)
@@ -384,8 +384,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         meshcat = meshcat or recording_meshcat()
-    built = build_walk(scenario, route_source=route_source, meshcat=meshcat,
-                       mesh_dir=None if out is None else out / "terrain_mesh", heightmap=heightmap,
+    built = build_walk(scenario, route_source=route_source, meshcat=meshcat, heightmap=heightmap,
                        blc_params=blc_params, station_factory=station_factory, mission_retries=mission_retries)
     if isinstance(built, WalkNotStarted):
         return _unplanned(scenario, out, built)

@@ -10,7 +10,11 @@ Two representations, both measured on drake 1.51 (issue 2):
   registered as *rigid hydroelastic*; the robot's collision geometry must then be compliant
   hydroelastic (see :func:`make_robot_proximity_properties`). A ``Mesh`` under point contact
   would be replaced by its convex hull (the robot floats), so the mesh is never used with
-  point contact.
+  point contact. What is drawn of it is the same surface with every planar rectangle of cells
+  merged into two triangles (``heightmap_surface_obj(..., merge_planar=True)``): the 20 m
+  long_range world is drawn with a tenth of the contact mesh's triangles (its recording was
+  26 MB, 12 MB of them the terrain). The meshes are held in memory (Drake's ``InMemoryMesh``),
+  in files only where ``mesh_dir`` asks.
 
 ``"auto"`` chooses boxes when the map decomposes into at most ``max_boxes`` rectangles.
 """
@@ -19,12 +23,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tempfile
 from pathlib import Path
 
 import numpy as np
+from pydrake.common import MemoryFile
 from pydrake.geometry import (AddCompliantHydroelasticProperties, AddContactMaterial,
-                              AddRigidHydroelasticProperties, Box, Mesh, ProximityProperties)
+                              AddRigidHydroelasticProperties, Box, InMemoryMesh, Mesh, ProximityProperties)
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
 
@@ -56,6 +60,9 @@ BAND_SHADE = 0.85
 # A mesh terrain is drawn as one visual mesh per band (the collision mesh stays whole); past this
 # many bands they are widened, so a map of any height range costs a bounded number of objects.
 MAX_VISUAL_BANDS = 48
+# Cells whose corners lie this close to one plane are drawn merged (far below what a screen
+# shows; the generators' planar features are planar to rounding error). [m]
+VISUAL_PLANAR_TOLERANCE = 1e-6
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,32 +144,84 @@ def point_contact_properties(material: GroundMaterial) -> ProximityProperties:
     return props
 
 
-def heightmap_surface_obj(heightmap, cell_mask: np.ndarray | None = None) -> str:
+def planar_rectangles(heights: np.ndarray, cell_mask: np.ndarray | None = None,
+                      tolerance: float = VISUAL_PLANAR_TOLERANCE) -> np.ndarray:
+    """Rectangles of quads (rows [iy0, iy1) x columns [ix0, ix1) of the (H-1, W-1) quads between
+    cell centres) that cover the quads of ``cell_mask`` (all: None), as an (n, 4) int array
+    ``(iy0, iy1, ix0, ix1)``; each rectangle's corners, and every cell centre inside it, lie on
+    one plane within ``tolerance`` [m]. A quad that is not planar is a rectangle of its own.
+
+    Quads are planar and share a plane when their height differences along x and along y are
+    the same (neighbours share an edge, so the same slopes mean the same plane). Runs of such
+    quads along each row become rectangles that grow down while the next row has the same run.
+    Where a rectangle meets smaller ones, their vertices on its edge lie on its plane, so the
+    surface has no cracks."""
+    h = np.asarray(heights, dtype=float)
+    rows, cols = h.shape[0] - 1, h.shape[1] - 1
+    slope_x = h[:-1, 1:] - h[:-1, :-1]
+    slope_y = h[1:, :-1] - h[:-1, :-1]
+    planar = np.abs(h[1:, 1:] - h[:-1, 1:] - slope_y) <= tolerance
+    mask = np.ones((rows, cols), dtype=bool) if cell_mask is None else np.asarray(cell_mask, dtype=bool)
+    merged = planar & mask
+    # A quad's plane, as integers: its slopes in units of the tolerance (-1, -1 where not merged).
+    plane_x = np.where(merged, np.round(slope_x / tolerance), -1).astype(np.int64)
+    plane_y = np.where(merged, np.round(slope_y / tolerance), -1).astype(np.int64)
+    rectangles = []
+    growing: dict[tuple[int, int, int, int], int] = {}  # (ix0, ix1, plane) -> iy0
+    for iy in range(rows):
+        edges = np.flatnonzero((np.diff(plane_x[iy]) != 0) | (np.diff(plane_y[iy]) != 0)
+                               | (np.diff(merged[iy].astype(np.int8)) != 0)) + 1
+        starts, ends = np.concatenate([[0], edges]), np.concatenate([edges, [cols]])
+        runs = {}
+        for ix0, ix1 in zip(starts.tolist(), ends.tolist()):
+            if merged[iy, ix0]:
+                run = (ix0, ix1, int(plane_x[iy, ix0]), int(plane_y[iy, ix0]))
+                runs[run] = growing.pop(run, iy)
+        rectangles += [(iy0, iy, ix0, ix1) for (ix0, ix1, _, _), iy0 in growing.items()]
+        growing = runs
+    rectangles += [(iy0, rows, ix0, ix1) for (ix0, ix1, _, _), iy0 in growing.items()]
+    single_y, single_x = np.nonzero(mask & ~planar)
+    singles = np.stack([single_y, single_y + 1, single_x, single_x + 1], axis=1)
+    return np.concatenate([np.asarray(rectangles, dtype=np.int64).reshape(-1, 4), singles])
+
+
+def heightmap_surface_obj(heightmap, cell_mask: np.ndarray | None = None, *, merge_planar: bool = False) -> str:
     """Wavefront OBJ text of the map's top surface (two triangles per pair of neighbouring
-    cell centres, normals up). ``cell_mask`` (H-1, W-1) keeps only some quads."""
+    cell centres, normals up). ``cell_mask`` (H-1, W-1) keeps only some quads. With
+    ``merge_planar`` (the surface as it is drawn) each planar rectangle of quads
+    (planar_rectangles) is two triangles: the same surface in fewer triangles."""
     h = np.asarray(heightmap.heights, dtype=float)
     H, W = h.shape
     xs = heightmap.origin[0] + heightmap.resolution * np.arange(W)
     ys = heightmap.origin[1] + heightmap.resolution * np.arange(H)
     X, Y = np.meshgrid(xs, ys)
     vertices = np.stack([X.ravel(), Y.ravel(), h.ravel()], axis=1)
-    idx = np.arange(H * W).reshape(H, W) + 1  # OBJ indices are 1-based
-    a, b = idx[:-1, :-1], idx[:-1, 1:]
-    c, d = idx[1:, :-1], idx[1:, 1:]
-    quads = np.ones((H - 1, W - 1), dtype=bool) if cell_mask is None else cell_mask
-    tri1 = np.stack([a[quads], b[quads], d[quads]], axis=1)
-    tri2 = np.stack([a[quads], d[quads], c[quads]], axis=1)
-    faces = np.concatenate([tri1, tri2])
-    used = np.unique(faces)
+    if merge_planar:
+        iy0, iy1, ix0, ix1 = planar_rectangles(h, cell_mask).T
+    else:
+        iy0, ix0 = np.nonzero(np.ones((H - 1, W - 1), dtype=bool) if cell_mask is None else cell_mask)
+        iy1, ix1 = iy0 + 1, ix0 + 1
+    a, b = iy0 * W + ix0, iy0 * W + ix1
+    c, d = iy1 * W + ix0, iy1 * W + ix1
+    faces = np.concatenate([np.stack([a, b, d], axis=1), np.stack([a, d, c], axis=1)])
     # Keep only the vertices the faces use, so each material's file is self-contained.
-    remap = np.zeros(H * W + 1, dtype=np.int64)
-    remap[used] = np.arange(1, len(used) + 1)
+    used, triangles = np.unique(faces, return_inverse=True)
     # One %-format over all numbers: a 400 x 400 map's text in 0.63 s instead of 1.56 s with a
     # loop over lines (the mesh terrain is written twice: whole for contact, in height bands to
     # be drawn).
-    kept, triangles = vertices[used - 1], remap[faces]
+    kept, triangles = vertices[used], triangles.reshape(faces.shape) + 1  # OBJ indices are 1-based
     return ("# qz_drake heightmap surface\n" + "v %.6f %.6f %.6f\n" * len(kept) % tuple(kept.ravel())
             + "f %d %d %d\n" * len(triangles) % tuple(triangles.ravel().tolist()))
+
+
+def _mesh(obj_text: str, name: str, directory: Path | None) -> Mesh:
+    """A Drake Mesh of OBJ text: written to ``directory``/``name`` where one is given, else in
+    memory."""
+    if directory is None:
+        return Mesh(InMemoryMesh(mesh_file=MemoryFile(obj_text, ".obj", name)))
+    path = directory / name
+    path.write_text(obj_text)
+    return Mesh(str(path))
 
 
 def _material_names(heightmap, default_material: str) -> tuple[str, ...]:
@@ -178,7 +237,8 @@ def add_heightmap_to_plant(plant: MultibodyPlant, heightmap, *, contact: str = "
     """Registers the map as world collision and visual geometry; returns "boxes" or "mesh".
 
     With "mesh" the robot's geometry must be compliant hydroelastic and the plant's contact
-    model hydroelastic-with-fallback (the station does both).
+    model hydroelastic-with-fallback (the station does both); its meshes are held in memory, or
+    written as ``.obj`` files to ``mesh_dir`` where it is given.
     """
     if contact not in CONTACT_KINDS:
         raise bad_value("terrain.contact", contact, f"expected one of {', '.join(CONTACT_KINDS)}",
@@ -217,8 +277,9 @@ def add_heightmap_to_plant(plant: MultibodyPlant, heightmap, *, contact: str = "
         raise bad_value("terrain.contact", contact,
                         f"this map needs more than {MAX_FORCED_BOXES} boxes; use 'mesh' or 'auto'",
                         TerrainError)
-    directory = Path(mesh_dir) if mesh_dir is not None else Path(tempfile.mkdtemp(prefix="qz_terrain_"))
-    directory.mkdir(parents=True, exist_ok=True)
+    directory = None if mesh_dir is None else Path(mesh_dir)
+    if directory is not None:
+        directory.mkdir(parents=True, exist_ok=True)
     # A quad takes the material of its lower-left cell.
     quad_material = (np.zeros(h.shape, dtype=np.int64) if labels is None else np.asarray(labels))[:-1, :-1]
     quad_mean = (h[:-1, :-1] + h[:-1, 1:] + h[1:, :-1] + h[1:, 1:]) / 4.0
@@ -227,22 +288,22 @@ def add_heightmap_to_plant(plant: MultibodyPlant, heightmap, *, contact: str = "
         mask = quad_material == m
         if not mask.any():
             continue
-        path = directory / f"terrain_{material.name}.obj"
-        path.write_text(heightmap_surface_obj(heightmap, mask))
         props = point_contact_properties(material)
         # Rigid terrain: the foot's compliance carries the material's stiffness (see
         # make_robot_proximity_properties); resolution_hint is unused for rigid meshes.
         AddRigidHydroelasticProperties(properties=props)
-        plant.RegisterCollisionGeometry(world, RigidTransform(), Mesh(str(path)),
+        plant.RegisterCollisionGeometry(world, RigidTransform(),
+                                        _mesh(heightmap_surface_obj(heightmap, mask),
+                                              f"terrain_{material.name}.obj", directory),
                                         f"terrain_mesh_{material.name}", props)
         # Drawn in height bands, one mesh each: a mesh takes one colour in meshcat. A quad's band
         # is that of its mean height.
         for index in np.unique(quad_band[mask]):
-            visual = directory / f"terrain_visual_{material.name}_{index}.obj"
-            visual.write_text(heightmap_surface_obj(heightmap, mask & (quad_band == index)))
+            visual = _mesh(heightmap_surface_obj(heightmap, mask & (quad_band == index), merge_planar=True),
+                           f"terrain_visual_{material.name}_{index}.obj", directory)
             rgba = terrain_rgba((index + 0.5) * band, low, high, band=band,
                                 material=material.name if by_material else None)
-            plant.RegisterVisualGeometry(world, RigidTransform(), Mesh(str(visual)),
+            plant.RegisterVisualGeometry(world, RigidTransform(), visual,
                                          f"terrain_mesh_{material.name}_{index}", rgba)
     return "mesh"
 
