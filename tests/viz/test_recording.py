@@ -1,5 +1,7 @@
 """What a recording shows (issue 39): the whole scene lit, the terrain coloured by height with
-every step apart from its neighbour, Qingzhui in colours of its own, and the simulated time."""
+every step apart from its neighbour, Qingzhui in colours of its own, and the simulated time; a
+page rendered in headless Chromium shows them (Debian's chromium: .ci/run installs it); its
+animation stored compactly."""
 
 import base64
 import re
@@ -19,10 +21,13 @@ from qz_drake.robot.params import LEG_NAMES
 from qz_drake.terrain import make_terrain
 from qz_drake.terrain.drake_geometry import (BAND_SHADE, HEIGHT_BAND, add_heightmap_to_plant, heightmap_surface_obj,
                                              terrain_rgba)
-from qz_drake.viz.recording import (AMBIENT_INTENSITY, ROBOT_COLOURS, ROBOT_PATH, recording_at, recording_meshcat,
-                                    recording_summary, save_recording)
+from qz_drake.viz.recording import (AMBIENT_INTENSITY, ANIMATION_TOLERANCE, ROBOT_COLOURS, ROBOT_PATH,
+                                    compact_animation, recording_at, recording_meshcat, recording_summary,
+                                    save_recording, thin_key_frames)
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--use-gl=swiftshader", "--enable-unsafe-swiftshader")
+NO_CHROMIUM = "needs chromium (apt-get install -y chromium; .ci/run installs it) to render recordings"
 DURATION = 0.5  # [s]
 
 
@@ -84,15 +89,69 @@ def test_page_shows_the_time_and_still_holds_the_walk(recording):
     assert summary["has_animation"] and summary["follows_robot"] and summary["shows_time"]
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="needs chromium (apt-get install -y chromium) to render recordings")
+@pytest.mark.skipif(CHROMIUM is None, reason=NO_CHROMIUM)
 def test_clock_reads_the_time_the_page_is_paused_at(recording, tmp_path):
     page = recording_at(recording, 0.25, tmp_path / "at.html", delay_ms=500)
-    dom = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--use-gl=swiftshader",
-                          "--enable-unsafe-swiftshader", "--virtual-time-budget=3000", "--dump-dom", page.as_uri()],
+    dom = subprocess.run([CHROMIUM, *CHROMIUM_FLAGS, "--virtual-time-budget=3000", "--dump-dom", page.as_uri()],
                          capture_output=True, text=True, timeout=240).stdout
     clock = re.search(r'id="qz-clock"[^>]*>([^<]*)<', dom)
     assert clock, dom[-2000:]
     assert clock.group(1) == f"t = 0.25 s / {DURATION:.2f} s"
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason=NO_CHROMIUM)
+def test_the_rendered_page_shows_the_robot_on_the_terrain_in_daylight(recording, tmp_path):
+    from PIL import Image
+
+    page = recording_at(recording, 0.25, tmp_path / "at.html", delay_ms=500)
+    shot = tmp_path / "shot.png"
+    subprocess.run([CHROMIUM, *CHROMIUM_FLAGS, "--virtual-time-budget=3000", "--window-size=800,600",
+                    f"--screenshot={shot}", page.as_uri()], capture_output=True, timeout=240)
+    image = np.asarray(Image.open(shot).convert("RGB"), dtype=float)
+    assert image.shape == (600, 800, 3)
+    # Neither a blank page nor a dark scene (a black canvas, meshcat's lights near the origin).
+    assert 60 < image.mean() < 240 and image.std() > 20, (image.mean(), image.std())
+    red, green, blue = image[..., 0], image[..., 1], image[..., 2]
+    share = {"orange trunk": np.mean((red > green + 50) & (green > blue + 40)),
+             "blue legs": np.mean((red < 90) & (blue > red + 90)),
+             "green terrain": np.mean((green > red + 20) & (green > blue + 10))}
+    assert share["orange trunk"] > 0.003 and share["blue legs"] > 0.0005 and share["green terrain"] > 0.05, share
+
+
+def test_key_frames_are_left_out_only_where_the_motion_is_a_straight_line():
+    times = np.arange(33.0)
+    # A straight line needs its ends; a corner needs the corner too.
+    assert thin_key_frames(times, np.column_stack([times, 2 * times]), 1e-3).tolist() == [0, 32]
+    corner = np.abs(times - 10.0)[:, None]
+    assert thin_key_frames(times, corner, 1e-3).tolist() == [0, 8, 10, 12, 16, 32]
+    # Anything else: what the viewer draws between the frames kept is within the tolerance.
+    rng = np.random.default_rng(0)
+    walk = np.cumsum(rng.normal(0.0, 1e-3, (500, 3)), axis=0)
+    kept = thin_key_frames(np.arange(500.0), walk, 2e-3)
+    assert 2 < len(kept) < 500 and kept[0] == 0 and kept[-1] == 499
+    drawn = np.column_stack([np.interp(np.arange(500.0), kept, walk[kept, k]) for k in range(3)])
+    assert np.abs(drawn - walk).max() <= 2e-3
+
+
+def test_the_saved_animation_holds_float32_arrays_within_the_tolerance(recording):
+    import msgpack
+
+    from qz_drake.viz.recording import _PAYLOAD
+
+    payload = next(base64.b64decode(m.group(1)) for m in _PAYLOAD.finditer(recording.read_bytes())
+                   if b"set_animation" in base64.b64decode(m.group(1))[:64])
+    tracks = [track for animation in msgpack.unpackb(payload, raw=False)["animations"]
+              for track in animation["clip"]["tracks"]]
+    assert tracks and all("keys" not in t for t in tracks if t["type"] in ANIMATION_TOLERANCE)
+    for track in tracks:
+        times = np.frombuffer(track["times"].data, dtype="<f4")
+        values = np.frombuffer(track["values"].data, dtype="<f4").reshape(len(times), -1)
+        assert track["times"].code == track["values"].code == 0x17  # meshcat's Float32Array
+        assert values.shape[1] == {"vector3": 3, "quaternion": 4}[track["type"]]
+        assert np.all(np.diff(times) > 0) and times[-1] == pytest.approx(DURATION * 32.0, abs=1.0)
+    # Another command passes unchanged.
+    other = msgpack.packb({"type": "set_property", "path": "/Grid", "property": "visible", "value": False})
+    assert compact_animation(other) == other
 
 
 def test_every_step_of_a_stair_differs_from_its_neighbours():
@@ -122,6 +181,11 @@ def test_mesh_terrain_is_drawn_in_height_bands_and_collides_as_one_mesh(tmp_path
     quads = (h[:-1, :-1] + h[:-1, 1:] + h[1:, :-1] + h[1:, 1:]) / 4.0
     bands = np.unique(np.floor(np.round(quads / HEIGHT_BAND, 6)))
     assert len(bands) > 1 and len(plant.GetVisualGeometriesForBody(plant.world_body())) == len(bands)
-    faces = sum(sum(line.startswith("f ") for line in path.read_text().splitlines())
-                for path in tmp_path.glob("terrain_visual_concrete_*.obj"))
-    assert faces == 2 * quads.size  # every quad drawn once
+    area = 0.0
+    for path in tmp_path.glob("terrain_visual_concrete_*.obj"):
+        lines = path.read_text().splitlines()
+        vertices = np.array([line.split()[1:3] for line in lines if line.startswith("v ")], dtype=float)
+        a, b, c = (vertices[np.array([int(line.split()[k]) for line in lines if line.startswith("f ")]) - 1]
+                   for k in (1, 2, 3))
+        area += 0.5 * np.sum((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0])
+    assert area == pytest.approx(quads.size * heightmap.resolution ** 2)  # every quad drawn once
