@@ -194,8 +194,9 @@ def test_a_run_is_compared_task_by_task_with_an_earlier_run_of_the_same_worlds(t
 
 
 def test_discordant_tasks_are_drawn_with_both_paths_and_where_the_failed_walk_stopped(tmp_path, capsys):
-    """`qz experiment report DIR --pictures`: a PNG per task that one planner walked and the other
-    did not (issue 38), listed in the report; concordant tasks and errors get none."""
+    """`qz experiment report RUN --pictures --out OUT`: a PNG per task that one planner walked and
+    the other did not (issue 38), in OUT/discordant and listed in the report; concordant tasks
+    and errors get none; nothing is written into RUN."""
     import json
 
     from qz_drake.cli import main
@@ -224,13 +225,22 @@ def test_discordant_tasks_are_drawn_with_both_paths_and_where_the_failed_walk_st
     found = discordant_tasks(records)
     assert [(t["task"], t["walked"], t["failed"]) for t in found] == [
         ("both-hard-3", "capplanner", "astar"), ("both-hard-4", "astar", "capplanner")]
-    assert main(["experiment", "report", str(tmp_path), "--pictures"]) == 0
+    # The pictures go to --out, never into the run's folder (data/fig9_decisive is tracked).
+    run, out = tmp_path / "run", tmp_path / "report"
+    run.mkdir()
+    for name in (RESULTS, "settings.json"):
+        (tmp_path / name).rename(run / name)
+    before = {p: p.stat().st_mtime_ns for p in run.rglob("*")}
+    assert main(["experiment", "report", str(run), "--pictures"]) == 2
+    assert "--out" in capsys.readouterr().err
+    assert main(["experiment", "report", str(run), "--pictures", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "Where each planner fails: 2 discordant tasks" in text
-    assert f"| both-hard-3 | CapPlanner | A* | leg_contact | {tmp_path / 'discordant' / 'both-hard-3.png'} |" in text
-    pictures = sorted(p.name for p in (tmp_path / "discordant").iterdir())
+    assert f"| both-hard-3 | CapPlanner | A* | leg_contact | {out / 'discordant' / 'both-hard-3.png'} |" in text
+    pictures = sorted(p.name for p in (out / "discordant").iterdir())
     assert pictures == ["both-hard-3.png", "both-hard-4.png"]
-    assert all((tmp_path / "discordant" / p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pictures)
+    assert all((out / "discordant" / p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pictures)
+    assert {p: p.stat().st_mtime_ns for p in run.rglob("*")} == before
 
 
 def test_route_calibration_sets_predicted_against_walked_and_counts_declined_tasks(tmp_path, capsys):

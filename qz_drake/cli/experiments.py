@@ -6,6 +6,7 @@ run's walks (qz_drake.experiments.walk_scores)."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 
 def _switches(text: str | None, flag: str) -> tuple[bool, ...] | None:
@@ -59,17 +60,22 @@ def run_fig9(args) -> int:
 def run_report(args) -> int:
     from qz_drake.experiments.fig9 import report, report_markdown
 
+    if args.pictures and args.out is None:
+        from qz_drake.errors import bad_value
+
+        raise bad_value("--out", None, "needed by --pictures, which draws into a folder of its own (e.g. --out "
+                                       "out/fig9_report; into the run's folder only where you name it)")
     if args.predict:
         from qz_drake.experiments.fig9 import predict_routes
 
-        predict_routes(args.out, progress=not args.json)
-    summary = report(args.out, against=args.against)
+        predict_routes(args.run, progress=not args.json)
+    summary = report(args.run, against=args.against)
     if args.pictures:
         from qz_drake.experiments.fig9 import discordant_pictures
 
         summary["discordant"] = [{"task": t["task"], "walked": t["walked"], "failed": t["failed"],
                                   "reason": t["records"][t["failed"]]["reason"], "picture": t["picture"]}
-                                 for t in discordant_pictures(args.out)]
+                                 for t in discordant_pictures(args.run, folder=Path(args.out) / "discordant")]
     print(json.dumps(summary) if args.json else report_markdown(summary))
     return 0
 
@@ -271,19 +277,22 @@ def register(subparsers) -> None:
     p.set_defaults(func=run_fig9)
 
     p = sub.add_parser("report", help="the tables of a capplanner-vs-astar results folder (a run in progress too)")
-    p.add_argument("out", help="results folder of qz experiment capplanner-vs-astar")
+    p.add_argument("run", help="results folder of qz experiment capplanner-vs-astar (read; --predict adds its "
+                               "predictions.jsonl there)")
     p.add_argument("--json", action="store_true", help="print one JSON line instead of Markdown tables")
     p.add_argument("--against", default=None,
                    help="another results folder of the same worlds (an earlier model, BLC or tuning): "
                         "each planner paired with its own walks there")
     p.add_argument("--predict", action="store_true",
                    help="first replan every CapPlanner task from its start with the run's model and settings "
-                        "(predictions.jsonl, resumable; minutes) to add the route calibration table")
+                        "(predictions.jsonl in RUN, resumable; minutes) to add the route calibration table")
     p.add_argument("--pictures", action="store_true",
                    help="draw every discordant task (one planner walked it, the other did not): both walked "
-                        "paths and where the failed one stopped, as OUT/discordant/<task>.png")
-    # `out` names a folder to read here, not an output for qz's --out checks.
-    p.set_defaults(func=run_report, out_kind=None)
+                        "paths and where the failed one stopped, as OUT/discordant/<task>.png (needs --out)")
+    p.add_argument("--out", default=None,
+                   help="folder for the --pictures (e.g. out/fig9_report; the run's own folder rewrites the "
+                        "pictures shipped there)")
+    p.set_defaults(func=run_report)
 
     p = sub.add_parser("score-missions", help="a capability model against the missions of a run's walks "
                                               "(a run with record_missions; issue 37)")
