@@ -750,7 +750,8 @@ def walking_metrics(scenario, info, log, targets, times, states, contacts, trunk
         "joint_tracking_rms_rad": joint_rms,
         "missions": len(log.plans),
         "planner_failures": len(log.failures),
-        # False when the station cannot see leg-link contacts (the LCM hardware interface): the
-        # verdict then has not checked them.
-        "leg_contact_observed": leg_link_force is not None,
+        # Whether the verdict has checked the leg links' contacts (leg_terrain_contacts, the
+        # samples with a leg link on the terrain): False where the station cannot see them (the
+        # LCM hardware interface).
+        "leg_contacts_checked": leg_link_force is not None,
     }
