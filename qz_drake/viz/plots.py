@@ -73,6 +73,77 @@ def plot_standing(times, states, contacts, info, path: str | Path) -> Path:
     return Path(path)
 
 
+# The longest stretch of a walk whose contact phases are drawn step by step: a tripod cycle is
+# 0.8 s, so 8 s shows ten of them; over a whole 110 s walk, one shaded band per contact merged
+# into a solid block.
+CONTACT_WINDOW = 8.0  # [s]
+
+
+def contact_window(times, foot_z, window: float = CONTACT_WINDOW) -> tuple[float, float]:
+    """The stretch (start, end) [s] of a walk whose contact phases plot_foot_heights draws: all of
+    it when it is at most ``window`` long, else ``window`` around the moment a foot is highest
+    (the walk's steepest climb), inside the walk."""
+    start, end = float(times[0]), float(times[-1])
+    if end - start <= window:
+        return start, end
+    highest = float(times[np.unravel_index(int(np.argmax(foot_z)), foot_z.shape)[0]])
+    first = min(max(highest - window / 2, start), end - window)
+    return first, first + window
+
+
+def plot_foot_heights(times, foot_z, contacts, path: str | Path, window: float = CONTACT_WINDOW) -> Path:
+    """Each foot's height, shaded where it is in contact, one row per leg. ``foot_z`` (N, 6) [m],
+    ``contacts`` (N, 6) 1 in contact. A walk longer than ``window`` gets an overview of its
+    whole length on top (the heights of the feet in contact, i.e. the ground under the robot, and
+    up to the highest foot; the stretch below marked) and its rows show the stretch of
+    contact_window, where each step reads on its own."""
+    times, foot_z, contacts = np.asarray(times), np.asarray(foot_z), np.asarray(contacts)
+    first, last = contact_window(times, foot_z, window)
+    whole = first <= times[0] and last >= times[-1]
+    rows = 6 if whole else 7
+    fig, axes = plt.subplots(rows, 1, figsize=(10, 9 if whole else 10.5), sharex=False,
+                             gridspec_kw={"height_ratios": [1] * 6 if whole else [1.6] + [1] * 6})
+    leg_axes = axes if whole else axes[1:]
+    if not whole:
+        overview = axes[0]
+        # Over one second (more than a tripod cycle) at each sample, so that a band follows the
+        # terrain rather than every step.
+        from scipy.ndimage import maximum_filter1d, minimum_filter1d
+
+        second = max(1, int(round(1.0 / max(float(np.median(np.diff(times))), 1e-6))))
+        in_contact = contacts > 0.5
+        low = minimum_filter1d(np.where(in_contact, foot_z, np.inf).min(axis=1), second)
+        high = maximum_filter1d(np.where(in_contact, foot_z, -np.inf).max(axis=1), second)
+        highest = maximum_filter1d(foot_z.max(axis=1), second)
+        low, high = np.where(np.isfinite(low), low, np.nan), np.where(np.isfinite(high), high, np.nan)
+        overview.fill_between(times, low, highest, color="C0", alpha=0.2, lw=0,
+                              label="feet in the air, up to the highest")
+        overview.fill_between(times, low, high, color="g", alpha=0.6, lw=0, label="feet in contact")
+        overview.axvspan(first, last, color="0.5", alpha=0.3, lw=0)
+        overview.set_xlim(times[0], times[-1])
+        overview.set_ylabel("height [m]")
+        overview.set_title(f"the whole walk; below, {first:.0f}-{last:.0f} s (grey), where a foot is highest",
+                           fontsize=10)
+        overview.legend(ncol=2, fontsize=8, loc="upper left")
+    shown = (times >= first) & (times <= last)
+    for i, leg in enumerate(LEG_NAMES):
+        ax = leg_axes[i]
+        z = foot_z[shown, i]
+        ax.plot(times[shown], z, "C0")
+        lo, hi = z.min(), z.max() + 1e-3
+        ax.fill_between(times[shown], lo, hi, where=contacts[shown, i] > 0.5, color="g", alpha=0.2, step="post")
+        ax.set_xlim(first, last)
+        ax.set_ylabel(leg)
+        if i < 5:
+            ax.tick_params(labelbottom=False)
+    leg_axes[-1].set_xlabel("time [s] (green: foot in contact)")
+    fig.suptitle("foot heights [m] and contact phases")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return Path(path)
+
+
 def plot_walk(times, states, contacts, desired, log, info, out_dir: str | Path) -> dict:
     """Planned vs tracked base path and height, foot heights with contact phases, joint
     tracking error. Returns {name: path}."""
@@ -105,18 +176,7 @@ def plot_walk(times, states, contacts, desired, log, info, out_dir: str | Path) 
 
     feet = np.array([all_foot_positions(x[JOINT_Q], info.params) @ base_pose(x).rotation().matrix().T + x[BASE_POS]
                      for x in states])
-    fig, axes = plt.subplots(6, 1, figsize=(10, 9), sharex=True)
-    for i, leg in enumerate(LEG_NAMES):
-        axes[i].plot(times, feet[:, i, 2], "C0")
-        lo, hi = feet[:, i, 2].min(), feet[:, i, 2].max() + 1e-3
-        axes[i].fill_between(times, lo, hi, where=contacts[:, i] > 0.5, color="g", alpha=0.2, step="post")
-        axes[i].set_ylabel(leg)
-    axes[-1].set_xlabel("time [s] (green: foot in contact)")
-    fig.suptitle("foot heights [m] and contact phases")
-    fig.tight_layout()
-    files["feet_plot"] = str(out / "foot_heights.png")
-    fig.savefig(files["feet_plot"], dpi=100)
-    plt.close(fig)
+    files["feet_plot"] = str(plot_foot_heights(times, feet[:, :, 2], contacts, out / "foot_heights.png"))
 
     fig, ax = plt.subplots(figsize=(10, 3.5))
     error = np.degrees(np.abs(states[:, JOINT_Q] - desired[:, :18]))
