@@ -67,11 +67,13 @@ class ProgressReport:
                  completed: float = 0.0, enabled: bool = True, console=None,
                  interval: float = PLAIN_LINE_INTERVAL):
         self.description, self.total, self.unit, self.digits = description, total, unit, int(digits)
-        self.completed = self._resumed_from = float(completed)
+        self.completed = float(completed)
         self.status = ""
         self.enabled = bool(enabled)
         self.interval = float(interval)
         self._start = self._last_line = time.perf_counter()
+        # Where the plain lines' rate counts from: the start, or the start of the last stage.
+        self._rate_start, self._rate_from = self._start, self.completed
         self._bar = None
         self._console = None
         if not self.enabled:
@@ -103,9 +105,10 @@ class ProgressReport:
         return f"{done}/{total} {self.unit}".rstrip()
 
     def eta_seconds(self) -> float | None:
-        """Seconds left at the rate of this run so far; None while it cannot be told."""
-        elapsed = time.perf_counter() - self._start
-        done = self.completed - self._resumed_from
+        """Seconds left at the rate of this run so far (since its last stage began, see
+        ``begin``); None while it cannot be told."""
+        elapsed = time.perf_counter() - self._rate_start
+        done = self.completed - self._rate_from
         if self.total is None or done <= 0 or elapsed <= 0:
             return None
         return max(self.total - self.completed, 0.0) * elapsed / done
@@ -119,10 +122,23 @@ class ProgressReport:
                 f"{_clock(time.perf_counter() - self._start)} elapsed"
                 + ("" if eta is None or not math.isfinite(eta) else f", ETA {_clock(eta)}"))
 
+    def begin(self, description: str | None = None, completed: float | None = None, *,
+              total: float | None = None, status: str | None = None) -> None:
+        """A new stage of the run begins (the demo: walking, after building and planning), at
+        ``completed`` done (and, where given, the new total, description and status): the ETA
+        takes its rate from here on, since what came before went at another pace (the demo's
+        planning made its first ETA 1.7 times the time left). A log gets a line at once, so
+        that it shows when the stage began."""
+        if completed is not None:
+            self.completed = float(completed)
+        self._rate_start, self._rate_from = time.perf_counter(), self.completed
+        self.update(total=total, description=description, status=status, line_now=True)
+
     def update(self, completed: float | None = None, *, advance: float | None = None, total: float | None = None,
-               description: str | None = None, status: str | None = None) -> None:
+               description: str | None = None, status: str | None = None, line_now: bool = False) -> None:
         """Sets the amount done (or adds ``advance``) and, where given, the total, the
-        description and the status text."""
+        description and the status text; ``line_now``: a log gets its line now, whatever the
+        interval."""
         if completed is not None:
             self.completed = float(completed)
         if advance is not None:
@@ -138,7 +154,7 @@ class ProgressReport:
                              amount=self.amount(), status=self.status)
         elif self.enabled:
             now = time.perf_counter()
-            if now - self._last_line >= self.interval:
+            if line_now or now - self._last_line >= self.interval:
                 self._last_line = now
                 self._console.file.write(self.line() + "\n")
                 self._console.file.flush()
@@ -153,13 +169,20 @@ class ProgressReport:
 
 def simulation_progress(report: ProgressReport, description: str | None = None):
     """A progress hook for qz_drake.simulation.simulate / walk: the simulated time against the
-    run's end on ``report`` (described as ``description`` from its first call on), and the
-    missions planned so far."""
+    run's end on ``report`` (a new stage from its first call on, described as ``description``),
+    and the missions planned so far."""
+
+    started = False
 
     def hook(sim_time: float, end_time: float, missions: int | None) -> None:
+        nonlocal started
         status = "" if missions is None else f"{missions} missions planned"
         if sim_time >= end_time:
             status = (status + ", " if status else "") + "writing the results"
-        report.update(sim_time, total=end_time, description=description, status=status)
+        if started:
+            report.update(sim_time, total=end_time, description=description, status=status)
+        else:  # the simulation runs: building the diagram and planning are over
+            started = True
+            report.begin(description, sim_time, total=end_time, status=status)
 
     return hook

@@ -87,6 +87,24 @@ def test_the_hook_shows_simulated_time_and_missions():
         assert report.status == "5 missions planned, writing the results"
 
 
+def test_the_eta_takes_its_rate_from_the_stage_that_runs(monkeypatch):
+    # The demo plans for a while before it walks: an ETA from the whole elapsed time, planning
+    # included, was 1.7 times the time left.
+    import qz_drake.progress as progress
+
+    clock = [100.0]
+    monkeypatch.setattr(progress.time, "perf_counter", lambda: clock[0])
+    log = io.StringIO()
+    report = ProgressReport("demo: planning", unit="s simulated", console=Console(file=log), interval=3600)
+    hook = simulation_progress(report, "demo: walking")
+    clock[0] += 20.0  # planning
+    hook(0.5, 100.5, 1)
+    assert log.getvalue().startswith("demo: walking: 0/100 s simulated (0 %), 1 missions planned, 0:00:20 elapsed")
+    clock[0] += 10.0  # 10 s simulated in 10 s
+    hook(10.5, 100.5, 3)
+    assert report.eta_seconds() == pytest.approx(90.0)
+
+
 def test_simulate_command_keeps_stdout_json_with_the_bar_on_stderr(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("TTY_COMPATIBLE", "1")  # as on a terminal
     assert main(["simulate", str(SCENARIOS / "stand_flat.yaml"), "--duration", "0.4", "--out", str(tmp_path)]) == 0
