@@ -1,4 +1,5 @@
-"""``qz robot-sim``: the simulated robot driver behind the LCM protocol (issue 16).
+"""``qz robot-sim``, the simulated robot driver behind the LCM protocol; ``qz servo``, the joint
+PD that answers the robot from the references a planning process sends; ``qz lcm-relay``.
 
 ``qz robot-sim SCENARIO.yaml --lcm-url URL [--duration S] [--realtime-rate R]
 [--hardware CONFIG.yaml] [--meshcat]`` runs the scenario's simulation station as a robot driver: paced to
@@ -79,6 +80,26 @@ def run_robot_sim(args) -> int:
     return 0
 
 
+def run_servo(args) -> int:
+    from qz_drake.config import load_scenario
+    from qz_drake.hardware.servo import serve
+
+    scenario = load_scenario(args.scenario)
+    if not (math.isfinite(args.realtime_rate) and args.realtime_rate > 0):
+        raise bad_value("--realtime-rate", args.realtime_rate, "must be a positive pace (1: real time)")
+    if args.parent_pid is not None and args.parent_pid <= 0:
+        raise bad_value("--parent-pid", args.parent_pid, "must be a process id")
+    config = load_hardware_file(args.hardware)
+
+    def ready():
+        print(json.dumps({"servo": "serving", "lcm_url": args.lcm_url}), flush=True)
+
+    report = serve(scenario, lcm_url=args.lcm_url, config=config, realtime_rate=args.realtime_rate,
+                   parent_pid=args.parent_pid, ready=ready)
+    print(json.dumps(report), flush=True)
+    return 1 if report["safe_stop"] else 0
+
+
 def run_lcm_relay(args) -> int:
     from qz_drake.hardware.relay import LcmTcpRelay
 
@@ -105,6 +126,17 @@ def register(subparsers) -> None:
     p.add_argument("--hardware", default=None, help="protocol settings YAML (qz_drake.hardware.config)")
     p.add_argument("--meshcat", action="store_true", help="draw the simulated robot in meshcat")
     p.set_defaults(func=run_robot_sim)
+
+    p = subparsers.add_parser("servo", help="the joint PD answering the robot from a planning process's references")
+    p.add_argument("scenario", help="scenario YAML file (gains, control mode, the standing start)")
+    p.add_argument("--lcm-url", default=tcpq_url(DEFAULT_RELAY_PORT),
+                   help="LCM URL of the robot and the planning process (default: the `qz lcm-relay` on this "
+                        "machine)")
+    p.add_argument("--realtime-rate", type=float, default=1.0, help="pacing: the robot's (1: real time)")
+    p.add_argument("--hardware", default=None, help="protocol settings YAML (qz_drake.hardware.config)")
+    p.add_argument("--parent-pid", type=int, default=None,
+                   help="the planning process that started it: a safe stop when that process exits")
+    p.set_defaults(func=run_servo)
 
     p = subparsers.add_parser("lcm-relay", help="LCM's tcpq:// relay on 127.0.0.1, for processes on this machine")
     p.add_argument("--port", type=int, default=DEFAULT_RELAY_PORT,

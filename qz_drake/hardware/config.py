@@ -31,6 +31,12 @@ class ChannelConfig:
     command: str = "QZ_COMMAND"
     # Localisation -> controller: qz_pose (base position and velocity in the map).
     pose: str = "QZ_POSE"
+    # Planning process -> servo: qz_reference tables, one per plan (qz_drake.hardware.servo).
+    reference: str = "QZ_REFERENCE"
+    # Planning process -> servo: qz_planner heartbeats.
+    planner: str = "QZ_PLANNER"
+    # Servo -> planning process: qz_servo, once per control period.
+    servo: str = "QZ_SERVO"
 
 
 @dataclasses.dataclass
@@ -67,12 +73,22 @@ class HardwareConfig:
     # this PD (position mode: the drives' own PD holds them). [N*m/rad], [N*m*s/rad]
     safe_stop_kp: float = 1000.0
     safe_stop_kd: float = 20.0
+    # The servo latches a safe stop when the planning process's heartbeat has been silent this
+    # long (a process that exited or hung). Its heartbeat comes from a thread of its own every
+    # PLANNER_HEARTBEAT_PERIOD, also while it solves; a single compiled call that holds the
+    # interpreter (a value iteration over a large map) can delay it by a second or more, and a
+    # late plan only makes the robot stand, so the budget is generous. [s]
+    planner_timeout: float = 2.0
+    # The planning process runs its simulation at most this far ahead of the servo's plan
+    # clock: a mission starts this much earlier than on the lockstep clock, at most. [s]
+    plan_lead: float = 0.05
 
 
 def validate_hardware_config(config: HardwareConfig) -> HardwareConfig:
     """Checks values the YAML types cannot; returns the config."""
     for name in ("control_period", "pose_period", "status_timeout", "command_timeout",
-                 "clock_tolerance", "max_pose_extrapolation", "safe_stop_kp", "safe_stop_kd"):
+                 "clock_tolerance", "max_pose_extrapolation", "safe_stop_kp", "safe_stop_kd", "planner_timeout",
+                 "plan_lead"):
         value = getattr(config, name)
         if not (math.isfinite(value) and value > 0):
             raise bad_value(f"hardware.{name}", value, "must be a finite positive number")
@@ -81,7 +97,7 @@ def validate_hardware_config(config: HardwareConfig) -> HardwareConfig:
                         f"must exceed one control period ({config.control_period} s)")
     if config.joint_limit_margin < 0:
         raise bad_value("hardware.joint_limit_margin", config.joint_limit_margin, "must be >= 0")
-    for name in ("status", "command", "pose"):
+    for name in ("status", "command", "pose", "reference", "planner", "servo"):
         if not getattr(config.channels, name):
             raise bad_value(f"hardware.channels.{name}", "", "a channel needs a name")
     return config

@@ -37,8 +37,8 @@ from qz_drake.hardware.codec import (EncodedMessageSerializer, decode, joint_lim
 from qz_drake.hardware.config import HardwareConfig, validate_hardware_config
 from qz_drake.hardware.pacer import StatusPacer
 from qz_drake.hardware.qz_lcm import qz_command, qz_pose, qz_status
-from qz_drake.hardware.watchdog import (LinkState, WatchdogLimits, declare_message_intake, reset_watchdog,
-                                       step_watchdog)
+from qz_drake.hardware.watchdog import (LinkState, WatchdogLimits, declare_message_intake, latch_watchdog,
+                                       reset_watchdog, step_watchdog)
 from qz_drake.robot.params import DEFAULT_PARAMS, NUM_JOINTS, NUM_LEGS, QingzhuiParams
 from qz_drake.robot.topology import get_topology
 from qz_drake.scene import StationInfo, crop_to_region, default_region, make_heightmap, standing_state
@@ -155,6 +155,11 @@ class StatusReceiver(LeafSystem):
         state = context.get_mutable_abstract_state(self._link)
         state.set_value(reset_watchdog(state.get_value()))
 
+    def latch(self, context, reason: str) -> None:
+        """Latches the safe stop with ``reason`` (``context`` is this system's)."""
+        state = context.get_mutable_abstract_state(self._link)
+        state.set_value(latch_watchdog(state.get_value(), reason, context.get_time()))
+
     def _update(self, context, state):
         t = context.get_time()
         track = self._update_pose(context, context.get_abstract_state(self._pose_track).get_value())
@@ -174,43 +179,53 @@ class StatusReceiver(LeafSystem):
                     dataclasses.replace(track, stale=track.stale + 1))
 
     def _update_pose(self, context, track: PoseTrack) -> PoseTrack:
-        data = self._pose.Eval(context)
-        p, problem = decode(qz_pose, data)
-        key = message_key(p, problem, data)
-        if key == (0, 0) or key == track.last_key:
-            return track
-        if problem or pose_problem(p):
-            return dataclasses.replace(track, last_key=key, received=track.received + 1,
-                                       rejected=track.rejected + 1)
-        return PoseTrack(last_key=key, have_pose=True, utime=key[0], position=tuple(p.position),
-                         velocity=tuple(p.linear_velocity), received=track.received + 1,
-                         rejected=track.rejected, stale=track.stale)
+        return updated_pose_track(track, self._pose.Eval(context))
 
     def _decode(self, m: qz_status, track: PoseTrack, context) -> np.ndarray:
-        # Plain floats where numpy's per-call overhead would dominate 3- and 4-vectors.
         held = context.get_discrete_state(self._held).get_value().copy()
-        w, qx, qy, qz = m.orientation
-        norm = math.sqrt(w * w + qx * qx + qy * qy + qz * qz)
-        w, qx, qy, qz = w / norm, qx / norm, qy / norm, qz / norm
-        held[BASE_QUAT] = (w, qx, qy, qz)
-        # R_WB of the unit quaternion, applied to the gyro's base-frame rate: w_WB in world.
-        R_WB = np.array([[1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - w * qz), 2 * (qx * qz + w * qy)],
-                         [2 * (qx * qy + w * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - w * qx)],
-                         [2 * (qx * qz - w * qy), 2 * (qy * qz + w * qx), 1 - 2 * (qx * qx + qy * qy)]])
-        held[BASE_ANGVEL] = R_WB @ m.angular_velocity
-        held[JOINT_Q] = m.joint_position
-        held[JOINT_V] = m.joint_velocity
-        if track.have_pose:
-            # The pose may be older than the status (a slower localisation): carry it forward.
-            age = min(max((m.utime - track.utime) * 1e-6, 0.0), self._config.max_pose_extrapolation)
-            held[BASE_POS] = [p + age * v for p, v in zip(track.position, track.velocity)]
-            held[BASE_VEL] = track.velocity
-        held[_TAU] = m.joint_torque
-        held[_IMU.start:_IMU.start + 4] = held[BASE_QUAT]
-        held[_IMU.start + 4:_IMU.stop] = m.angular_velocity + m.linear_acceleration
-        held[_CONTACT] = m.foot_contact
-        held[_DRIVER_STOP] = m.safe_stop
-        return held
+        return decoded_status(held, m, track, self._config.max_pose_extrapolation)
+
+
+def updated_pose_track(track: PoseTrack, data: bytes) -> PoseTrack:
+    """The pose track after the newest encoded qz_pose (``data``; b"" before the first)."""
+    p, problem = decode(qz_pose, data)
+    key = message_key(p, problem, data)
+    if key == (0, 0) or key == track.last_key:
+        return track
+    if problem or pose_problem(p):
+        return dataclasses.replace(track, last_key=key, received=track.received + 1,
+                                   rejected=track.rejected + 1)
+    return PoseTrack(last_key=key, have_pose=True, utime=key[0], position=tuple(p.position),
+                     velocity=tuple(p.linear_velocity), received=track.received + 1,
+                     rejected=track.rejected, stale=track.stale)
+
+
+def decoded_status(held: np.ndarray, m: qz_status, track: PoseTrack, max_pose_extrapolation: float) -> np.ndarray:
+    """``held`` (a StatusReceiver's held vector: state, measured torque, IMU, contacts, the
+    driver's flag) updated in place from a checked status and the pose track; returns it."""
+    # Plain floats where numpy's per-call overhead would dominate 3- and 4-vectors.
+    w, qx, qy, qz = m.orientation
+    norm = math.sqrt(w * w + qx * qx + qy * qy + qz * qz)
+    w, qx, qy, qz = w / norm, qx / norm, qy / norm, qz / norm
+    held[BASE_QUAT] = (w, qx, qy, qz)
+    # R_WB of the unit quaternion, applied to the gyro's base-frame rate: w_WB in world.
+    R_WB = np.array([[1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - w * qz), 2 * (qx * qz + w * qy)],
+                     [2 * (qx * qy + w * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - w * qx)],
+                     [2 * (qx * qz - w * qy), 2 * (qy * qz + w * qx), 1 - 2 * (qx * qx + qy * qy)]])
+    held[BASE_ANGVEL] = R_WB @ m.angular_velocity
+    held[JOINT_Q] = m.joint_position
+    held[JOINT_V] = m.joint_velocity
+    if track.have_pose:
+        # The pose may be older than the status (a slower localisation): carry it forward.
+        age = min(max((m.utime - track.utime) * 1e-6, 0.0), max_pose_extrapolation)
+        held[BASE_POS] = [p + age * v for p, v in zip(track.position, track.velocity)]
+        held[BASE_VEL] = track.velocity
+    held[_TAU] = m.joint_torque
+    held[_IMU.start:_IMU.start + 4] = held[BASE_QUAT]
+    held[_IMU.start + 4:_IMU.stop] = m.angular_velocity + m.linear_acceleration
+    held[_CONTACT] = m.foot_contact
+    held[_DRIVER_STOP] = m.safe_stop
+    return held
 
 
 class CommandSender(LeafSystem):
@@ -386,6 +401,11 @@ class QingzhuiHardwareInterface(Diagram):
     def reset_safe_stop(self, root_context) -> None:
         """Unlatches the safe stop (operator action); the next valid status re-arms."""
         self._receiver.reset(self._receiver.GetMyMutableContextFromRoot(root_context))
+
+    def latch_safe_stop(self, root_context, reason: str) -> None:
+        """Latches the safe stop for a cause outside the link (the servo's planner gone): the
+        commands are safe stops from the next period on, until ``reset_safe_stop``."""
+        self._receiver.latch(self._receiver.GetMyMutableContextFromRoot(root_context), reason)
 
 
 def scenario_station_info(scenario: Scenario) -> StationInfo:

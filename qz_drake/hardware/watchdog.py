@@ -140,6 +140,11 @@ def step_watchdog(state: LinkState, key: tuple[int, int], problem: str, t: float
     return (_latch(state, reason, t) if reason else state), True
 
 
+def latch_watchdog(state: LinkState, reason: str, t: float) -> LinkState:
+    """Latches a safe stop for a cause the link itself did not show (the first cause stays)."""
+    return _latch(state, reason, t)
+
+
 def reset_watchdog(state: LinkState) -> LinkState:
     """Unlatches; the next valid message re-arms the watchdog (no continuity check against the
     messages before the reset). Counters are kept."""

@@ -136,3 +136,27 @@ class JointPdController(LeafSystem):
         # np.clip's values, without its Python wrapper (this runs at every plant step).
         output.SetFromVector(np.minimum(np.maximum(tau, -self._limit), self._limit))
 
+
+
+def add_joint_pd(builder, station, references, *, params: QingzhuiParams, kp: float, kd: float,
+                 position_mode: bool = False, update_period: float | None = None) -> JointPdController:
+    """Adds Eq. 7's JointPdController between a system of references and a station; returns it.
+
+    ``references`` has the InverseKinematicsTracker's outputs (``desired_state``,
+    ``foot_force_feedforward``, and in position mode ``position_command`` and
+    ``velocity_command``): the tracker itself, or the servo's ReferencePlayer. In position mode
+    q_des and v_des go to the station's ``joint_position_command`` and
+    ``joint_velocity_command`` (the drives' PD tracks them) and the controller adds only the
+    compensation and force feedforward, every ``update_period`` (the references' period).
+    """
+    if position_mode:
+        controller = builder.AddSystem(JointPdController(kp=0.0, kd=0.0, params=params, update_period=update_period))
+        builder.Connect(references.GetOutputPort("position_command"), station.GetInputPort("joint_position_command"))
+        builder.Connect(references.GetOutputPort("velocity_command"), station.GetInputPort("joint_velocity_command"))
+    else:
+        controller = builder.AddSystem(JointPdController(kp=kp, kd=kd, params=params))
+    builder.Connect(station.GetOutputPort("state"), controller.GetInputPort("state"))
+    builder.Connect(references.GetOutputPort("desired_state"), controller.GetInputPort("desired_state"))
+    builder.Connect(references.GetOutputPort("foot_force_feedforward"), controller.GetInputPort("foot_force_feedforward"))
+    builder.Connect(controller.GetOutputPort("joint_torque"), station.GetInputPort("joint_torque"))
+    return controller

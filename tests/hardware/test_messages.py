@@ -26,7 +26,7 @@ def test_generated_python_matches_the_message_definitions(tmp_path):
     lcm_gen = _lcm_gen()
     assert lcm_gen, "lcm-gen not found (pip install lcm)"
     definitions = sorted((HARDWARE / "messages").glob("*.lcm"))
-    assert [p.stem for p in definitions] == ["qz_command", "qz_pose", "qz_status"]
+    assert [p.stem for p in definitions] == ["qz_command", "qz_planner", "qz_pose", "qz_reference", "qz_servo", "qz_status"]
     subprocess.run([lcm_gen, "--python", "--ppath", str(tmp_path), *map(str, definitions)], check=True)
     generated = sorted(p.name for p in (tmp_path / "qz_lcm").glob("*.py"))
     committed = sorted(p.name for p in (HARDWARE / "qz_lcm").glob("*.py"))

@@ -5,5 +5,8 @@ lcm-gen 1.5.3
 """
 
 from .qz_command import qz_command as qz_command
+from .qz_planner import qz_planner as qz_planner
 from .qz_pose import qz_pose as qz_pose
+from .qz_reference import qz_reference as qz_reference
+from .qz_servo import qz_servo as qz_servo
 from .qz_status import qz_status as qz_status

@@ -1,0 +1,484 @@
+"""The station of the planning process: the walk's diagram as in the lockstep simulation, with a
+servo in another process closing the loop (qz_drake.hardware.servo has the whole picture).
+
+PlanningLcmStation has the controller ports of the LCM station (``state``,
+``joint_torque_measured``, ``imu``, ``foot_contact`` out, decoded from the robot's statuses as
+the servo's interface decodes them; ``trunk_contact`` NaN: a robot does not report it) and
+one more input, ``plan``: each new plan's references go to the servo as a table
+(qz_reference) the moment the plan appears. Its ``joint_torque`` input (and the position-mode
+inputs) are taken and not used: the servo runs the joint PD at the robot's rate on the same
+references, so the walk's diagram is built as in the lockstep simulation and its tracker and
+PD are never asked for a command here.
+
+ServoClockPacer keeps the simulation no further than ``HardwareConfig.plan_lead`` ahead of the
+servo's plan clock and tells the servo how far it has got (qz_planner); a thread sends the same
+heartbeat while the simulation is busy (a BLC solve), so that only a process that exits or
+hangs falls silent. The walk stops (``halted``) when the servo has latched a safe stop or gone
+silent.
+
+ServoProcess starts ``qz servo`` for a planning process: ``qz simulate --station lcm --lcm-url
+URL`` runs it around the walk.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.lcm import DrakeLcm
+from pydrake.systems.framework import BasicVector, Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.lcm import LcmInterfaceSystem, LcmSubscriberSystem
+from pydrake.systems.primitives import ConstantVectorSource
+
+from qz_drake.config import Scenario, save_scenario
+from qz_drake.errors import QzError
+from qz_drake.hardware.codec import EncodedMessageSerializer, decode, joint_limits, message_key, status_problem
+from qz_drake.hardware.config import HardwareConfig, validate_hardware_config
+from qz_drake.hardware.interface import (_CONTACT, _HELD_SIZE, _IMU, _TAU, PoseTrack, decoded_status,
+                                         scenario_station_info, updated_pose_track)
+from qz_drake.hardware.qz_lcm import qz_planner, qz_pose, qz_servo, qz_status
+from qz_drake.hardware.references import encode_table, plan_references
+from qz_drake.hardware.servo import REFERENCE_PERIOD
+from qz_drake.robot.params import NUM_JOINTS
+from qz_drake.state_layout import STATE_SIZE
+
+# The pacer's period: how often the planning process checks the servo's plan clock and tells
+# it how far it has got. [s]
+PACER_PERIOD = 0.01
+# The heartbeat thread's period (wall clock). [s]
+PLANNER_HEARTBEAT_PERIOD = 0.02
+# The servo is taken as gone after this long without a qz_servo message (wall clock). [s]
+SERVO_TIMEOUT = 2.0
+# How long the planning process waits for the servo's report after the walk. [s]
+REPORT_WAIT = 5.0
+
+
+class ServoLink:
+    """The planning process's end of the link to its servo: the servo's newest qz_servo, the
+    plan time announced to it, the heartbeat thread and the servo's final report.
+
+    Args:
+        lcm: the planning process's LCM (its diagram pumps it).
+        config: protocol settings (channels).
+        heartbeat_lcm: an LCM the heartbeat thread publishes on (a second connection: the
+            diagram's is used from the main thread only); None: no thread (a lockstep
+            ``memq://`` test, where the pacer's own heartbeats are all there is).
+    """
+
+    def __init__(self, *, lcm: DrakeLcm, config: HardwareConfig, heartbeat_lcm: DrakeLcm | None):
+        self.lcm = lcm
+        self.config = config
+        self.servo: qz_servo | None = None
+        self.servo_wall = math.nan
+        self.report: dict | None = None
+        self._plan_time = -math.inf
+        self._finished = False
+        self._sequence = 0
+        self._lock = threading.Lock()
+        lcm.Subscribe(config.channels.servo, self._on_servo)
+        self._stop = threading.Event()
+        self._thread = None
+        if heartbeat_lcm is not None:
+            self._heartbeat_lcm = heartbeat_lcm
+            self._thread = threading.Thread(target=self._beat, name="qz-planner-heartbeat", daemon=True)
+            self._thread.start()
+
+    def _on_servo(self, data: bytes) -> None:
+        m = qz_servo.decode(data)
+        self.servo, self.servo_wall = m, time.monotonic()
+        if m.report:
+            self.report = json.loads(m.report)
+
+    def _message(self) -> bytes:
+        with self._lock:
+            self._sequence += 1
+            m = qz_planner()
+            m.utime, m.sequence = int(time.monotonic() * 1e6), self._sequence
+            m.plan_time, m.finished = self._plan_time, self._finished
+        return m.encode()
+
+    def _beat(self) -> None:
+        while not self._stop.wait(PLANNER_HEARTBEAT_PERIOD):
+            self._heartbeat_lcm.Publish(self.config.channels.planner, self._message())
+
+    def announce(self, plan_time: float) -> None:
+        """Every event of the planning process's simulation before ``plan_time`` is handled."""
+        with self._lock:
+            self._plan_time = max(self._plan_time, plan_time)
+        self.lcm.Publish(self.config.channels.planner, self._message())
+
+    def pump(self, timeout: float) -> None:
+        self.lcm.HandleSubscriptions(max(1, min(50, math.ceil(timeout * 1e3))))
+
+    def servo_problem(self) -> str:
+        """Why the walk cannot go on (a safe stop on the servo, a servo gone silent); ""."""
+        if self.servo is not None and self.servo.safe_stop:
+            return f"the servo latched a safe stop: {self.servo.reason}"
+        if self.servo is not None and time.monotonic() - self.servo_wall > SERVO_TIMEOUT:
+            return f"the servo has been silent for {time.monotonic() - self.servo_wall:.1f} s"
+        return ""
+
+    def finish(self) -> dict | None:
+        """Tells the servo the walk is over and waits for its report (None if none came)."""
+        with self._lock:
+            self._finished = True
+        deadline = time.monotonic() + REPORT_WAIT
+        while self.report is None and time.monotonic() < deadline:
+            self.lcm.Publish(self.config.channels.planner, self._message())
+            self.pump(0.05)
+        self.close()
+        return self.report
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class PacerRecord:
+    """What the ServoClockPacer saw; immutable (a Drake abstract state)."""
+
+    # Why the walk stopped ("" while it goes on).
+    halted: str = ""
+    # Wall time spent waiting for the servo's plan clock. [s]
+    waited: float = 0.0
+
+    def __deepcopy__(self, memo):
+        return self
+
+
+class ServoClockPacer(LeafSystem):
+    """Keeps the planning process's simulation within ``config.plan_lead`` of the servo's plan clock.
+
+    .. pydrake_system::
+
+        name: ServoClockPacer
+
+    Every PACER_PERIOD it announces how far the simulation has got (every event before the
+    previous pacer time is handled) and waits, pumping the LCM, until the servo's plan time
+    has come within the lead. It stops waiting, and records why, when the servo latched a safe
+    stop or fell silent.
+    """
+
+    def __init__(self, *, link: ServoLink):
+        super().__init__()
+        self._link = link
+        self._record = self.DeclareAbstractState(AbstractValue.Make(PacerRecord()))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(PACER_PERIOD, 0.0, self._wait)
+
+    def record(self, context) -> PacerRecord:
+        return context.get_abstract_state(self._record).get_value()
+
+    def _wait(self, context, state):
+        record: PacerRecord = context.get_abstract_state(self._record).get_value()
+        if record.halted:
+            return
+        t = context.get_time()
+        link = self._link
+        link.announce(t - PACER_PERIOD)
+        start = time.monotonic()
+        lead = link.config.plan_lead
+        while not link.servo_problem() and (link.servo is None or link.servo.plan_time < t - lead - 1e-9):
+            link.pump(0.01)
+            if link.servo is None and time.monotonic() - start > SERVO_TIMEOUT:
+                break
+        problem = link.servo_problem() or ("" if link.servo is not None else
+                                           f"no servo answered within {SERVO_TIMEOUT} s")
+        state.get_mutable_abstract_state(self._record).set_value(
+            PacerRecord(halted=problem, waited=record.waited + time.monotonic() - start))
+
+
+class ReferencePublisher(LeafSystem):
+    """Sends each new plan's references to the servo (qz_reference), as the tracker would hold them.
+
+    .. pydrake_system::
+
+        name: ReferencePublisher
+        input_ports:
+        - plan
+
+    Checked every reference period: a plan object it has not sent yet (None, or the input left
+    unconnected as a standing run leaves it: nothing) is solved into a table
+    (references.plan_references) and published at once.
+
+    Args:
+        link: the servo link (its LCM and channels).
+        topology: the tracker's topology (a plan may carry its own).
+        params: robot parameters.
+    """
+
+    def __init__(self, *, link: ServoLink, topology, params):
+        super().__init__()
+        self._link = link
+        self._topology = topology
+        self._params = params
+        self._plan = self.DeclareAbstractInputPort("plan", AbstractValue.Make(object()))
+        # (the last plan sent, tables sent)
+        self._sent = self.DeclareAbstractState(AbstractValue.Make((None, 0)))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(REFERENCE_PERIOD, 0.0, self._send)
+        self.DeclareInitializationUnrestrictedUpdateEvent(self._send)
+
+    def tables_sent(self, context) -> int:
+        return context.get_abstract_state(self._sent).get_value()[1]
+
+    def _send(self, context, state):
+        if not self._plan.HasValue(context):  # a standing run: the servo holds the standing pose
+            return
+        plan = self._plan.Eval(context)
+        last, count = context.get_abstract_state(self._sent).get_value()
+        if plan is None or plan is last:
+            return
+        table = plan_references(plan, topology=self._topology, params=self._params, rate=1.0 / REFERENCE_PERIOD)
+        data = encode_table(table, sequence=count + 1, utime=int(time.monotonic() * 1e6))
+        self._link.lcm.Publish(self._link.config.channels.reference, data)
+        state.get_mutable_abstract_state(self._sent).set_value((plan, count + 1))
+
+
+class StatusListener(LeafSystem):
+    """The station's outputs decoded from the robot's newest status and pose, as the servo's
+    interface decodes them, without a watchdog (this process commands nothing).
+
+    .. pydrake_system::
+
+        name: StatusListener
+        input_ports:
+        - lcm_status
+        - lcm_pose
+        output_ports:
+        - state
+        - joint_torque_measured
+        - imu
+        - foot_contact
+
+    Args:
+        config: protocol settings.
+        params: robot parameters (joint limits: a malformed status is not used).
+        prior_state: the state before the first status.
+    """
+
+    def __init__(self, *, config: HardwareConfig, params, prior_state: np.ndarray):
+        super().__init__()
+        self._config = config
+        self._lower, self._upper = joint_limits(params)
+        self._status = self.DeclareAbstractInputPort("lcm_status", AbstractValue.Make(b""))
+        self._pose = self.DeclareAbstractInputPort("lcm_pose", AbstractValue.Make(b""))
+        held = np.zeros(_HELD_SIZE)
+        held[:STATE_SIZE] = prior_state
+        held[_IMU] = [1, 0, 0, 0, 0, 0, 0, 0, 0, 9.81]
+        held[_CONTACT] = 1.0
+        self._held = self.DeclareDiscreteState(held)
+        # (pose track, the last status's key, statuses used, statuses rejected)
+        self._seen = self.DeclareAbstractState(AbstractValue.Make((PoseTrack(), (0, 0), 0, 0)))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(config.control_period, 0.0, self._update)
+        for name, part in (("state", slice(0, STATE_SIZE)), ("joint_torque_measured", _TAU), ("imu", _IMU),
+                           ("foot_contact", _CONTACT)):
+            self.DeclareVectorOutputPort(name, part.stop - part.start, self._output(part),
+                                         {self.discrete_state_ticket(self._held)})
+
+    def _output(self, part: slice):
+        def calc(context, output: BasicVector):
+            output.SetFromVector(context.get_discrete_state(self._held).get_value()[part])
+        return calc
+
+    def counts(self, context) -> tuple[int, int]:
+        """(statuses used, statuses rejected)."""
+        return context.get_abstract_state(self._seen).get_value()[2:]
+
+    def _update(self, context, state):
+        track, last_key, used, rejected = context.get_abstract_state(self._seen).get_value()
+        track = updated_pose_track(track, self._pose.Eval(context))
+        data = self._status.Eval(context)
+        m, problem = decode(qz_status, data)
+        key = message_key(m, problem, data)
+        if m is not None and key not in (last_key, (0, 0)):
+            problem = problem or status_problem(m, self._lower, self._upper, self._config.joint_limit_margin)
+            if problem:
+                rejected += 1
+            else:
+                used += 1
+                held = context.get_discrete_state(self._held).get_value().copy()
+                state.get_mutable_discrete_state(self._held).set_value(
+                    decoded_status(held, m, track, self._config.max_pose_extrapolation))
+            last_key = key
+        state.get_mutable_abstract_state(self._seen).set_value((track, last_key, used, rejected))
+
+
+class _Unused(LeafSystem):
+    """Takes an input nothing here reads (the servo computes the commands)."""
+
+    def __init__(self, name: str, size: int):
+        super().__init__()
+        self.DeclareVectorInputPort(name, size)
+
+
+class PlanningLcmStation(Diagram):
+    """The planning process's station (module doc).
+
+    .. pydrake_system::
+
+        name: PlanningLcmStation
+        input_ports:
+        - joint_torque (not used: the servo commands)
+        - joint_position_command (position mode; not used)
+        - joint_velocity_command (position mode; not used)
+        - plan
+        output_ports:
+        - state
+        - joint_torque_measured
+        - imu
+        - foot_contact
+        - trunk_contact
+
+    Args:
+        scenario: the walk's scenario.
+        lcm: the LCM of the robot and the servo.
+        config: protocol settings.
+        heartbeat_lcm: a second connection for the heartbeat thread (None: no thread).
+    """
+
+    def __init__(self, *, scenario: Scenario, lcm: DrakeLcm, config: HardwareConfig | None = None,
+                 heartbeat_lcm: DrakeLcm | None = None):
+        super().__init__()
+        config = validate_hardware_config(config or HardwareConfig())
+        self.info = scenario_station_info(scenario)
+        self.link = ServoLink(lcm=lcm, config=config, heartbeat_lcm=heartbeat_lcm)
+        builder = DiagramBuilder()
+        builder.AddSystem(LcmInterfaceSystem(lcm))
+        status = builder.AddSystem(LcmSubscriberSystem(config.channels.status, EncodedMessageSerializer(qz_status), lcm))
+        pose = builder.AddSystem(LcmSubscriberSystem(config.channels.pose, EncodedMessageSerializer(qz_pose), lcm))
+        self._listener = builder.AddSystem(StatusListener(config=config, params=self.info.params,
+                                                          prior_state=self.info.initial_state))
+        self._pacer = builder.AddSystem(ServoClockPacer(link=self.link))
+        self._publisher = builder.AddSystem(ReferencePublisher(link=self.link, topology=self.info.topology,
+                                                               params=self.info.params))
+        builder.Connect(status.get_output_port(), self._listener.GetInputPort("lcm_status"))
+        builder.Connect(pose.get_output_port(), self._listener.GetInputPort("lcm_pose"))
+        inputs = ["joint_torque"]
+        if scenario.station.control_mode == "position":
+            inputs += ["joint_position_command", "joint_velocity_command"]
+        for name in inputs:
+            builder.ExportInput(builder.AddSystem(_Unused(name, NUM_JOINTS)).get_input_port(), name)
+        builder.ExportInput(self._publisher.GetInputPort("plan"), "plan")
+        for name in ("state", "joint_torque_measured", "imu", "foot_contact"):
+            builder.ExportOutput(self._listener.GetOutputPort(name), name)
+        unknown = builder.AddSystem(ConstantVectorSource(np.array([np.nan])))
+        builder.ExportOutput(unknown.get_output_port(), "trunk_contact")
+        builder.BuildInto(self)
+        self.set_name("station")
+
+    def halted(self, root_context) -> str:
+        """Why the walk cannot go on ("" while it can): the servo's safe stop or silence."""
+        return self._pacer.record(self._pacer.GetMyContextFromRoot(root_context)).halted
+
+    def station_metrics(self, root_context) -> dict:
+        """Ends the link (the servo reports and stops) and returns the servo's counters: its
+        interface's watchdog (``lcm_interface``), its plan clock and late holds (``servo``),
+        the safe stop; and this process's own (``planner``)."""
+        report = self.link.finish()
+        pacer = self._pacer.record(self._pacer.GetMyContextFromRoot(root_context))
+        used, rejected = self._listener.counts(self._listener.GetMyContextFromRoot(root_context))
+        planner = {"statuses_used": used, "statuses_rejected": rejected, "waited_for_servo_s": pacer.waited,
+                   "tables_sent": self._publisher.tables_sent(self._publisher.GetMyContextFromRoot(root_context))}
+        if report is None:
+            stop = pacer.halted or "the servo sent no report"
+            return {"servo": None, "planner": planner, "trunk_contact_observed": False, "safe_stop": stop}
+        stop = report["safe_stop"]
+        if not stop and report["interface"]["driver_safe_stop"]:
+            stop = "reported by the robot driver (its own report says why)"
+        return {"lcm_interface": report["interface"], "servo": report["servo"], "planner": planner,
+                "trunk_contact_observed": False, "safe_stop": stop}
+
+
+def make_planning_lcm_station(scenario: Scenario, meshcat=None, *, mesh_dir=None, lcm_url: str,
+                              config: HardwareConfig | None = None):
+    """A make_station-compatible factory: (PlanningLcmStation, StationInfo) on ``lcm_url``, with
+    a heartbeat thread on a second connection."""
+    from qz_drake.hardware.relay import connect_lcm
+
+    station = PlanningLcmStation(scenario=scenario, lcm=connect_lcm(lcm_url), config=config,
+                                 heartbeat_lcm=connect_lcm(lcm_url))
+    return station, station.info
+
+
+class ServoProcess:
+    """``qz servo`` in a child process for the duration of a ``with`` block.
+
+    It starts the servo on the scenario and the URL, waits until it serves, and at the end
+    waits for it to exit (it does once the planning station's station_metrics has told it the
+    walk is over) or stops it. Its output goes to ``log`` (a file) if given.
+
+    Args:
+        scenario: the walk's scenario.
+        lcm_url: the robot's LCM.
+        config: protocol settings.
+        realtime_rate: the servo's pacing (the simulated driver's rate; 1 on the robot).
+        startup_timeout: how long the servo may take to start. [s]
+    """
+
+    def __init__(self, scenario: Scenario, *, lcm_url: str, config: HardwareConfig | None = None,
+                 realtime_rate: float = 1.0, startup_timeout: float = 60.0, log: Path | None = None):
+        self._scenario = scenario
+        self._url = lcm_url
+        self._config = validate_hardware_config(config or HardwareConfig())
+        self._rate = realtime_rate
+        self._timeout = startup_timeout
+        self._log = log
+        self.process: subprocess.Popen | None = None
+        self.report: dict | None = None
+
+    def __enter__(self) -> ServoProcess:
+        from pydrake.common.yaml import yaml_dump_typed
+
+        self._folder = tempfile.TemporaryDirectory(prefix="qz_servo_")
+        folder = Path(self._folder.name)
+        save_scenario(self._scenario, folder / "scenario.yaml")
+        (folder / "hardware.yaml").write_text(yaml_dump_typed(self._config))
+        command = [sys.executable, "-m", "qz_drake.cli", "servo", str(folder / "scenario.yaml"),
+                   "--lcm-url", self._url, "--hardware", str(folder / "hardware.yaml"),
+                   "--realtime-rate", str(self._rate), "--parent-pid", str(os.getpid())]
+        stderr = open(self._log, "w") if self._log is not None else subprocess.DEVNULL
+        self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=stderr, text=True)
+        if stderr is not subprocess.DEVNULL:
+            stderr.close()
+        line = _read_line(self.process, self._timeout)
+        if not line.startswith('{"servo": "serving"'):
+            self._stop()
+            raise QzError(f"--lcm-url = {self._url!r}: the servo process did not start ({line.strip() or 'no output'})")
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop()
+        self._folder.cleanup()
+
+    def _stop(self) -> None:
+        process = self.process
+        if process is None or process.poll() is not None:
+            return
+        try:
+            out, _ = process.communicate(timeout=REPORT_WAIT)
+        except subprocess.TimeoutExpired:
+            process.terminate()
+            out, _ = process.communicate(timeout=10)
+        lines = [ln for ln in (out or "").splitlines() if ln.startswith("{")]
+        if lines:
+            self.report = json.loads(lines[-1])
+
+
+def _read_line(process: subprocess.Popen, timeout: float) -> str:
+    """The child's first line of output, or "" after ``timeout`` seconds or its exit."""
+    result = [""]
+    reader = threading.Thread(target=lambda: result.__setitem__(0, process.stdout.readline()), daemon=True)
+    reader.start()
+    reader.join(timeout)
+    return result[0]
