@@ -11,10 +11,9 @@ Two representations, both measured on drake 1.51 (issue 2):
   hydroelastic (see :func:`make_robot_proximity_properties`). A ``Mesh`` under point contact
   would be replaced by its convex hull (the robot floats), so the mesh is never used with
   point contact. What is drawn of it is the same surface with every planar rectangle of cells
-  merged into two triangles (``heightmap_surface_obj(..., merge_planar=True)``): the 20 m
-  long_range world is drawn with a tenth of the contact mesh's triangles (its recording was
-  26 MB, 12 MB of them the terrain). The meshes are held in memory (Drake's ``InMemoryMesh``),
-  in files only where ``mesh_dir`` asks.
+  drawn whole (:func:`drawn_surface_objs`): the 20 m long_range world is drawn with a tenth of
+  the contact mesh's triangles (its recording was 26 MB, 12 MB of them the terrain). The
+  meshes are held in memory (Drake's ``InMemoryMesh``), in files only where ``mesh_dir`` asks.
 
 ``"auto"`` chooses boxes when the map decomposes into at most ``max_boxes`` rectangles.
 """
@@ -166,11 +165,12 @@ def planar_rectangles(heights: np.ndarray, cell_mask: np.ndarray | None = None,
     # A quad's plane, as integers: its slopes in units of the tolerance (-1, -1 where not merged).
     plane_x = np.where(merged, np.round(slope_x / tolerance), -1).astype(np.int64)
     plane_y = np.where(merged, np.round(slope_y / tolerance), -1).astype(np.int64)
+    # Where a run along a row ends: the plane changes or the merged quads do.
+    breaks = (np.diff(plane_x, axis=1) != 0) | (np.diff(plane_y, axis=1) != 0) | (np.diff(merged, axis=1) != 0)
     rectangles = []
     growing: dict[tuple[int, int, int, int], int] = {}  # (ix0, ix1, plane) -> iy0
     for iy in range(rows):
-        edges = np.flatnonzero((np.diff(plane_x[iy]) != 0) | (np.diff(plane_y[iy]) != 0)
-                               | (np.diff(merged[iy].astype(np.int8)) != 0)) + 1
+        edges = np.flatnonzero(breaks[iy]) + 1
         starts, ends = np.concatenate([[0], edges]), np.concatenate([edges, [cols]])
         runs = {}
         for ix0, ix1 in zip(starts.tolist(), ends.tolist()):
@@ -185,26 +185,27 @@ def planar_rectangles(heights: np.ndarray, cell_mask: np.ndarray | None = None,
     return np.concatenate([np.asarray(rectangles, dtype=np.int64).reshape(-1, 4), singles])
 
 
-def heightmap_surface_obj(heightmap, cell_mask: np.ndarray | None = None, *, merge_planar: bool = False) -> str:
-    """Wavefront OBJ text of the map's top surface (two triangles per pair of neighbouring
-    cell centres, normals up). ``cell_mask`` (H-1, W-1) keeps only some quads. With
-    ``merge_planar`` (the surface as it is drawn) each planar rectangle of quads
-    (planar_rectangles) is two triangles: the same surface in fewer triangles."""
+def _grid_vertices(heightmap) -> np.ndarray:
+    """The map's cell centres as vertices (H*W, 3), row by row (vertex ``iy * W + ix``)."""
     h = np.asarray(heightmap.heights, dtype=float)
     H, W = h.shape
     xs = heightmap.origin[0] + heightmap.resolution * np.arange(W)
     ys = heightmap.origin[1] + heightmap.resolution * np.arange(H)
     X, Y = np.meshgrid(xs, ys)
-    vertices = np.stack([X.ravel(), Y.ravel(), h.ravel()], axis=1)
-    if merge_planar:
-        iy0, iy1, ix0, ix1 = planar_rectangles(h, cell_mask).T
-    else:
-        iy0, ix0 = np.nonzero(np.ones((H - 1, W - 1), dtype=bool) if cell_mask is None else cell_mask)
-        iy1, ix1 = iy0 + 1, ix0 + 1
+    return np.stack([X.ravel(), Y.ravel(), h.ravel()], axis=1)
+
+
+def _rectangle_faces(W: int, iy0, iy1, ix0, ix1) -> np.ndarray:
+    """Two triangles per rectangle of quads (corner vertices of a map W cells wide), normals up:
+    every rectangle's first triangle, then every second one."""
     a, b = iy0 * W + ix0, iy0 * W + ix1
     c, d = iy1 * W + ix0, iy1 * W + ix1
-    faces = np.concatenate([np.stack([a, b, d], axis=1), np.stack([a, d, c], axis=1)])
-    # Keep only the vertices the faces use, so each material's file is self-contained.
+    return np.concatenate([np.stack([a, b, d], axis=1), np.stack([a, d, c], axis=1)])
+
+
+def _obj_text(vertices: np.ndarray, faces: np.ndarray) -> str:
+    """Wavefront OBJ text of triangles (rows of indices into ``vertices``) with only the vertices
+    they use, so that each file is self-contained."""
     used, triangles = np.unique(faces, return_inverse=True)
     # One %-format over all numbers: a 400 x 400 map's text in 0.63 s instead of 1.56 s with a
     # loop over lines (the mesh terrain is written twice: whole for contact, in height bands to
@@ -212,6 +213,54 @@ def heightmap_surface_obj(heightmap, cell_mask: np.ndarray | None = None, *, mer
     kept, triangles = vertices[used], triangles.reshape(faces.shape) + 1  # OBJ indices are 1-based
     return ("# qz_drake heightmap surface\n" + "v %.6f %.6f %.6f\n" * len(kept) % tuple(kept.ravel())
             + "f %d %d %d\n" * len(triangles) % tuple(triangles.ravel().tolist()))
+
+
+def heightmap_surface_obj(heightmap, cell_mask: np.ndarray | None = None) -> str:
+    """Wavefront OBJ text of the map's top surface (two triangles per pair of neighbouring
+    cell centres, normals up). ``cell_mask`` (H-1, W-1) keeps only some quads."""
+    H, W = np.shape(heightmap.heights)
+    iy0, ix0 = np.nonzero(np.ones((H - 1, W - 1), dtype=bool) if cell_mask is None else cell_mask)
+    return _obj_text(_grid_vertices(heightmap), _rectangle_faces(W, iy0, iy0 + 1, ix0, ix0 + 1))
+
+
+def drawn_surface_objs(heightmap, cell_masks) -> list[str]:
+    """Wavefront OBJ texts of the map's top surface as it is drawn, one per mask of the (H-1,
+    W-1) quads (disjoint: a height band of a material each): the surface of
+    heightmap_surface_obj with every planar rectangle of quads (planar_rectangles) drawn whole.
+
+    Where a corner of another rectangle, of any of the masks, lies on a rectangle's edge, the
+    rectangle is drawn as a fan from its centre through every such corner: the meshes then meet
+    vertex to vertex, without the one-pixel cracks that show the sky along an edge where a
+    vertex of one mesh lies on an edge of another."""
+    h = np.asarray(heightmap.heights, dtype=float)
+    H, W = h.shape
+    grid = _grid_vertices(heightmap)
+    rectangles = [planar_rectangles(h, mask) for mask in cell_masks]
+    corner = np.zeros((H, W), dtype=bool)
+    for iy0, iy1, ix0, ix1 in (r.T for r in rectangles):
+        corner[iy0, ix0] = corner[iy0, ix1] = corner[iy1, ix0] = corner[iy1, ix1] = True
+    along_x, along_y = np.cumsum(corner, axis=1), np.cumsum(corner, axis=0)  # corners up to x, y
+    texts = []
+    for r in rectangles:
+        iy0, iy1, ix0, ix1 = r.T
+        # Corners strictly inside the rectangle's four edges.
+        inside = (along_x[iy0, ix1 - 1] - along_x[iy0, ix0] + along_x[iy1, ix1 - 1] - along_x[iy1, ix0]
+                  + along_y[iy1 - 1, ix0] - along_y[iy0, ix0] + along_y[iy1 - 1, ix1] - along_y[iy0, ix1])
+        faces = [_rectangle_faces(W, *r[inside == 0].T)]
+        centres = []
+        for iy0, iy1, ix0, ix1 in r[inside > 0]:
+            # The boundary counter-clockwise through every corner on it, each side from its
+            # first corner up to the next side's.
+            bottom, right = np.arange(ix0, ix1), np.arange(iy0, iy1)
+            top, left = np.arange(ix1, ix0, -1), np.arange(iy1, iy0, -1)
+            ring = np.concatenate([(iy0 * W + bottom)[corner[iy0, bottom]], (right * W + ix1)[corner[right, ix1]],
+                                   (iy1 * W + top)[corner[iy1, top]], (left * W + ix0)[corner[left, ix0]]])
+            centre = len(grid) + len(centres)
+            centres.append(grid[[iy0 * W + ix0, iy0 * W + ix1, iy1 * W + ix0, iy1 * W + ix1]].mean(axis=0))
+            faces.append(np.column_stack([np.full(len(ring), centre), ring, np.roll(ring, -1)]))
+        vertices = np.vstack([grid, *centres]) if centres else grid
+        texts.append(_obj_text(vertices, np.concatenate(faces)))
+    return texts
 
 
 def _mesh(obj_text: str, name: str, directory: Path | None) -> Mesh:
@@ -284,6 +333,11 @@ def add_heightmap_to_plant(plant: MultibodyPlant, heightmap, *, contact: str = "
     quad_material = (np.zeros(h.shape, dtype=np.int64) if labels is None else np.asarray(labels))[:-1, :-1]
     quad_mean = (h[:-1, :-1] + h[:-1, 1:] + h[1:, :-1] + h[1:, 1:]) / 4.0
     quad_band = np.floor(np.round(quad_mean / band, 6)).astype(np.int64)
+    # Drawn in height bands, one mesh each: a mesh takes one colour in meshcat. A quad's band is
+    # that of its mean height.
+    bands = [(m, index) for m in range(len(materials)) for index in np.unique(quad_band[quad_material == m])]
+    drawn = dict(zip(bands, drawn_surface_objs(heightmap, [(quad_material == m) & (quad_band == index)
+                                                           for m, index in bands])))
     for m, material in enumerate(materials):
         mask = quad_material == m
         if not mask.any():
@@ -296,11 +350,8 @@ def add_heightmap_to_plant(plant: MultibodyPlant, heightmap, *, contact: str = "
                                         _mesh(heightmap_surface_obj(heightmap, mask),
                                               f"terrain_{material.name}.obj", directory),
                                         f"terrain_mesh_{material.name}", props)
-        # Drawn in height bands, one mesh each: a mesh takes one colour in meshcat. A quad's band
-        # is that of its mean height.
         for index in np.unique(quad_band[mask]):
-            visual = _mesh(heightmap_surface_obj(heightmap, mask & (quad_band == index), merge_planar=True),
-                           f"terrain_visual_{material.name}_{index}.obj", directory)
+            visual = _mesh(drawn[m, index], f"terrain_visual_{material.name}_{index}.obj", directory)
             rgba = terrain_rgba((index + 0.5) * band, low, high, band=band,
                                 material=material.name if by_material else None)
             plant.RegisterVisualGeometry(world, RigidTransform(), visual,

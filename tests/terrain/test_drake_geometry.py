@@ -1,5 +1,6 @@
 """A mesh terrain as Drake geometry (qz_drake.terrain.drake_geometry): the contact mesh is the whole
-surface, held in memory; what is drawn is the same surface with its planar rectangles merged."""
+surface, held in memory; what is drawn is the same surface with its planar rectangles merged, its
+meshes meeting vertex to vertex."""
 
 import hashlib
 from pathlib import Path
@@ -8,11 +9,28 @@ import numpy as np
 import pytest
 
 from qz_drake.terrain import make_terrain
-from qz_drake.terrain.drake_geometry import heightmap_surface_obj, planar_rectangles
+from qz_drake.terrain.drake_geometry import (_visual_band, drawn_surface_objs, heightmap_surface_obj,
+                                             planar_rectangles)
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
 # sha256 of the demo world's contact mesh (long_range, seed 0).
 CONTACT_MESH_SHA256 = "55c5a900d73e5612f39b5074bccc3c5ea28c098c615f4ad84929230e4be37902"
+
+
+def _read_obj(text: str) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (N, 3), triangles (M, 3) of 0-based indices) of OBJ text."""
+    lines = text.splitlines()
+    vertices = np.array([line.split()[1:] for line in lines if line.startswith("v ")], dtype=float)
+    faces = np.array([line.split()[1:] for line in lines if line.startswith("f ")], dtype=int) - 1
+    return vertices, faces
+
+
+def _band_masks(heightmap) -> list[np.ndarray]:
+    """The quads of each height band, as add_heightmap_to_plant draws a map of one material."""
+    h = heightmap.heights
+    band = _visual_band(h)
+    quad_band = np.floor(np.round((h[:-1, :-1] + h[:-1, 1:] + h[1:, :-1] + h[1:, 1:]) / 4.0 / band, 6))
+    return [quad_band == index for index in np.unique(quad_band)]
 
 
 def _cover(rectangles, shape) -> np.ndarray:
@@ -51,8 +69,8 @@ def test_the_demo_world_is_drawn_exactly_with_a_tenth_of_the_triangles():
                  + cols / (ix1 - ix0) * (h[iy0, ix1] - h[iy0, ix0]))
         np.testing.assert_allclose(h[iy0:iy1 + 1, ix0:ix1 + 1], plane, atol=1e-4)
     contact = heightmap_surface_obj(heightmap)
-    triangles = heightmap_surface_obj(heightmap, merge_planar=True).count("\nf ")
-    assert triangles == 2 * len(rectangles) < contact.count("\nf ") / 8
+    triangles = sum(text.count("\nf ") for text in drawn_surface_objs(heightmap, _band_masks(heightmap)))
+    assert 2 * len(rectangles) < triangles < contact.count("\nf ") / 8
     # The contact mesh is the one the demo has always walked on.
     assert hashlib.sha256(contact.encode()).hexdigest() == CONTACT_MESH_SHA256
 
@@ -79,12 +97,42 @@ def test_the_terrain_meshes_stay_in_memory_and_collide_as_the_files_did(tmp_path
 @pytest.mark.parametrize("kind", ["stairs", "slope", "rough"])
 def test_the_drawn_surface_covers_what_the_contact_surface_covers(kind):
     heightmap = make_terrain(kind)
-    text = heightmap_surface_obj(heightmap, merge_planar=True)
-    vertices = np.array([line.split()[1:] for line in text.splitlines() if line.startswith("v ")], dtype=float)
-    faces = np.array([line.split()[1:] for line in text.splitlines() if line.startswith("f ")], dtype=int) - 1
+    vertices, faces = _read_obj(drawn_surface_objs(heightmap, [None])[0])
     a, b, c = (vertices[faces[:, k], :2] for k in range(3))
     area = 0.5 * ((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0])
     assert np.all(area > 0)  # counter-clockwise from above: normals up
     quads = (heightmap.heights.shape[0] - 1) * (heightmap.heights.shape[1] - 1)
     assert area.sum() == pytest.approx(quads * heightmap.resolution ** 2)
-    np.testing.assert_allclose(vertices[:, 2], heightmap.height(vertices[:, 0], vertices[:, 1]), atol=1e-6)
+    cells = (vertices[:, :2] - heightmap.origin) / heightmap.resolution
+    on_grid = np.all(np.abs(cells - np.round(cells)) < 1e-6, axis=1)  # (a fan's centre need not be)
+    np.testing.assert_allclose(vertices[on_grid, 2], heightmap.height(vertices[on_grid, 0], vertices[on_grid, 1]),
+                               atol=1e-6)
+
+
+def test_the_drawn_meshes_meet_vertex_to_vertex():
+    # A vertex of one mesh inside an edge of another (a T-junction) leaves a crack of single
+    # pixels along the edge, the sky showing through.
+    heightmap = make_terrain("long_range", seed=0)
+    H, W = heightmap.heights.shape
+    meshes = []
+    for text in drawn_surface_objs(heightmap, _band_masks(heightmap)):
+        vertices, faces = _read_obj(text)
+        cells = (vertices[:, :2] - heightmap.origin) / heightmap.resolution
+        grid = np.where(np.all(np.abs(cells - np.round(cells)) < 1e-6, axis=1, keepdims=True),
+                        np.round(cells), np.nan)
+        meshes.append(grid[faces])  # (M, 3, 2) cell coordinates (x, y) of each corner, NaN off the grid
+    used = np.zeros((H, W), dtype=bool)
+    for corners in meshes:
+        ix, iy = corners.reshape(-1, 2)[~np.isnan(corners.reshape(-1, 2)).any(axis=1)].astype(int).T
+        used[iy, ix] = True
+    along_x, along_y = np.cumsum(used, axis=1), np.cumsum(used, axis=0)
+    edges = np.concatenate([np.concatenate([corners[:, k], corners[:, (k + 1) % 3]], axis=1)
+                            for corners in meshes for k in range(3)])
+    edges = edges[~np.isnan(edges).any(axis=1)].astype(int)  # (x0, y0, x1, y1)
+    rows = edges[edges[:, 1] == edges[:, 3]]
+    x0, x1 = np.minimum(rows[:, 0], rows[:, 2]), np.maximum(rows[:, 0], rows[:, 2])
+    columns = edges[edges[:, 0] == edges[:, 2]]
+    y0, y1 = np.minimum(columns[:, 1], columns[:, 3]), np.maximum(columns[:, 1], columns[:, 3])
+    assert len(rows) > 1000 and len(columns) > 1000
+    assert np.all(along_x[rows[:, 1], np.maximum(x1 - 1, x0)] - along_x[rows[:, 1], x0] == 0)
+    assert np.all(along_y[np.maximum(y1 - 1, y0), columns[:, 0]] - along_y[y0, columns[:, 0]] == 0)
