@@ -15,7 +15,7 @@ A saved page's animation is stored compactly (``compact_animation``): a key fram
 where the motion between its neighbours is a straight line to within ANIMATION_TOLERANCE, and
 each track's key frames are two float32 arrays, times and values, instead of meshcat's one map
 per key frame of float64 numbers (three.js holds them as float32 arrays anyway). The demo's
-110 s walk takes 1.7 MB of animation instead of 8.4 MB, and its page 6.2 MB instead of 26 MB
+110 s walk takes 1.7 MB of animation instead of 8.4 MB, and its page 6.3 MB instead of 26 MB
 with the terrain drawn in merged planar patches (qz_drake.terrain.drake_geometry).
 
 Recordings are lit evenly and coloured for reading at a glance (issue 39): ``style_recording``
