@@ -19,6 +19,10 @@ Three measurements over the first 10 s of ``walk_flat.yaml`` (torque mode, 500 H
 Latency and interface overhead are also given as this process's CPU time over the same
 windows (``*_cpu_time``): on a machine shared with other jobs the wall times include the time
 the process waited for a core, the CPU times do not (CLOCK_PROCESS_CPUTIME_ID, ns resolution).
+
+Not with ``--quick``: ``two_processes_walk_flat_rate_1``, the walk as a robot runs it, in three
+processes at real time (benchmarks/two_process_walks.py): the servo's status -> command latency
+and the longest gap between two commands, and each walk's outcome.
 """
 
 import time
@@ -134,7 +138,34 @@ def run(repeats: int = 1, quick: bool = False, duration: float = 10.0) -> dict:
                      "tracking_rms_lcm_m": over_lcm["tracking_rms_m"],
                      "safe_stops": over_lcm["lcm_interface"]["safe_stops"] + over_lcm["lcm_driver"]["safe_stops"]})
     middle = sorted(runs, key=lambda r: r["latency"]["median_ms"])[len(runs) // 2]
-    return {"walk_flat_10s": {**middle, "sim_time_s": duration,
-                              "control_period_ms": 1e3 * HardwareConfig().control_period, "repeats": repeats,
-                              "latency_median_ms_all": [r["latency"]["median_ms"] for r in runs],
-                              "interface_overhead_median_ms_all": [r["interface_overhead"]["median_ms"] for r in runs]}}
+    result = {"walk_flat_10s": {**middle, "sim_time_s": duration,
+                                "control_period_ms": 1e3 * HardwareConfig().control_period, "repeats": repeats,
+                                "latency_median_ms_all": [r["latency"]["median_ms"] for r in runs],
+                                "interface_overhead_median_ms_all": [r["interface_overhead"]["median_ms"] for r in runs]}}
+    if not quick:
+        result["two_processes_walk_flat_rate_1"] = _two_process_walks(repeats)
+    return result
+
+
+def _two_process_walks(repeats: int) -> dict:
+    """walk_flat as a robot runs it: `qz robot-sim`, the planning process and its `qz servo` at
+    real time (two_process_walks.py): the servo's status -> command latency and the longest
+    time between two of its commands, per walk, with the walk's outcome."""
+    import importlib.util
+    import tempfile
+
+    spec = importlib.util.spec_from_file_location("two_process_walks", Path(__file__).with_name("two_process_walks.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    one_walk = module.one_walk
+
+    walks = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for k in range(repeats):
+            walk = one_walk(SCENARIO, 1.0, "process", None, Path(tmp) / f"walk{k}")
+            walks.append({key: walk.get(key) for key in (
+                "success", "reason", "latency_median_ms", "latency_p99_ms", "latency_max_ms",
+                "longest_command_gap_ms", "late_holds", "longest_late_hold_s", "driver_loop_delay_periods")})
+    return {"walks": walks, "successes": sum(w["success"] for w in walks),
+            "worst_latency_p99_ms": max((w["latency_p99_ms"] or 0.0) for w in walks),
+            "longest_command_gap_ms": max((w["longest_command_gap_ms"] or 0.0) for w in walks)}

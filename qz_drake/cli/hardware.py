@@ -18,6 +18,7 @@ import signal
 from qz_drake.errors import bad_value
 from qz_drake.hardware.relay import DEFAULT_PORT as DEFAULT_RELAY_PORT
 from qz_drake.hardware.relay import connect_lcm, tcpq_url
+from qz_drake.hardware.scheduling import DEFAULT_PRIORITY, request_realtime_priority
 
 
 def load_hardware_file(path: str | None):
@@ -48,6 +49,7 @@ def run_robot_sim(args) -> int:
     if not (math.isfinite(args.realtime_rate) and args.realtime_rate >= 0):
         raise bad_value("--realtime-rate", args.realtime_rate, "must be >= 0 (0: as fast as possible)")
     config = load_hardware_file(args.hardware)
+    scheduling = request_realtime_priority(args.realtime_priority)
     lcm = connect_lcm(args.lcm_url, "--lcm-url")
     meshcat = None
     if args.meshcat:
@@ -76,7 +78,7 @@ def run_robot_sim(args) -> int:
     x = driver.GetOutputPort("true_state").Eval(context)
     print(json.dumps({"sim_time_s": float(context.get_time()), "lcm_url": args.lcm_url,
                       "realtime_factor": simulator.get_actual_realtime_rate(),
-                      "base_position_m": x[BASE_POS].tolist(), **driver.counters(context)}))
+                      "base_position_m": x[BASE_POS].tolist(), "scheduling": scheduling, **driver.counters(context)}))
     return 0
 
 
@@ -85,28 +87,27 @@ def run_servo(args) -> int:
     from qz_drake.hardware.servo import serve
 
     scenario = load_scenario(args.scenario)
-    if not (math.isfinite(args.realtime_rate) and args.realtime_rate > 0):
-        raise bad_value("--realtime-rate", args.realtime_rate, "must be a positive pace (1: real time)")
     if args.parent_pid is not None and args.parent_pid <= 0:
         raise bad_value("--parent-pid", args.parent_pid, "must be a process id")
     config = load_hardware_file(args.hardware)
+    scheduling = request_realtime_priority(args.realtime_priority)
 
     def ready():
-        print(json.dumps({"servo": "serving", "lcm_url": args.lcm_url}), flush=True)
+        print(json.dumps({"servo": "serving", "lcm_url": args.lcm_url, "scheduling": scheduling}), flush=True)
 
-    report = serve(scenario, lcm_url=args.lcm_url, config=config, realtime_rate=args.realtime_rate,
-                   parent_pid=args.parent_pid, ready=ready)
-    print(json.dumps(report), flush=True)
+    report = serve(scenario, lcm_url=args.lcm_url, config=config, parent_pid=args.parent_pid, ready=ready)
+    print(json.dumps({**report, "scheduling": scheduling}), flush=True)
     return 1 if report["safe_stop"] else 0
 
 
 def run_lcm_relay(args) -> int:
     from qz_drake.hardware.relay import LcmTcpRelay
 
+    scheduling = request_realtime_priority(args.realtime_priority)
     relay = LcmTcpRelay(args.port)
     # Stopped with Ctrl-C or a plain kill alike, so a script's `kill %1` also prints the counters.
     signal.signal(signal.SIGTERM, lambda *_: relay.close())
-    print(json.dumps({"lcm_url": relay.url, "listening": True}), flush=True)
+    print(json.dumps({"lcm_url": relay.url, "listening": True, "scheduling": scheduling}), flush=True)
     try:
         relay.serve_forever()
     except KeyboardInterrupt:
@@ -125,6 +126,9 @@ def register(subparsers) -> None:
     p.add_argument("--realtime-rate", type=float, default=1.0, help="pacing (1: real time; 0: unpaced)")
     p.add_argument("--hardware", default=None, help="protocol settings YAML (qz_drake.hardware.config)")
     p.add_argument("--meshcat", action="store_true", help="draw the simulated robot in meshcat")
+    p.add_argument("--realtime-priority", type=int, default=DEFAULT_PRIORITY,
+                   help=f"SCHED_FIFO priority asked for, as a robot's control loop runs (default {DEFAULT_PRIORITY}; "
+                        "0: normal scheduling); without the privilege it runs as a normal process")
     p.set_defaults(func=run_robot_sim)
 
     p = subparsers.add_parser("servo", help="the joint PD answering the robot from a planning process's references")
@@ -132,13 +136,18 @@ def register(subparsers) -> None:
     p.add_argument("--lcm-url", default=tcpq_url(DEFAULT_RELAY_PORT),
                    help="LCM URL of the robot and the planning process (default: the `qz lcm-relay` on this "
                         "machine)")
-    p.add_argument("--realtime-rate", type=float, default=1.0, help="pacing: the robot's (1: real time)")
     p.add_argument("--hardware", default=None, help="protocol settings YAML (qz_drake.hardware.config)")
     p.add_argument("--parent-pid", type=int, default=None,
                    help="the planning process that started it: a safe stop when that process exits")
+    p.add_argument("--realtime-priority", type=int, default=DEFAULT_PRIORITY,
+                   help=f"SCHED_FIFO priority asked for, as a robot's control loop runs (default {DEFAULT_PRIORITY}; "
+                        "0: normal scheduling); without the privilege it runs as a normal process")
     p.set_defaults(func=run_servo)
 
     p = subparsers.add_parser("lcm-relay", help="LCM's tcpq:// relay on 127.0.0.1, for processes on this machine")
     p.add_argument("--port", type=int, default=DEFAULT_RELAY_PORT,
                    help=f"TCP port on 127.0.0.1 (default {DEFAULT_RELAY_PORT}; 0: any free one, printed)")
+    p.add_argument("--realtime-priority", type=int, default=DEFAULT_PRIORITY,
+                   help=f"SCHED_FIFO priority asked for, as a robot's control loop runs (default {DEFAULT_PRIORITY}; "
+                        "0: normal scheduling); without the privilege it runs as a normal process")
     p.set_defaults(func=run_lcm_relay)

@@ -22,10 +22,12 @@ URL`` runs it around the walk.
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import json
 import math
 import os
+import struct
 import subprocess
 import sys
 import tempfile
@@ -37,16 +39,16 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.lcm import DrakeLcm
 from pydrake.systems.framework import BasicVector, Diagram, DiagramBuilder, LeafSystem
-from pydrake.systems.lcm import LcmInterfaceSystem, LcmSubscriberSystem
+from pydrake.systems.lcm import LcmInterfaceSystem
 from pydrake.systems.primitives import ConstantVectorSource
 
 from qz_drake.config import Scenario, save_scenario
 from qz_drake.errors import QzError
-from qz_drake.hardware.codec import EncodedMessageSerializer, decode, joint_limits, message_key, status_problem
+from qz_drake.hardware.codec import decode, joint_limits, status_problem
 from qz_drake.hardware.config import HardwareConfig, validate_hardware_config
 from qz_drake.hardware.interface import (_CONTACT, _HELD_SIZE, _IMU, _TAU, PoseTrack, decoded_status,
                                          scenario_station_info, updated_pose_track)
-from qz_drake.hardware.qz_lcm import qz_planner, qz_pose, qz_servo, qz_status
+from qz_drake.hardware.qz_lcm import qz_planner, qz_servo, qz_status
 from qz_drake.hardware.references import encode_table, plan_references
 from qz_drake.hardware.servo import REFERENCE_PERIOD
 from qz_drake.robot.params import NUM_JOINTS
@@ -61,6 +63,33 @@ PLANNER_HEARTBEAT_PERIOD = 0.02
 SERVO_TIMEOUT = 2.0
 # How long the planning process waits for the servo's report after the walk. [s]
 REPORT_WAIT = 5.0
+
+
+class TimeSeries:
+    """Values keyed by a non-decreasing key (a time), kept for ``span`` of the key: the newest at
+    or before a key, by bisection."""
+
+    def __init__(self, span: float):
+        self._span = span
+        self.keys: list[float] = []
+        self.values: list = []
+
+    def append(self, key: float, value) -> None:
+        self.keys.append(key)
+        self.values.append(value)
+        if key - self.keys[0] > 2 * self._span:  # prune now and then, not at every append
+            drop = bisect.bisect_left(self.keys, key - self._span)
+            del self.keys[:drop], self.values[:drop]
+
+    def at(self, key: float):
+        """The value of the newest key at or before ``key``; None if there is none."""
+        i = bisect.bisect_right(self.keys, key)
+        return self.values[i - 1] if i else None
+
+
+# How much of the robot's statuses and the servo's clock the planning process keeps: how far
+# its simulation may fall behind the servo's plan clock and still read the status of its time. [s]
+HISTORY_SPAN = 60.0
 
 
 class ServoLink:
@@ -80,6 +109,8 @@ class ServoLink:
         self.config = config
         self.servo: qz_servo | None = None
         self.servo_wall = math.nan
+        # The servo's clock: plan time -> the newest robot status it had taken in (utime).
+        self.status_utime_at_plan_time = TimeSeries(HISTORY_SPAN)
         self.report: dict | None = None
         self._plan_time = -math.inf
         self._finished = False
@@ -96,6 +127,8 @@ class ServoLink:
     def _on_servo(self, data: bytes) -> None:
         m = qz_servo.decode(data)
         self.servo, self.servo_wall = m, time.monotonic()
+        if m.status_utime:
+            self.status_utime_at_plan_time.append(m.plan_time, m.status_utime)
         if m.report:
             self.report = json.loads(m.report)
 
@@ -246,45 +279,63 @@ class ReferencePublisher(LeafSystem):
 
 
 class StatusListener(LeafSystem):
-    """The station's outputs decoded from the robot's newest status and pose, as the servo's
-    interface decodes them, without a watchdog (this process commands nothing).
+    """The station's outputs: the robot's status at the simulation's time on the servo's plan
+    clock, decoded as the servo's interface decodes it (without a watchdog: this process
+    commands nothing).
 
     .. pydrake_system::
 
         name: StatusListener
-        input_ports:
-        - lcm_status
-        - lcm_pose
         output_ports:
         - state
         - joint_torque_measured
         - imu
         - foot_contact
 
+    Once a period it takes the status the servo had taken in when its plan clock read this
+    time (qz_servo maps the two clocks), and the newest pose before it. The simulation may
+    fall behind the servo (a BLC solve): it then reads the statuses of its own time, kept for
+    HISTORY_SPAN, so that its log and verdict compare the plan and the robot at one time, not
+    a plan with where the robot has since walked. Statuses and poses arrive through ``link``'s
+    LCM subscriptions (every one kept, where Drake's LcmSubscriberSystem keeps the newest).
+
     Args:
-        config: protocol settings.
+        link: the servo link (the LCM, the servo's clock).
         params: robot parameters (joint limits: a malformed status is not used).
         prior_state: the state before the first status.
     """
 
-    def __init__(self, *, config: HardwareConfig, params, prior_state: np.ndarray):
+    def __init__(self, *, link: ServoLink, params, prior_state: np.ndarray):
         super().__init__()
-        self._config = config
+        config = link.config
+        self._link = link
+        self._max_extrapolation = config.max_pose_extrapolation
+        self._margin = config.joint_limit_margin
         self._lower, self._upper = joint_limits(params)
-        self._status = self.DeclareAbstractInputPort("lcm_status", AbstractValue.Make(b""))
-        self._pose = self.DeclareAbstractInputPort("lcm_pose", AbstractValue.Make(b""))
+        self._statuses = TimeSeries(HISTORY_SPAN * 1e6)
+        self._poses = TimeSeries(HISTORY_SPAN * 1e6)
+        link.lcm.Subscribe(config.channels.status, lambda data: self._keep(self._statuses, data))
+        link.lcm.Subscribe(config.channels.pose, lambda data: self._keep(self._poses, data))
         held = np.zeros(_HELD_SIZE)
         held[:STATE_SIZE] = prior_state
         held[_IMU] = [1, 0, 0, 0, 0, 0, 0, 0, 0, 9.81]
         held[_CONTACT] = 1.0
         self._held = self.DeclareDiscreteState(held)
-        # (pose track, the last status's key, statuses used, statuses rejected)
-        self._seen = self.DeclareAbstractState(AbstractValue.Make((PoseTrack(), (0, 0), 0, 0)))
+        # (the status used last: its utime; statuses used, statuses rejected)
+        self._seen = self.DeclareAbstractState(AbstractValue.Make((0, 0, 0)))
         self.DeclarePeriodicUnrestrictedUpdateEvent(config.control_period, 0.0, self._update)
         for name, part in (("state", slice(0, STATE_SIZE)), ("joint_torque_measured", _TAU), ("imu", _IMU),
                            ("foot_contact", _CONTACT)):
             self.DeclareVectorOutputPort(name, part.stop - part.start, self._output(part),
                                          {self.discrete_state_ticket(self._held)})
+
+    # qz_status's and qz_pose's utime: the int64 after LCM's 8-byte fingerprint.
+    _UTIME = struct.Struct(">q")
+
+    def _keep(self, series: TimeSeries, data: bytes) -> None:
+        utime = self._UTIME.unpack_from(data, 8)[0]
+        if not series.keys or utime >= series.keys[-1]:  # a robot's clock only moves on
+            series.append(utime, data)
 
     def _output(self, part: slice):
         def calc(context, output: BasicVector):
@@ -293,25 +344,28 @@ class StatusListener(LeafSystem):
 
     def counts(self, context) -> tuple[int, int]:
         """(statuses used, statuses rejected)."""
-        return context.get_abstract_state(self._seen).get_value()[2:]
+        return context.get_abstract_state(self._seen).get_value()[1:]
 
     def _update(self, context, state):
-        track, last_key, used, rejected = context.get_abstract_state(self._seen).get_value()
-        track = updated_pose_track(track, self._pose.Eval(context))
-        data = self._status.Eval(context)
+        last, used, rejected = context.get_abstract_state(self._seen).get_value()
+        utime = self._link.status_utime_at_plan_time.at(context.get_time() + 1e-9)
+        data = None if utime is None else self._statuses.at(utime)
+        if data is None:
+            return
         m, problem = decode(qz_status, data)
-        key = message_key(m, problem, data)
-        if m is not None and key not in (last_key, (0, 0)):
-            problem = problem or status_problem(m, self._lower, self._upper, self._config.joint_limit_margin)
-            if problem:
-                rejected += 1
-            else:
-                used += 1
-                held = context.get_discrete_state(self._held).get_value().copy()
-                state.get_mutable_discrete_state(self._held).set_value(
-                    decoded_status(held, m, track, self._config.max_pose_extrapolation))
-            last_key = key
-        state.get_mutable_abstract_state(self._seen).set_value((track, last_key, used, rejected))
+        if m is None or m.utime == last:
+            return
+        problem = problem or status_problem(m, self._lower, self._upper, self._margin)
+        if problem:
+            rejected += 1
+        else:
+            used += 1
+            pose = self._poses.at(m.utime)
+            track = updated_pose_track(PoseTrack(), pose) if pose is not None else PoseTrack()
+            held = context.get_discrete_state(self._held).get_value().copy()
+            state.get_mutable_discrete_state(self._held).set_value(
+                decoded_status(held, m, track, self._max_extrapolation))
+        state.get_mutable_abstract_state(self._seen).set_value((m.utime, used, rejected))
 
 
 class _Unused(LeafSystem):
@@ -355,15 +409,11 @@ class PlanningLcmStation(Diagram):
         self.link = ServoLink(lcm=lcm, config=config, heartbeat_lcm=heartbeat_lcm)
         builder = DiagramBuilder()
         builder.AddSystem(LcmInterfaceSystem(lcm))
-        status = builder.AddSystem(LcmSubscriberSystem(config.channels.status, EncodedMessageSerializer(qz_status), lcm))
-        pose = builder.AddSystem(LcmSubscriberSystem(config.channels.pose, EncodedMessageSerializer(qz_pose), lcm))
-        self._listener = builder.AddSystem(StatusListener(config=config, params=self.info.params,
+        self._listener = builder.AddSystem(StatusListener(link=self.link, params=self.info.params,
                                                           prior_state=self.info.initial_state))
         self._pacer = builder.AddSystem(ServoClockPacer(link=self.link))
         self._publisher = builder.AddSystem(ReferencePublisher(link=self.link, topology=self.info.topology,
                                                                params=self.info.params))
-        builder.Connect(status.get_output_port(), self._listener.GetInputPort("lcm_status"))
-        builder.Connect(pose.get_output_port(), self._listener.GetInputPort("lcm_pose"))
         inputs = ["joint_torque"]
         if scenario.station.control_mode == "position":
             inputs += ["joint_position_command", "joint_velocity_command"]
@@ -422,16 +472,14 @@ class ServoProcess:
         scenario: the walk's scenario.
         lcm_url: the robot's LCM.
         config: protocol settings.
-        realtime_rate: the servo's pacing (the simulated driver's rate; 1 on the robot).
         startup_timeout: how long the servo may take to start. [s]
     """
 
     def __init__(self, scenario: Scenario, *, lcm_url: str, config: HardwareConfig | None = None,
-                 realtime_rate: float = 1.0, startup_timeout: float = 60.0, log: Path | None = None):
+                 startup_timeout: float = 60.0, log: Path | None = None):
         self._scenario = scenario
         self._url = lcm_url
         self._config = validate_hardware_config(config or HardwareConfig())
-        self._rate = realtime_rate
         self._timeout = startup_timeout
         self._log = log
         self.process: subprocess.Popen | None = None
@@ -446,7 +494,7 @@ class ServoProcess:
         (folder / "hardware.yaml").write_text(yaml_dump_typed(self._config))
         command = [sys.executable, "-m", "qz_drake.cli", "servo", str(folder / "scenario.yaml"),
                    "--lcm-url", self._url, "--hardware", str(folder / "hardware.yaml"),
-                   "--realtime-rate", str(self._rate), "--parent-pid", str(os.getpid())]
+                   "--parent-pid", str(os.getpid())]
         stderr = open(self._log, "w") if self._log is not None else subprocess.DEVNULL
         self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=stderr, text=True)
         if stderr is not subprocess.DEVNULL:

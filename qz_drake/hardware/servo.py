@@ -32,6 +32,8 @@ import json
 import math
 import os
 import signal
+import struct
+import time
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -82,6 +84,8 @@ class PlayerState:
     fault_time: float = math.nan
     # The safe stop latched on the servo's interface, whatever latched it ("" while none).
     safe_stop: str = ""
+    # The newest robot status taken in when the plan clock last moved (its utime). [us]
+    status_utime: int = 0
 
     def __deepcopy__(self, memo):
         return self
@@ -129,8 +133,10 @@ class ReferencePlayer(LeafSystem):
         self._period = config.control_period
         self._inbox: list[bytes] = []
         self._heartbeat = [b""]
+        self._status_utime = [0]
         lcm.Subscribe(config.channels.reference, self._inbox.append)
         lcm.Subscribe(config.channels.planner, self._keep_heartbeat)
+        lcm.Subscribe(config.channels.status, self._keep_status_time)
         first = ReferenceTable(start_time=0.0, period=REFERENCE_PERIOD, rows=np.asarray(standing, float)[None])
         self._state = self.DeclareAbstractState(AbstractValue.Make(PlayerState(table=first)))
         self._row = self.DeclareDiscreteState(np.asarray(standing, dtype=float))
@@ -144,6 +150,12 @@ class ReferencePlayer(LeafSystem):
 
     def _keep_heartbeat(self, data: bytes) -> None:
         self._heartbeat[0] = data
+
+    # qz_status's utime: the int64 after LCM's 8-byte fingerprint.
+    _UTIME = struct.Struct(">q")
+
+    def _keep_status_time(self, data: bytes) -> None:
+        self._status_utime[0] = self._UTIME.unpack_from(data, 8)[0]
 
     def _held(self, part: slice):
         def calc(context, output: BasicVector):
@@ -202,6 +214,7 @@ class ReferencePlayer(LeafSystem):
             if not s.holding and math.isfinite(s.planner_time) and not s.finished:
                 # The planning process is behind the robot.
                 s = dataclasses.replace(s, holding=True, hold_start=t, late_holds=s.late_holds + 1)
+        s = dataclasses.replace(s, status_utime=self._status_utime[0])
         if s.table.start_time < s.plan_time - 1.0:  # rows long past are no longer needed
             s = dataclasses.replace(s, table=s.table.after(s.plan_time))
         state.get_mutable_abstract_state(self._state).set_value(s)
@@ -217,7 +230,7 @@ class ReferencePlayer(LeafSystem):
         m = qz_servo()
         # One a period; the last one (the report) one more.
         m.utime, m.sequence = int(round(t * 1e6)), int(round(t / self._period - PLAYER_PHASE)) + 1 + bool(report)
-        m.plan_time, m.reference_end, m.holding = s.plan_time, s.table.end_time, s.holding
+        m.status_utime, m.plan_time, m.reference_end, m.holding = s.status_utime, s.plan_time, s.table.end_time, s.holding
         m.late_holds, m.late_hold_time, m.longest_late_hold = s.late_holds, s.late_hold_time, s.longest_late_hold
         m.safe_stop, m.reason, m.report = bool(s.safe_stop), s.safe_stop, report
         return m
@@ -229,6 +242,53 @@ class ReferencePlayer(LeafSystem):
         state.set_value(dataclasses.replace(state.get_value(), safe_stop=reason))
 
 
+class LatencyRecorder:
+    """Status -> command latency as the servo's process sees it: from the moment a status is
+    taken in (its LCM subscription's callback, as the interface's pacer pumps) to the publish of
+    the command that answers it (the interface's command hook), and the wall time between two
+    commands. Statuses are matched by sequence number, read from the encoded message."""
+
+    # Where qz_status's sequence sits in an encoded message: after LCM's 8-byte fingerprint and
+    # the int64 utime.
+    _SEQUENCE = struct.Struct(">q")
+    _SEQUENCE_OFFSET = 16
+
+    def __init__(self, lcm: DrakeLcm, channel: str):
+        self._arrivals: dict[int, float] = {}
+        self.latencies: list[float] = []
+        self.gaps: list[float] = []
+        self._last_command = math.nan
+        lcm.Subscribe(channel, self._on_status)
+
+    def _on_status(self, data: bytes) -> None:
+        (sequence,) = self._SEQUENCE.unpack_from(data, self._SEQUENCE_OFFSET)
+        self._arrivals[sequence] = time.monotonic()
+        if len(self._arrivals) > 64:  # only the newest few can still be answered
+            for key in sorted(self._arrivals)[:-32]:
+                del self._arrivals[key]
+
+    def on_command(self, m):
+        now = time.monotonic()
+        arrival = self._arrivals.get(m.status_sequence)
+        if arrival is not None and m.mode != m.MODE_SAFE_STOP:
+            self.latencies.append(now - arrival)
+            del self._arrivals[m.status_sequence]  # a repeated command answers no new status
+        if math.isfinite(self._last_command):
+            self.gaps.append(now - self._last_command)
+        self._last_command = now
+        return m
+
+    def summary(self) -> dict:
+        """Median, 99th percentile and largest latency, and the longest time between two
+        commands, all in wall-clock ms."""
+        if not self.latencies:
+            return {"commands_answering_a_status": 0}
+        ms = np.asarray(self.latencies) * 1e3
+        return {"commands_answering_a_status": int(ms.size), "latency_median_ms": float(np.median(ms)),
+                "latency_p99_ms": float(np.percentile(ms, 99)), "latency_max_ms": float(ms.max()),
+                "longest_command_gap_ms": float(max(self.gaps, default=0.0) * 1e3)}
+
+
 class Servo:
     """The servo's diagram: QingzhuiHardwareInterface, ReferencePlayer and the joint PD (Eq. 7,
     or in position mode the drives' PD on the player's q_des / v_des and the compensation here),
@@ -238,22 +298,23 @@ class Servo:
         scenario: the walk's scenario (gains, control mode, the standing start).
         lcm: the LCM the robot driver and the planning process are on.
         config: protocol settings.
-        realtime_rate: the simulator's pacing (1 on a robot; a simulated driver's rate).
         with_driver: the simulated robot driver in the same diagram, on an in-process
             ``memq://`` LCM (the lockstep servo, as ``qz simulate --station lcm`` runs the
             interface and the driver): tests, and a planner in the same process.
     """
 
     def __init__(self, *, scenario: Scenario, lcm: DrakeLcm, config: HardwareConfig | None = None,
-                 realtime_rate: float = 1.0, with_driver: bool = False):
+                 with_driver: bool = False):
         self.config = validate_hardware_config(config or HardwareConfig())
         builder = DiagramBuilder()
+        self.latency = LatencyRecorder(lcm, self.config.channels.status)
         self.driver = None
         if with_driver:
             from qz_drake.hardware.driver import QingzhuiRobotDriver
 
             self.driver = builder.AddSystem(QingzhuiRobotDriver(scenario=scenario, lcm=lcm, config=self.config))
-        interface, info = make_hardware_interface(scenario, lcm=lcm, config=self.config)
+        interface, info = make_hardware_interface(scenario, lcm=lcm, config=self.config,
+                                                  command_filter=self.latency.on_command)
         self.interface = builder.AddSystem(interface)
         weight = info.params.total_mass * GRAVITY / NUM_LEGS
         self.player = builder.AddSystem(ReferencePlayer(
@@ -263,8 +324,12 @@ class Servo:
         add_joint_pd(builder, self.interface, self.player, params=info.params, kp=control.kp, kd=control.kd,
                      position_mode=scenario.station.control_mode == "position", update_period=REFERENCE_PERIOD)
         self.diagram = builder.Build()
+        # Not paced to a clock of its own: against a driver in another process the interface
+        # waits for each status (StatusPacer) and then runs to its command at once, so that a
+        # command leaves as soon as it can (paced to real time, the simulator slept until the
+        # command's phase of its own schedule: the robot took 39 % of the commands a period
+        # late); in the lockstep diagram it runs as fast as it can.
         self.simulator = Simulator(self.diagram)
-        self.simulator.set_target_realtime_rate(realtime_rate)
         self.lcm = lcm
 
     @property
@@ -313,7 +378,8 @@ class Servo:
     def report(self) -> dict:
         root = self.context
         link = self.interface.watchdog(root)
-        return {"servo": {**self.player_state().counters(root.get_time()), "time_s": root.get_time()},
+        return {"servo": {**self.player_state().counters(root.get_time()), "time_s": root.get_time(),
+                          **self.latency.summary()},
                 "interface": self.interface.counters(root),
                 "safe_stop": (f"at {link.latched_time:.3f} s on the servo: {link.reason}" if link.latched else "")}
 
@@ -326,7 +392,7 @@ class Servo:
         return report
 
 
-def serve(scenario: Scenario, *, lcm_url: str, config: HardwareConfig | None = None, realtime_rate: float = 1.0,
+def serve(scenario: Scenario, *, lcm_url: str, config: HardwareConfig | None = None,
           parent_pid: int | None = None, ready=None) -> dict:
     """``qz servo``: connects, serves until the planner finishes, SIGTERM or a safe stop; the report."""
     from qz_drake.hardware.relay import connect_lcm
@@ -338,8 +404,7 @@ def serve(scenario: Scenario, *, lcm_url: str, config: HardwareConfig | None = N
 
     previous = signal.signal(signal.SIGTERM, on_term)
     try:
-        servo = Servo(scenario=scenario, lcm=connect_lcm(lcm_url, "--lcm-url"), config=config,
-                      realtime_rate=realtime_rate)
+        servo = Servo(scenario=scenario, lcm=connect_lcm(lcm_url, "--lcm-url"), config=config)
         return servo.run(parent_pid=parent_pid, ready=ready, stop_requested=lambda: stop[0])
     finally:
         signal.signal(signal.SIGTERM, previous)

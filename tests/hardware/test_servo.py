@@ -124,7 +124,7 @@ def run(servo: Servo, until: float, planner: FakePlanner, planner_time, step: fl
 def test_a_late_planner_holds_the_stance_and_the_walk_goes_on_when_the_plan_comes(walk_flat):
     scenario, info, first, second = walk_flat
     lcm = DrakeLcm("memq://")
-    servo = Servo(scenario=scenario, lcm=lcm, with_driver=True, realtime_rate=0.0)
+    servo = Servo(scenario=scenario, lcm=lcm, with_driver=True)
     planner = FakePlanner(lcm, servo.config)
     servo.simulator.Initialize()
     planner.send(plan_references(first, topology=info.topology, params=info.params))
@@ -134,6 +134,7 @@ def test_a_late_planner_holds_the_stance_and_the_walk_goes_on_when_the_plan_come
     assert s.holding and s.late_holds == 1 and s.plan_time == pytest.approx(first.end_time + 0.005)
     report = servo.report()
     assert report["safe_stop"] == "" and report["servo"]["late_hold_time_s"] > 0.8
+    assert report["servo"]["commands_answering_a_status"] > 500 and report["servo"]["latency_p99_ms"] > 0
     # Walked the first mission, then stood: the base stays put while it holds.
     end = np.array(states[-1])
     assert end[BASE_POS][0] == pytest.approx(0.25, abs=0.03)
@@ -154,7 +155,7 @@ def test_a_silent_planner_latches_a_safe_stop_with_its_reason(walk_flat):
     scenario, info, first, _ = walk_flat
     lcm = DrakeLcm("memq://")
     config = HardwareConfig(planner_timeout=0.2)
-    servo = Servo(scenario=scenario, lcm=lcm, config=config, with_driver=True, realtime_rate=0.0)
+    servo = Servo(scenario=scenario, lcm=lcm, config=config, with_driver=True)
     planner = FakePlanner(lcm, config)
     servo.simulator.Initialize()
     planner.send(plan_references(first, topology=info.topology, params=info.params))
@@ -170,7 +171,7 @@ def test_a_silent_planner_latches_a_safe_stop_with_its_reason(walk_flat):
 
 def test_a_planning_process_that_exits_latches_a_safe_stop(walk_flat):
     scenario, *_ = walk_flat
-    servo = Servo(scenario=scenario, lcm=DrakeLcm("memq://"), with_driver=True, realtime_rate=0.0)
+    servo = Servo(scenario=scenario, lcm=DrakeLcm("memq://"), with_driver=True)
     servo.simulator.Initialize()
     servo.simulator.AdvanceTo(0.1)
     servo._sync_safe_stop(os.getppid())

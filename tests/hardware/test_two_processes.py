@@ -91,3 +91,48 @@ def test_walk_flat_with_the_robot_driver_in_another_process(tmp_path):
     assert code == 0 and metrics["success"], metrics["reason"]
     check_link(metrics, driver, relay)
     assert metrics["final_xy_error_m"] < 0.15
+
+
+def test_a_planning_process_killed_mid_walk_leaves_the_servo_in_a_safe_stop_that_says_why(tmp_path):
+    """`qz simulate --station lcm` at a network URL plans in its own process and starts `qz
+    servo`, which commands the robot; killed outright mid-walk, the planning process can say
+    nothing, and the servo latches a safe stop naming it (its qz_servo messages say so)."""
+    from pydrake.lcm import DrakeLcm
+
+    from qz_drake.hardware.qz_lcm import qz_servo
+
+    hardware = tmp_path / "hardware.yaml"
+    hardware.write_text(SHARED_MACHINE)
+    common = ("--realtime-rate", 0.5, "--hardware", hardware)
+    relay = subprocess.Popen(qz("lcm-relay", "--port", 0), stdout=subprocess.PIPE, text=True)
+    processes = [relay]
+    try:
+        url = json.loads(relay.stdout.readline())["lcm_url"]
+        processes.append(subprocess.Popen(qz("robot-sim", SCENARIOS / "walk_flat.yaml", "--lcm-url", url, *common),
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        planner = subprocess.Popen(qz("simulate", SCENARIOS / "walk_flat.yaml", "--station", "lcm", "--lcm-url", url,
+                                      *common, "--out", tmp_path / "run"),
+                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        processes.append(planner)
+        messages: list[qz_servo] = []
+        lcm = DrakeLcm(url)
+        lcm.Subscribe("QZ_SERVO", lambda data: messages.append(qz_servo.decode(data)))
+
+        def wait_for(condition, seconds: float) -> bool:
+            deadline = time.monotonic() + seconds
+            while time.monotonic() < deadline:
+                lcm.HandleSubscriptions(50)
+                if messages and condition(messages[-1]):
+                    return True
+            return False
+
+        # The servo walks the first mission's references.
+        assert wait_for(lambda m: m.plan_time > 1.0, 120), messages[-1:] or "no qz_servo"
+        planner.kill()
+        planner.wait(timeout=10)
+        assert wait_for(lambda m: m.safe_stop, 30), f"no safe stop after the planner died: {messages[-1].reason!r}"
+        assert messages[-1].reason == f"planner process {planner.pid} exited"
+    finally:
+        for process in reversed(processes):
+            process.terminate()
+            process.wait(timeout=30)

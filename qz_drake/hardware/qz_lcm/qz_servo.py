@@ -14,11 +14,11 @@ class qz_servo(object):
     holds a stance because no reference reaches further, and its safe stop.
     """
 
-    __slots__ = ["utime", "sequence", "plan_time", "reference_end", "holding", "late_holds", "late_hold_time", "longest_late_hold", "safe_stop", "reason", "report"]
+    __slots__ = ["utime", "sequence", "status_utime", "plan_time", "reference_end", "holding", "late_holds", "late_hold_time", "longest_late_hold", "safe_stop", "reason", "report"]
 
-    __typenames__ = ["int64_t", "int64_t", "double", "double", "boolean", "int32_t", "double", "double", "boolean", "string", "string"]
+    __typenames__ = ["int64_t", "int64_t", "int64_t", "double", "double", "boolean", "int32_t", "double", "double", "boolean", "string", "string"]
 
-    __dimensions__ = [None, None, None, None, None, None, None, None, None, None, None]
+    __dimensions__ = [None, None, None, None, None, None, None, None, None, None, None, None]
 
     def __init__(self):
         self.utime = 0
@@ -29,14 +29,22 @@ class qz_servo(object):
 
         self.sequence = 0
         """ LCM Type: int64_t """
-        self.plan_time = 0.0
+        self.status_utime = 0
         """
-        The plan time the servo's references are read at, and the last row's time. [s]
+        The newest robot status the servo has taken in (its utime, the robot's clock) [us], and
+        the plan time the servo's references were read at for it [s]: the planning process reads
+        each status at its plan time.
+        LCM Type: int64_t
+        """
+
+        self.plan_time = 0.0
+        """ LCM Type: double """
+        self.reference_end = 0.0
+        """
+        The last row's time. [s]
         LCM Type: double
         """
 
-        self.reference_end = 0.0
-        """ LCM Type: double """
         self.holding = False
         """
         The servo holds the last reference (standing) because no later row has come.
@@ -77,7 +85,7 @@ class qz_servo(object):
         return buf.getvalue()
 
     def _encode_one(self, buf):
-        buf.write(struct.pack(">qqddbiddb", self.utime, self.sequence, self.plan_time, self.reference_end, self.holding, self.late_holds, self.late_hold_time, self.longest_late_hold, self.safe_stop))
+        buf.write(struct.pack(">qqqddbiddb", self.utime, self.sequence, self.status_utime, self.plan_time, self.reference_end, self.holding, self.late_holds, self.late_hold_time, self.longest_late_hold, self.safe_stop))
         __reason_encoded = self.reason.encode('utf-8')
         buf.write(struct.pack('>I', len(__reason_encoded)+1))
         buf.write(__reason_encoded)
@@ -100,7 +108,7 @@ class qz_servo(object):
     @staticmethod
     def _decode_one(buf):
         self = qz_servo()
-        self.utime, self.sequence, self.plan_time, self.reference_end = struct.unpack(">qqdd", buf.read(32))
+        self.utime, self.sequence, self.status_utime, self.plan_time, self.reference_end = struct.unpack(">qqqdd", buf.read(40))
         self.holding = bool(struct.unpack('b', buf.read(1))[0])
         self.late_holds, self.late_hold_time, self.longest_late_hold = struct.unpack(">idd", buf.read(20))
         self.safe_stop = bool(struct.unpack('b', buf.read(1))[0])
@@ -113,7 +121,7 @@ class qz_servo(object):
     @staticmethod
     def _get_hash_recursive(parents):
         if qz_servo in parents: return 0
-        tmphash = (0x4b354811e6086759) & 0xffffffffffffffff
+        tmphash = (0x94d815bac3baa1fe) & 0xffffffffffffffff
         tmphash  = (((tmphash<<1)&0xffffffffffffffff) + (tmphash>>63)) & 0xffffffffffffffff
         return tmphash
     _packed_fingerprint = None
