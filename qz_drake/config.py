@@ -199,6 +199,23 @@ class _YamlLoader(yaml.SafeLoader):
     numbers, as YAML 1.2 and Drake's typed loader do; YAML 1.1 takes them for text, and a
     scenario's ``duration: 1.0e9`` was refused as "expected a number"."""
 
+    def construct_mapping(self, node, deep=False):
+        # YAML keeps the last of two equal keys without a word: a second `simulation:` section
+        # silently replaced the first. (Keys a merge key `<<` brings in may be overridden.)
+        if isinstance(node, yaml.MappingNode):
+            first_line = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge" or not isinstance(key_node, yaml.ScalarNode):
+                    continue
+                key, line = self.construct_object(key_node), key_node.start_mark.line + 1
+                if key in first_line:
+                    where = f"twice on line {line}" if first_line[key] == line else \
+                        f"on lines {first_line[key]} and {line}"
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"duplicate key {key!r} {where}; give each key once")
+                first_line[key] = line
+        return super().construct_mapping(node, deep=deep)
+
 
 _YamlLoader.add_implicit_resolver(
     "tag:yaml.org,2002:float",
@@ -294,6 +311,16 @@ def _positive(path: str, value: float) -> None:
         raise bad_value(path, value, "must be a finite positive number")
 
 
+def check_simulated_time(field: str, value) -> float:
+    """``value`` as the simulated time of one run: finite, positive and at most
+    MAX_SIMULATED_TIME; errors name ``field`` and the value."""
+    _positive(field, value)
+    if value > MAX_SIMULATED_TIME:
+        raise bad_value(field, value, f"longer than the limit of {MAX_SIMULATED_TIME:g} s of simulated time for one "
+                                      f"run (its recording grows by about 100 kB per second)")
+    return float(value)
+
+
 def validate_scenario(scenario: Scenario) -> Scenario:
     """Checks values that the YAML types cannot; returns the scenario."""
     from qz_drake.robot.topology import TOPOLOGY_NAMES
@@ -328,11 +355,7 @@ def validate_scenario(scenario: Scenario) -> Scenario:
     if len(r.initial_xy) != 2 or not all(math.isfinite(v) for v in r.initial_xy):
         raise bad_value("scenario.robot.initial_xy", r.initial_xy, "expected two finite numbers")
     s = scenario.simulation
-    _positive("scenario.simulation.duration", s.duration)
-    if s.duration > MAX_SIMULATED_TIME:
-        raise bad_value("scenario.simulation.duration", s.duration,
-                        f"longer than the limit of {MAX_SIMULATED_TIME:g} s of simulated time for one run "
-                        f"(its recording grows by about 100 kB per second)")
+    check_simulated_time("scenario.simulation.duration", s.duration)
     _positive("scenario.simulation.time_step", s.time_step)
     if s.duration / s.time_step > MAX_PLANT_STEPS:
         raise bad_value("scenario.simulation.time_step", s.time_step,
@@ -381,6 +404,10 @@ def validate_scenario(scenario: Scenario) -> Scenario:
 
 
 def load_scenario_text(text: str, source: str = "<string>") -> Scenario:
+    """The validated Scenario of a scenario's YAML ``text``; ``source`` names it in errors."""
+    if not isinstance(text, str):
+        raise bad_value("text", text if text is None else type(text).__name__,
+                        "expected the text of a scenario YAML file (load_scenario reads a file)")
     try:
         raw = yaml_load(text)
     except yaml.YAMLError as e:

@@ -13,7 +13,7 @@ import numpy as np
 from pydrake.math import RollPitchYaw
 
 from qz_drake.config import Scenario, TerrainConfig, check_feet_on_map, feet_on_ground
-from qz_drake.errors import ConfigError, KinematicsError, QzError, bad_value
+from qz_drake.errors import ConfigError, KinematicsError, QzError, TerrainError, bad_value
 from qz_drake.robot import kinematics
 from qz_drake.robot.params import DEFAULT_PARAMS, LEG_NAMES, NUM_LEGS, QingzhuiParams
 from qz_drake.robot.topology import Topology, get_topology
@@ -21,6 +21,20 @@ from qz_drake.state_layout import BASE_Z, make_state
 from qz_drake.terrain import HeightMap, grid_map_terrain, make_terrain
 
 GRAVITY = 9.81
+
+
+def load_heightmap_file(path, field: str, value, **scale) -> HeightMap:
+    """``HeightMap.load(path, **scale)``; an error about the file itself (not a heightmap, too
+    few pixels) names ``field`` and ``value``, the file as the user gave it, in place of the
+    loader's own field."""
+    try:
+        return HeightMap.load(path, **scale)
+    except TerrainError as e:
+        for loader_field in ("heightmap.file", "heightmap.image"):
+            prefix = f"{loader_field} = {str(path)!r}: "
+            if str(e).startswith(prefix):
+                raise bad_value(field, value, str(e)[len(prefix):], TerrainError) from None
+        raise
 
 
 def make_heightmap(config: TerrainConfig, seed: int = 0):
@@ -42,12 +56,12 @@ def make_heightmap(config: TerrainConfig, seed: int = 0):
                                     f"required with a picture file ({path.name}): its cell size and the "
                                     f"height of a full-scale pixel, e.g. params: {{resolution: 0.05, "
                                     f"min_height: 0.0, max_height: 0.4}}")
-            return HeightMap.load(path, **config.params)
+            return load_heightmap_file(path, "scenario.terrain.file", config.file, **config.params)
         if config.params:
             key = sorted(config.params)[0]
             raise bad_value(f"scenario.terrain.params.{key}", config.params[key],
                             f"a {path.suffix} file carries its own scale; give params only with an image")
-        return HeightMap.load(path)
+        return load_heightmap_file(path, "scenario.terrain.file", config.file)
     if config.kind == "grid_map":
         allowed = {"resolution", "min_height", "max_height"}
         for key in config.params:

@@ -17,7 +17,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 
-from qz_drake.config import Scenario
+from qz_drake.config import Scenario, check_simulated_time
 from qz_drake.scene import GRAVITY
 from qz_drake.station import make_station
 from qz_drake.systems.joint_pd import JointPdController
@@ -109,6 +109,9 @@ def simulate(scenario: Scenario, *, duration: float | None = None, meshcat: Mesh
     simulated; a standing run: at most every PROGRESS_PERIOD of wall time) and once when the
     simulation has ended (end_time then its final time; missions None for a standing run).
     ``route_source``: a walk's, as in walk()."""
+    if duration is not None:
+        # Drake's AdvanceTo would stop the interpreter on a negative or NaN end time.
+        check_simulated_time("duration", duration)
     if scenario.controller.kind == "walk":
         return walk(scenario, meshcat=meshcat, out_dir=out_dir, max_duration=duration,
                     station_factory=station_factory, realtime_rate=realtime_rate, progress=progress,

@@ -21,6 +21,8 @@ from qz_drake.cli import main
 REPO = Path(__file__).resolve().parents[1]
 STAND_FLAT = str(REPO / "scenarios" / "stand_flat.yaml")
 TROT_FLAT = str(REPO / "scenarios" / "trot_flat.yaml")
+STATIC_GAIT_FLAT = str(REPO / "scenarios" / "static_gait" / "static_gait_flat.yaml")
+WALK_FLAT = str(REPO / "scenarios" / "walk_flat.yaml")
 
 # Scenario files written for the cases, by name.
 SCENARIO_TEXTS = {
@@ -31,6 +33,9 @@ SCENARIO_TEXTS = {
     "flat_1e6_m_long.yaml": "terrain: {kind: flat, params: {size_x: 1e6}}\n",
     "narrow_png.yaml": "terrain: {kind: file, file: narrow.png, params: {resolution: 0.05, max_height: 0.4}}\n",
     "seed_1.5.yaml": "terrain: {kind: rough, params: {seed: 1.5}}\n",
+    "one_pixel_png.yaml": "terrain: {kind: file, file: one_pixel.png, params: {resolution: 0.05, max_height: 0.4}}\n",
+    "not_a_zip_npz.yaml": "terrain: {kind: file, file: not_a_zip.npz}\n",
+    "simulation_twice.yaml": "simulation: {duration: 3.0}\nterrain: {kind: flat}\nsimulation: {duration: 5.0}\n",
 }
 
 
@@ -128,6 +133,56 @@ CASES = [
     ("experiment_out_empty", ["experiment", "capplanner-vs-astar", "--out", ""], ["--out = ''"]),
     ("experiment_negative_blc_retries", ["experiment", "capplanner-vs-astar", "--out", "{tmp}/x", "--blc-retries", "-1"],
      ["--blc-retries = -1"]),
+    # Issue 56: files that are not what they are named, sizes that never end, numbers out of range.
+    ("plan_npz_not_a_zip", ["plan", "--terrain", "{tmp}/not_a_zip.npz", "--start", "0,0", "--goal", "1,0",
+                            "--out", "{tmp}/o"], ["--terrain = ", "not_a_zip.npz", "not a zip archive"]),
+    ("plan_picture_without_scale", ["plan", "--terrain", "{tmp}/picture.png", "--start", "0,0", "--goal", "1,0",
+                                    "--out", "{tmp}/o"],
+     ["--terrain = ", "picture.png", "--terrain-param resolution=", "max_height="]),
+    ("plan_min_success_2", ["plan", "--terrain", "flat", "--start", "0,0", "--goal", "1,0", "--min-success", "2",
+                            "--out", "{tmp}/o"], ["--min-success = 2.0", "[0, 1]"]),
+    ("plan_min_success_nan", ["plan", "--terrain", "flat", "--start", "0,0", "--goal", "1,0", "--min-success", "nan",
+                              "--out", "{tmp}/o"], ["--min-success = nan"]),
+    ("simulate_png_map_1x1", _simulate("one_pixel_png.yaml"),
+     ["scenario.terrain.file = ", "one_pixel.png", "1 x 1 pixels", "at least 2 x 2"]),
+    ("simulate_npz_map_not_a_zip", _simulate("not_a_zip_npz.yaml"),
+     ["scenario.terrain.file = ", "not_a_zip.npz", "not a zip archive"]),
+    ("simulate_yaml_simulation_twice", _simulate("simulation_twice.yaml"),
+     ["simulation_twice.yaml", "duplicate key 'simulation' on lines 1 and 3"]),
+    ("simulate_lcm_url_bogus", ["simulate", STAND_FLAT, "--station", "lcm", "--lcm-url", "bogus://x", "--out", "{tmp}/o"],
+     ["--lcm-url = 'bogus://x'", "unknown LCM provider 'bogus'", "udpm://"]),
+    ("robot_sim_lcm_url_bogus", ["robot-sim", WALK_FLAT, "--lcm-url", "bogus://x", "--duration", "1"],
+     ["--lcm-url = 'bogus://x'", "unknown LCM provider 'bogus'"]),
+    ("robot_sim_lcm_url_not_multicast", ["robot-sim", WALK_FLAT, "--lcm-url", "udpm://999.1.1.1:1", "--duration", "1"],
+     ["--lcm-url = 'udpm://999.1.1.1:1'", "not an IPv4 multicast group"]),
+    ("robot_sim_lcm_url_port_0", ["robot-sim", WALK_FLAT, "--lcm-url", "udpm://239.255.76.67:0", "--duration", "1"],
+     ["--lcm-url = 'udpm://239.255.76.67:0'", "1..65535"]),
+    ("static_gait_steps_1e9", ["static-gait", STATIC_GAIT_FLAT, "--steps", "1000000000", "--json", "--out", "{tmp}/o"],
+     ["--steps = 1000000000", "at most 544 swings"]),
+    ("static_gait_depth_1e9", ["static-gait", STATIC_GAIT_FLAT, "--depth", "1000000000", "--out", "{tmp}/o"],
+     ["--depth = 1000000000", "100"]),
+    ("gait_depth_study_terrains_1e9", ["gait-depth-study", "--terrains", "1000000000", "--out", "{tmp}/o"],
+     ["--terrains = 1000000000", "1000"]),
+    ("gait_depth_study_max_nodes_1e9", ["gait-depth-study", "--max-nodes", "1000000000", "--out", "{tmp}/o"],
+     ["--max-nodes = 1000000000", "100000"]),
+    ("gait_depth_study_depths_1e9", ["gait-depth-study", "--depths", "1,1000000000", "--out", "{tmp}/o"],
+     ["--depths = '1,1000000000'", "100"]),
+    ("gait_depth_study_seed_-1", ["gait-depth-study", "--seed", "-1", "--out", "{tmp}/o"], ["--seed = -1"]),
+    ("capability_collect_scenes_1e9", ["capability", "collect", "--scenes", "1000000000", "--out", "{tmp}/o"],
+     ["--scenes = 1000000000", "1e+06"]),
+    ("capability_collect_headings_1e9", ["capability", "collect", "--headings", "1000000000", "--out", "{tmp}/o"],
+     ["--headings = 1000000000", "1e+06"]),
+    ("capability_collect_workers_1e6", ["capability", "collect", "--workers", "1000000", "--out", "{tmp}/o"],
+     ["--workers = 1000000", "per CPU"]),
+    ("capability_collect_seed_-1", ["capability", "collect", "--seed", "-1", "--out", "{tmp}/o"], ["--seed = -1"]),
+    ("capability_collect_time_step_1e-9", ["capability", "collect", "--time-step", "1e-9", "--out", "{tmp}/o"],
+     ["--time-step = 1e-09", "0.0001 s"]),
+    ("capability_train_members_1e9", ["capability", "train", "--learner", "boosted", "--members", "1000000000",
+                                      "--dataset", "{tmp}", "--out", "{tmp}/o"], ["--members = 1000000000", "100"]),
+    ("experiment_tasks_1e6", ["experiment", "capplanner-vs-astar", "--tasks", "1000000", "--out", "{tmp}/o"],
+     ["--tasks = 1000000", "1000"]),
+    ("experiment_blc_retries_1e9", ["experiment", "capplanner-vs-astar", "--blc-retries", "1000000000",
+                                    "--out", "{tmp}/o"], ["--blc-retries = 1000000000", "10"]),
 ]
 
 
@@ -142,6 +197,9 @@ def _write_inputs(folder: Path) -> None:
     # 3 pixels wide, 997 high: 0.10 m x 49.8 m at 0.05 m.
     Image.fromarray(np.full((997, 3), 128, np.uint8)).save(folder / "narrow.png")
     HeightMap(np.zeros((4, 4)), 0.1).save_npz(folder / "map.npz")
+    Image.fromarray(np.zeros((1, 1), np.uint8)).save(folder / "one_pixel.png")
+    # A zip's first bytes and then none of it: zipfile.BadZipFile in numpy's loader.
+    (folder / "not_a_zip.npz").write_bytes(b"PK\x03\x04" + b"not a zip archive" * 4)
     (folder / "a_file.txt").write_text("not a folder\n")
     for name, text in SCENARIO_TEXTS.items():
         (folder / name).write_text(text)
@@ -185,6 +243,9 @@ def _listing(folder: Path) -> set[str]:
 
 @pytest.mark.parametrize("argv, named", [(argv, named) for _, argv, named in CASES], ids=[c[0] for c in CASES])
 def test_bad_input_is_refused_in_one_line_before_any_work(inputs, capsys, monkeypatch, argv, named):
+    import qz_drake.capability.collect
+    import qz_drake.planning.depth_study
+    import qz_drake.planning.static_gait_scenario
     import qz_drake.simulation
     import qz_drake.trajopt.solver
     # Modules that bind these functions at import are imported first: imported while they are
@@ -197,6 +258,9 @@ def test_bad_input_is_refused_in_one_line_before_any_work(inputs, capsys, monkey
     # The long computations: none may start on bad input.
     monkeypatch.setattr(qz_drake.simulation, "simulate", no_work)
     monkeypatch.setattr(qz_drake.trajopt.solver, "solve_blc", no_work)
+    monkeypatch.setattr(qz_drake.planning.static_gait_scenario, "search_gait", no_work)
+    monkeypatch.setattr(qz_drake.planning.depth_study, "search_gait", no_work)
+    monkeypatch.setattr(qz_drake.capability.collect.LocalPool, "run", no_work)
     before, repository = _listing(inputs), set(os.listdir(REPO))
     code, out, err = run_qz([a.replace("{tmp}", str(inputs)) for a in argv], capsys)
     lines = err.strip().splitlines()
@@ -349,3 +413,180 @@ def test_help_pages_list_the_valid_choices(capsys):
     assert all(name in capability_map for name in (*TOPOLOGY_NAMES, *TERRAIN_KINDS))
     assert all(name in _help(["classify", "collect"], capsys) for name in MATERIALS)
     assert all(name in _help(["bench"], capsys) for name in SUITES)
+
+
+# -- issue 56: library calls, signals, the shipped dataset ----------------------------------------
+@pytest.mark.parametrize("content", [b"", b"not a zip", b"PK\x03\x04" + b"\x00" * 40], ids=["empty", "text", "zip_head"])
+def test_npz_that_is_no_zip_archive_names_the_file(tmp_path, content):
+    # Was: zipfile.BadZipFile (zip head), EOFError (empty), or numpy's advice to load a pickle.
+    from qz_drake.errors import TerrainError
+    from qz_drake.terrain import HeightMap
+
+    (tmp_path / "garbage.npz").write_bytes(content)
+    with pytest.raises(TerrainError, match=r"heightmap\.file = .*garbage\.npz.*not a zip archive"):
+        HeightMap.load_npz(tmp_path / "garbage.npz")
+
+
+@pytest.mark.parametrize("text", [None, b"simulation: {duration: 1.0}"], ids=["none", "bytes"])
+def test_load_scenario_text_of_no_text_names_the_argument(text):
+    # Was: AttributeError: 'NoneType' object has no attribute 'read'.
+    from qz_drake.config import load_scenario_text
+    from qz_drake.errors import QzError
+
+    with pytest.raises(QzError, match=r"^text = .*expected the text of a scenario YAML file"):
+        load_scenario_text(text)
+
+
+def test_duplicate_keys_are_refused_at_any_depth_and_merge_keys_still_override():
+    from qz_drake.config import load_scenario_text
+    from qz_drake.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"duplicate key 'duration' twice on line 1"):
+        load_scenario_text("simulation: {duration: 3.0, duration: 5.0}\n")
+    # A key a merge key brings in may be given again: that is YAML's override, not a duplicate.
+    scenario = load_scenario_text("simulation:\n  <<: {duration: 3.0, time_step: 0.002}\n  duration: 4.0\n")
+    assert scenario.simulation.duration == 4.0
+
+
+@pytest.mark.parametrize("duration", [-1.0, 0.0, float("nan"), float("inf"), 1e9])
+def test_simulate_refuses_a_bad_duration_before_building(duration):
+    # Was: Drake's assertion on AdvanceTo, a SystemExit(1) with no field named.
+    from qz_drake.config import load_scenario
+    from qz_drake.errors import QzError
+    from qz_drake.simulation import simulate
+
+    with pytest.raises(QzError, match=r"^duration = "):
+        simulate(load_scenario(STAND_FLAT), duration=duration)
+
+
+def test_plan_terrain_takes_a_picture_with_its_scale(tmp_path):
+    from PIL import Image
+
+    from qz_drake.capability.model_commands import load_terrain
+
+    Image.fromarray(np.full((40, 60), 255, np.uint8)).save(tmp_path / "map.png")
+    heightmap = load_terrain(str(tmp_path / "map.png"), ["resolution=0.05", "max_height=0.4"], 0)
+    assert heightmap.heights.shape == (40, 60) and heightmap.resolution == 0.05
+    np.testing.assert_allclose(heightmap.heights, 0.4)
+
+
+def test_static_gait_scenario_sizes_are_bounded():
+    from qz_drake.errors import QzError
+    from qz_drake.planning.static_gait_scenario import load_static_gait_scenario, validate_static_gait_scenario
+
+    scenario = load_static_gait_scenario(STATIC_GAIT_FLAT)
+    scenario.simulation.time_step = 1e-9
+    with pytest.raises(QzError, match=r"scenario\.simulation\.time_step = 1e-09: .* at most 600000"):
+        validate_static_gait_scenario(scenario)
+    scenario = load_static_gait_scenario(STATIC_GAIT_FLAT)
+    scenario.gait.max_nodes = 10**9
+    with pytest.raises(QzError, match=r"static_gait\.max_nodes = 1000000000: must be at most 100000"):
+        validate_static_gait_scenario(scenario)
+
+
+@pytest.mark.parametrize("url", ["memq://", "udpm://", "udpm://239.255.76.67:7667?ttl=1", "mpudpm://239.255.76.67:7667",
+                                 "tcpq://127.0.0.1:7700", "file:///tmp/log.lcm?mode=w"])
+def test_lcm_urls_drake_takes_pass_the_check(url):
+    from qz_drake.hardware.relay import check_lcm_url
+
+    assert check_lcm_url(url, "--lcm-url") == url
+
+
+def test_stairs_up_stats_rebuild_each_scene_from_its_record():
+    # Was: KeyError: 'rise' on the shipped dataset: a scene index names another scene kind once
+    # the mix of scene kinds changes; the record holds its own difficulty and scene seed.
+    from qz_drake.capability.scenes import make_scene, scene_recipe
+    from qz_drake.capability.stats import stairs_up_rows
+
+    index = next(i for i in range(100) if scene_recipe(0, i)[0] != "stairs")
+    scene = next(make_scene("stairs", 0.5, seed) for seed in range(100)
+                 if make_scene("stairs", 0.5, seed).params["rise"] > 0)
+    record = {"status": ["executed"], "scene_kind": ["stairs"], "kind": ["orthogonal"], "scene": [index],
+              "heading": [0.0], "topology": ["nominal"], "success": [True], "difficulty": [0.5],
+              "scene_seed": [scene.seed]}
+    arrays = {k: np.asarray(v) for k, v in record.items()}
+    rows = stairs_up_rows(arrays, seed=0)
+    assert len(rows) == 1 and rows[0]["executed"] == 1
+    low, high = rows[0]["rise_m"]
+    assert low <= scene.params["rise"] < high
+    # Records without their recipe are looked up by index: not stairs there, so no row, no crash.
+    assert stairs_up_rows({k: v for k, v in arrays.items() if k not in ("difficulty", "scene_seed")}, seed=0) == []
+
+
+def _python(code: str, folder: Path):
+    """``python -c code`` in ``folder`` (its modules importable, by the workers a pool spawns
+    too), in a session of its own: a signal to its group reaches it and its children only."""
+    import subprocess
+    import sys
+
+    path = os.pathsep.join([str(folder), *filter(None, [os.environ.get("PYTHONPATH")])])
+    return subprocess.Popen([sys.executable, "-c", code], cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True, env={**os.environ, "PYTHONPATH": path})
+
+
+def test_sigterm_prints_the_interrupted_line_and_exits_143(tmp_path):
+    # Was: killed silently with 143. The command sends itself the signal once it runs.
+    process = _python("import os, signal, sys, time\n"
+                      "from qz_drake.cli import core, main\n"
+                      "core._cmd_terrain = lambda args: (os.kill(os.getpid(), signal.SIGTERM), time.sleep(30))\n"
+                      "sys.exit(main(['terrain', 'flat', '--out', 't.png']))\n", tmp_path)
+    out, err = process.communicate(timeout=60)
+    assert process.returncode == 143, (process.returncode, err)
+    assert err == "qz terrain: interrupted\n" and out == ""
+
+
+# A trial that takes a minute, announcing on stdout that it has started.
+_SLOW_TRIAL = '''
+import time
+
+
+def run(spec, config):
+    print("started", flush=True)
+    time.sleep(60)
+'''
+_LOCAL_POOL_DRIVER = '''
+import sys
+
+import slow_trial
+from qz_drake.capability.collect import LocalPool
+
+pool = LocalPool(1, None, 0, function=slow_trial.run, crashed=lambda spec, message, config: message)
+try:
+    pool.run([1], print)
+except KeyboardInterrupt:
+    print("interrupted", file=sys.stderr)
+finally:
+    pool.close()
+'''
+
+
+@pytest.mark.parametrize("to_the_group", [True, False], ids=["terminal_ctrl_c", "driver_only"])
+def test_ctrl_c_stops_a_local_pool_without_a_worker_traceback(tmp_path, to_the_group):
+    # Was: the worker's KeyboardInterrupt traceback before "interrupted" (a terminal's Ctrl-C
+    # reaches every process of the command); a worker the driver alone was told of ran on.
+    import signal
+    import time
+
+    (tmp_path / "slow_trial.py").write_text(_SLOW_TRIAL)
+    process = _python(_LOCAL_POOL_DRIVER, tmp_path)
+    try:
+        assert process.stdout.readline() == "started\n"
+        clock = time.monotonic()
+        os.killpg(process.pid, signal.SIGINT) if to_the_group else process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+    assert err == "interrupted\n", err
+    assert time.monotonic() - clock < 5  # the busy worker is stopped, not waited for
+
+
+@pytest.mark.slow
+def test_stats_of_the_shipped_dataset(capsys):
+    # The user's command of issue 56 (5 s: 21600 records): it ended in KeyError: 'rise'.
+    code, out, err = run_qz(["capability", "stats", str(REPO / "data" / "capability"), "--json"], capsys)
+    assert code == 0, err
+    import json
+
+    summary = json.loads(out)
+    assert summary["stairs_up"] and all(row["executed"] for row in summary["stairs_up"])

@@ -12,9 +12,12 @@ with status "error" and its reason, never lost and never used for training.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import multiprocessing as mp
 import os
+import signal
+import threading
 import time
 from multiprocessing.connection import wait
 
@@ -35,9 +38,27 @@ RECERTIFY_ATOL = 1e-3
 # The record fields that measure how a walk went (not its label, not its inputs).
 MEASURED_FIELDS = ("final_xy_error_m", "final_yaw_error_deg", "max_tilt_deg", "max_joint_error_deg",
                    "max_foot_slip_m", "max_leg_link_force_n", "sim_time_s", "message")
+# Local workers per CPU at most: each holds a Drake simulation (hundreds of MB) and more than a
+# few per CPU only share the CPUs' time.
+MAX_WORKERS_PER_CPU = 4
+# Most trials (or episodes) one collection may plan: 50 times the paper's 18000 (1000 scenes,
+# six topologies, three kinds); its specs are listed up front, and a trial takes seconds.
+MAX_TRIALS = 1_000_000
 # Test hook: "INDEX:FILE" makes the worker running trial INDEX kill itself once (FILE marks
 # that it did), the fault the collection must survive.
 CRASH_ENV = "QZ_CAPABILITY_CRASH_ONCE"
+
+
+def check_workers(workers, field: str = "--workers") -> int:
+    """``workers`` local worker processes: at least 1, at most MAX_WORKERS_PER_CPU per CPU of
+    this machine; errors name ``field``."""
+    cpus = os.cpu_count() or 1
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise bad_value(field, workers, "must be a whole number, at least 1")
+    if workers > MAX_WORKERS_PER_CPU * cpus:
+        raise bad_value(field, workers, f"more than {MAX_WORKERS_PER_CPU} per CPU (this machine has {cpus}: at "
+                                        f"most {MAX_WORKERS_PER_CPU * cpus}); each worker holds a Drake simulation")
+    return workers
 
 
 def _maybe_crash(spec: TrialSpec) -> None:
@@ -91,6 +112,21 @@ def _worker_main(conn, config, function):
         conn.send(function(spec, config))
 
 
+@contextlib.contextmanager
+def _sigint_ignored():
+    """Ctrl-C ignored while a worker starts, and so in the worker for good (a process started
+    with SIGINT ignored keeps it so): a terminal's Ctrl-C reaches every process of the command,
+    and a worker would print its KeyboardInterrupt's traceback. The driver stops the workers."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 class LocalPool:
     """Worker processes (spawned: Drake is not fork-safe) fed one spec at a time.
 
@@ -125,7 +161,8 @@ class LocalPool:
         parent, child = self._ctx.Pipe()
         process = self._ctx.Process(target=_worker_main, args=(child, self._config, self._function),
                                     daemon=True)
-        process.start()
+        with _sigint_ignored():
+            process.start()
         child.close()
         return {"process": process, "conn": parent, "spec": None, "attempt": 0, "done": 0}
 
@@ -145,6 +182,17 @@ class LocalPool:
         self.recycled += 1
 
     def run(self, specs, on_record) -> None:
+        try:
+            self._run(specs, on_record)
+        except KeyboardInterrupt:
+            # The workers ignore Ctrl-C (_sigint_ignored); the ones in the middle of a trial
+            # are stopped here rather than waited for.
+            for w in self._workers:
+                if w["spec"] is not None and w["process"].is_alive():
+                    w["process"].kill()
+            raise
+
+    def _run(self, specs, on_record) -> None:
         queue = [(spec, 0) for spec in specs]
         queue.reverse()
         while queue or any(w["spec"] is not None for w in self._workers):
@@ -310,14 +358,26 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
     for k in kinds:
         if k not in KINDS:
             raise bad_value("--kinds", k, f"unknown kind (valid: {', '.join(KINDS)})")
-    if workers < 1:
-        raise bad_value("--workers", workers, "must be at least 1")
+    check_workers(workers)
     if protocol not in PROTOCOLS:
         raise bad_value("--protocol", protocol, f"expected one of {', '.join(PROTOCOLS)}")
     episodes = protocol == "episodes"
     if episodes and kinds != tuple(KINDS):
         raise bad_value("--kinds", ",".join(kinds), "an episode's kinds are the commands it draws: leave "
                                                     "--kinds out with --protocol episodes")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise bad_value("--seed", seed, "must be a whole number >= 0 (it seeds numpy's generators)")
+    if isinstance(shard_size, bool) or not isinstance(shard_size, int) or shard_size < 1:
+        raise bad_value("--shard-size", shard_size, "must be a whole number of records, at least 1")
+    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int) or limit < 0):
+        raise bad_value("--limit", limit, "must be a whole number of trials, 0 or more")
+    # An episode per scene and topology; a trial per scene, heading, topology and kind.
+    per_scene = len(topologies) * (1 if episodes else config.headings_per_scene * len(kinds))
+    if scenes * per_scene > MAX_TRIALS:
+        unit = "episodes" if episodes else "trials"
+        field, value = ("--headings", config.headings_per_scene) if per_scene > MAX_TRIALS else ("--scenes", scenes)
+        raise bad_value(field, value, f"{scenes} scenes x {per_scene:.3g} {unit} per scene = "
+                                      f"{scenes * per_scene:.3g} {unit}; at most {MAX_TRIALS:.3g} in one collection")
     if ray_address:
         check_ray_address(ray_address)
     clock = time.perf_counter()
@@ -384,11 +444,8 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
 def _raise_on_sigterm():
     """A SIGTERM (a session or job ending) interrupts the collection like Ctrl-C, so that the
     finished records are written before the process ends."""
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        return None
+    if threading.current_thread() is not threading.main_thread() or callable(signal.getsignal(signal.SIGTERM)):
+        return None  # a caller's own handler (the qz command's) already interrupts
 
     def interrupt(signum, frame):
         raise KeyboardInterrupt(f"signal {signum}")
@@ -397,8 +454,6 @@ def _raise_on_sigterm():
 
 
 def _restore_sigterm(previous) -> None:
-    import signal
-
     if previous is not None:
         signal.signal(signal.SIGTERM, previous)
 
@@ -591,8 +646,7 @@ def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "",
     clock = time.perf_counter()
     if isinstance(sample, bool) or not isinstance(sample, int) or sample < 1:
         raise bad_value("--sample", sample, "must be a positive whole number")
-    if workers < 1:
-        raise bad_value("--workers", workers, "must be at least 1")
+    check_workers(workers)
     manifest = read_manifest(path)
     if manifest.get("settings", {}).get("protocol") == "episodes" and reference_code is not None:
         raise bad_value("--reference-code", str(reference_code), "is for trial datasets: an episode "

@@ -11,8 +11,11 @@ status 2; a failed solve or a fall is a reported outcome with exit status 1.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import sys
+import threading
 
 from qz_drake.cli import blc, capability, classification, core, experiments, hardware, plan, planning
 from qz_drake.cli.arguments import OneLineParser, PackageVersion, check_output_argument
@@ -31,9 +34,35 @@ def build_parser():
     return parser
 
 
+@contextlib.contextmanager
+def _sigterm_interrupts():
+    """A SIGTERM (a job ending, a plain ``kill``) interrupts the command as Ctrl-C does, so that
+    it stops the same way: what finished is kept, and one line is printed, not the default
+    silent death. Yields the signals received (the exit status is 128 + the signal's number)."""
+    received = []
+
+    def interrupt(signum, frame):
+        received.append(signum)
+        raise KeyboardInterrupt
+
+    if threading.current_thread() is not threading.main_thread():  # only the main thread may
+        yield received
+        return
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield received
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    with _sigterm_interrupts() as received:
+        return _run(args, received)
+
+
+def _run(args, received: list) -> int:
     try:
         check_output_argument(args)
         return int(args.func(args))
@@ -54,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         return 141
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM (collections write what finished first)
         print(f"qz {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return 128 + (received[-1] if received else signal.SIGINT)
     except OSError as e:
         # A file the user named cannot be read or written (a folder where a file was meant, no
         # permission, a full disk): the same one line as for any other bad input.

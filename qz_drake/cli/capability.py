@@ -37,6 +37,11 @@ from qz_drake.errors import bad_value
 # trials (pydrake); tests/test_cli_imports.py keeps the two the same.
 PROTOCOLS = ("moves", "episodes")
 LEARNERS = ("cnn", "boosted")
+# The finest plant step a collection may take. [s]
+MIN_TIME_STEP = 1e-4
+# The largest boosted ensemble and learner: 20 and 25 times the defaults (5 members, 400 iterations).
+MAX_MEMBERS = 100
+MAX_BOOSTING_ITERATIONS = 10_000
 SUMMARY_KEYS = ("topology", "kind", "n", "positives", "auc", "brier", "ece", "ece_floor", "accuracy")
 
 
@@ -55,6 +60,9 @@ def run_collect(args) -> int:
         raise bad_value("--headings", args.headings, "must be at least 1")
     if not args.log_every >= 0:
         raise bad_value("--log-every", args.log_every, "must be 0 (off) or a number of seconds")
+    if not args.time_step >= MIN_TIME_STEP:  # NaN too
+        raise bad_value("--time-step", args.time_step, f"must be at least {MIN_TIME_STEP:g} s, a twentieth of the "
+                                                       f"default: finer steps make a trial's seconds millions of steps")
     from qz_drake.capability.collect import collect
     from qz_drake.capability.trials import TrialConfig
 
@@ -284,9 +292,9 @@ def run_train_boosted(args) -> int:
         if getattr(args, name):
             raise bad_value(f"--{name.replace('_', '-')}", getattr(args, name),
                             "the boosted learner trains one ensemble for every network, without epochs")
-    for name in ("members", "max_iter"):
-        if getattr(args, name) is not None and getattr(args, name) < 1:
-            raise bad_value(f"--{name.replace('_', '-')}", getattr(args, name), "must be a positive whole number")
+    for name, most in (("members", MAX_MEMBERS), ("max_iter", MAX_BOOSTING_ITERATIONS)):
+        if getattr(args, name) is not None and not 1 <= getattr(args, name) <= most:
+            raise bad_value(f"--{name.replace('_', '-')}", getattr(args, name), f"must be a whole number in [1, {most}]")
     from qz_drake.capability import model_commands
     from qz_drake.capability.boosted import OUTCOMES, BoostedConfig, save_boosted, train_boosted
 
@@ -406,7 +414,8 @@ def register_model_commands(subparsers) -> None:
     p.add_argument("--device", default=None,
                    help="where the networks run: cpu, cuda, cuda:N or auto (default: QZ_TORCH_DEVICE, else cpu)")
     p.add_argument("--terrain", required=True,
-                   help=LazyText(lambda: f"a .npz / .yaml heightmap, or a terrain generator, "
+                   help=LazyText(lambda: f"a .npz / .yaml heightmap, a picture (its scale as --terrain-param "
+                                         f"resolution=M max_height=M [min_height=M]), or a terrain generator, "
                                          f"{one_of(terrain_names())} (parameters: qz terrain --help)"))
     p.add_argument("--terrain-param", action="append", metavar="KEY=VALUE", help="generator parameter, seed included")
     p.add_argument("--seed", type=int, default=0, help="terrain generator seed")

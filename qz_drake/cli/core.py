@@ -29,7 +29,10 @@ def _cmd_simulate(args) -> int:
     station_factory, realtime_rate = partial(make_station, heightmap=heightmap), 0.0
     if args.station == "lcm":
         from qz_drake.hardware.loopback import make_lcm_loopback_station, make_remote_lcm_station
+        from qz_drake.hardware.relay import check_lcm_url
 
+        # The station connects inside simulate(), after the work has begun.
+        check_lcm_url(args.lcm_url, "--lcm-url")
         config = load_hardware_file(args.hardware)
         if args.lcm_url == "memq://":
             # The simulated robot driver in the same diagram, over an in-process LCM.

@@ -34,6 +34,8 @@ def run_plan(args) -> int:
         raise bad_value("--heading", args.heading, "expected a heading index 0..7 (k * 45 deg)")
     if args.topology not in TOPOLOGY_NAMES:
         raise bad_value("--topology", args.topology, f"expected one of {', '.join(TOPOLOGY_NAMES)}")
+    if not 0.0 <= args.min_success <= 1.0:  # NaN too
+        raise bad_value("--min-success", args.min_success, "must be a probability in [0, 1]")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise bad_value("--out", str(out), "is a file, not a folder")
@@ -102,7 +104,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("plan", help="CapPlanner's TLC alone: utility map, guidance path, missions",
                               epilog=LazyText(terrain_kinds_text), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--terrain", required=True, help=LazyText(
-        lambda: f"a .npz / .yaml heightmap, or a terrain generator, {one_of(terrain_names())}"))
+        lambda: f"a .npz / .yaml heightmap, a picture (its scale as --terrain-param resolution=M "
+                f"max_height=M [min_height=M]), or a terrain generator, {one_of(terrain_names())}"))
     p.add_argument("--terrain-param", action="append", metavar="KEY=VALUE",
                    help="generator parameter (see below), seed included")
     p.add_argument("--seed", type=int, default=0, help="terrain seed")

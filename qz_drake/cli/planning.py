@@ -211,26 +211,32 @@ def run_astar(args) -> int:
     return 0 if result.found else 1
 
 
-def _positive_int(text: str, field: str) -> int:
+def _positive_int(text: str, field: str, most: int | None = None, unit: str = "") -> int:
+    """``text`` as a whole number, at least 1 and at most ``most`` (``unit`` names what it
+    counts); errors name ``field``."""
     try:
         value = int(text)
     except (TypeError, ValueError):
         raise bad_value(field, text, "expected a whole number") from None
     if value < 1:
         raise bad_value(field, value, "must be >= 1")
+    if most is not None and value > most:
+        raise bad_value(field, value, f"more than {most} {unit}")
     return value
 
 
 def run_static_gait_command(args) -> int:
     import sys
 
-    from qz_drake.planning.static_gait_scenario import load_static_gait_scenario, run_static_gait
+    from qz_drake.planning.static_gait import MAX_DEPTH
+    from qz_drake.planning.static_gait_scenario import check_walk_length, load_static_gait_scenario, run_static_gait
 
     scenario = load_static_gait_scenario(args.scenario)
     if args.depth is not None:
-        scenario.depth = _positive_int(args.depth, "--depth")
+        scenario.depth = _positive_int(args.depth, "--depth", MAX_DEPTH, "steps looked ahead")
     if args.steps is not None:
         scenario.steps = _positive_int(args.steps, "--steps")
+        check_walk_length(scenario, "--steps")  # the walk's bound, also MAX_STEPS
     metrics = run_static_gait(scenario, args.out, progress=not args.json and sys.stderr.isatty())
     metrics = {k: v for k, v in metrics.items() if k != "scenario_yaml"}
     print(json.dumps(metrics, indent=None if args.json else 2))
@@ -238,31 +244,37 @@ def run_static_gait_command(args) -> int:
 
 
 def _depth_list(text: str) -> list[int]:
+    from qz_drake.planning.static_gait import MAX_DEPTH
+
     try:
         depths = [int(v) for v in str(text).split(",")]
     except ValueError:
         raise bad_value("--depths", text, "expected depths like 1,2,3,4") from None
-    if not depths or min(depths) < 1:
-        raise bad_value("--depths", text, "depths must be >= 1")
+    if not depths or min(depths) < 1 or max(depths) > MAX_DEPTH:
+        raise bad_value("--depths", text, f"depths must be within [1, {MAX_DEPTH}] steps ahead")
     return depths
 
 
 def run_depth_study_command(args) -> int:
     import sys
 
-    from qz_drake.planning.depth_study import DEPTH_STUDY_GAIT, depth_study
+    from qz_drake.planning.depth_study import DEPTH_STUDY_GAIT, MAX_TERRAINS, depth_study
+    from qz_drake.planning.static_gait import MAX_CANDIDATES, MAX_NODES, MAX_STEPS
     from qz_drake.viz.costmap_plots import plot_depth_study
 
     depths = _depth_list(args.depths)
-    terrains = _positive_int(args.terrains, "--terrains")
-    steps = _positive_int(args.steps, "--steps")
+    terrains = _positive_int(args.terrains, "--terrains", MAX_TERRAINS, "terrains")
+    steps = _positive_int(args.steps, "--steps", MAX_STEPS, "swings")
     if not (math.isfinite(args.max_height) and args.max_height >= 0):
         raise bad_value("--max-height", args.max_height, "must be >= 0 metres")
+    if args.seed < 0:
+        raise bad_value("--seed", args.seed, "must be >= 0 (terrain k has seed SEED + k)")
     config = dataclasses.replace(DEPTH_STUDY_GAIT)
-    for name in ("height_count", "pitch_count", "roll_count", "max_nodes"):
+    for name, most, unit in (("height_count", MAX_CANDIDATES, "body heights"), ("pitch_count", MAX_CANDIDATES, "pitches"),
+                             ("roll_count", MAX_CANDIDATES, "rolls"), ("max_nodes", MAX_NODES, "states per step")):
         value = getattr(args, name)
         if value is not None:
-            setattr(config, name, _positive_int(value, "--" + name.replace("_", "-")))
+            setattr(config, name, _positive_int(value, "--" + name.replace("_", "-"), most, unit))
     study = depth_study(depths, terrains, steps=steps, max_height=args.max_height, seed=args.seed, config=config,
                         progress=not args.json and sys.stderr.isatty())
     out = Path(args.out)

@@ -25,6 +25,10 @@ from qz_drake.state_layout import BASE_XY
 from qz_drake.experiments.worlds import DIFFICULTIES, PLANNER_NAMES, TERRAINS, TASKS_PER_CELL, make_task
 
 RESULTS = "results.jsonl"
+# Most tasks per terrain and difficulty one run may plan: 20 times the experiment's.
+MAX_TASKS_PER_CELL = 20 * TASKS_PER_CELL
+# Most BLC retries of a mission: each one is another solve of up to blc_time_limit seconds.
+MAX_BLC_RETRIES = 10
 # settings.json's record of the capability model CapPlanner's walks used (CapabilityModel.identity).
 MODEL_IDENTITY = "capability_model_identity"
 
@@ -737,17 +741,22 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
     those of every planner, such as the BLC's budget); a planner's own settings (``astar_*``;
     ``capplanner_*`` and the model) may differ while it has no results yet, so one planner's
     half can be walked before the other's is tuned."""
-    from qz_drake.capability.collect import LocalPool, RayPool, check_ray_address
+    from qz_drake.capability.collect import LocalPool, RayPool, check_ray_address, check_workers
 
     for p in planners:
         if p not in PLANNERS:
             raise bad_value("--planners", p, f"expected one of {', '.join(PLANNERS)}")
     if isinstance(tasks, bool) or tasks < 1:
         raise bad_value("--tasks", tasks, "must be a positive whole number")
-    if workers < 1:
-        raise bad_value("--workers", workers, "must be at least 1")
+    if tasks > MAX_TASKS_PER_CELL:
+        raise bad_value("--tasks", tasks, f"more than {MAX_TASKS_PER_CELL} tasks per terrain and difficulty "
+                                          f"(each a walk of minutes; the experiment's are {TASKS_PER_CELL})")
+    check_workers(workers)
     if isinstance(config.blc_retries, bool) or not isinstance(config.blc_retries, int) or config.blc_retries < 0:
         raise bad_value("--blc-retries", config.blc_retries, "must be a whole number >= 0")
+    if config.blc_retries > MAX_BLC_RETRIES:
+        raise bad_value("--blc-retries", config.blc_retries, f"more than {MAX_BLC_RETRIES} (each retry is another "
+                                                             f"BLC solve of a mission, one tripod cycle longer)")
     for t in terrains:
         make_task(t, "simple", 0, scale=config.scale)
     for d in difficulties:

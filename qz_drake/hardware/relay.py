@@ -25,6 +25,7 @@ import selectors
 import socket
 import struct
 import time
+from pathlib import Path
 
 from qz_drake.errors import bad_value
 
@@ -269,6 +270,69 @@ def _parse_frame(buffer: bytearray, at: int):
 RELAY_STARTUP = 5.0
 
 
+# LCM's providers (lcm/lcm.c), what DrakeLcm accepts; with any other name it prints 'LCM
+# provider "bogus" not found' and returns an instance that neither sends nor receives.
+LCM_PROVIDERS = ("udpm", "mpudpm", "tcpq", "memq", "file")
+# The options udpm takes (lcm/lcm_udpm.c); it ignores others with a printed warning.
+_UDPM_OPTIONS = ("ttl", "recv_buf_size", "transmit_only")
+# The modes of the file provider (lcm/lcm_file.c): read a log, write one, append to one.
+_FILE_MODES = ("r", "w", "a")
+_LCM_URL_EXAMPLE = "udpm://239.255.76.67:7667?ttl=1, tcpq://127.0.0.1:7700 or memq://"
+
+
+def _url_port(url: str, field: str, port: str) -> None:
+    if not (port.isdigit() and 1 <= int(port) <= 65535):
+        raise bad_value(field, url, f"port {port!r} is not a port number, 1..65535")
+
+
+def check_lcm_url(url, field: str = "lcm_url") -> str:
+    """Refuses an LCM URL that DrakeLcm would take with only a printed error and then neither
+    send nor receive on (an unknown provider, a multicast group that is no multicast address, a
+    port out of range, a log file to read that does not exist). Errors name ``field`` and
+    the URL; returns the URL."""
+    import ipaddress
+
+    if not isinstance(url, str) or not url.strip():
+        raise bad_value(field, url, f"empty; expected an LCM URL, e.g. {_LCM_URL_EXAMPLE}")
+    provider, sep, rest = url.partition("://")
+    if not sep:
+        raise bad_value(field, url, f"expected PROVIDER://..., e.g. {_LCM_URL_EXAMPLE}")
+    if provider not in LCM_PROVIDERS:
+        raise bad_value(field, url, f"unknown LCM provider {provider!r} (valid: "
+                                    f"{', '.join(p + '://' for p in LCM_PROVIDERS)})")
+    network, _, query = rest.partition("?")
+    options = dict(item.partition("=")[::2] for item in query.split("&") if item)
+    if provider in ("udpm", "mpudpm") and network:  # udpm:// alone is LCM's default group
+        address, colon, port = network.rpartition(":")
+        if not colon:
+            raise bad_value(field, url, f"expected {provider}://GROUP:PORT, e.g. udpm://239.255.76.67:7667")
+        try:
+            multicast = ipaddress.IPv4Address(address).is_multicast
+        except ValueError:
+            multicast = False
+        if not multicast:
+            raise bad_value(field, url, f"{address!r} is not an IPv4 multicast group (224.0.0.0 to "
+                                        f"239.255.255.255; LCM's default is 239.255.76.67)")
+        _url_port(url, field, port)
+    if provider == "udpm":
+        for key, value in options.items():
+            if key not in _UDPM_OPTIONS:
+                raise bad_value(field, url, f"unknown udpm option {key!r} (valid: {', '.join(_UDPM_OPTIONS)})")
+        if "ttl" in options and not (options["ttl"].isdigit() and int(options["ttl"]) <= 255):
+            raise bad_value(field, url, f"ttl {options['ttl']!r} is not a hop count, 0..255")
+    if provider == "tcpq" and ":" in network:
+        _url_port(url, field, network.rpartition(":")[2])
+    if provider == "file":
+        mode = options.get("mode", "r")
+        if not network:
+            raise bad_value(field, url, "names no log file, e.g. file:///tmp/run.lcm?mode=w")
+        if mode not in _FILE_MODES:
+            raise bad_value(field, url, f"mode {mode!r} is not one of {', '.join(_FILE_MODES)}")
+        if mode == "r" and not Path(network).is_file():
+            raise bad_value(field, url, f"no log file {network} to read (mode=w writes one)")
+    return url
+
+
 def connect_lcm(url: str, field: str = "lcm_url"):
     """DrakeLcm(url); for a ``tcpq://`` URL only once a relay accepts connections there.
 
@@ -278,6 +342,7 @@ def connect_lcm(url: str, field: str = "lcm_url"):
     """
     from pydrake.lcm import DrakeLcm
 
+    check_lcm_url(url, field)
     if url.startswith("tcpq://"):
         host, _, port = url[len("tcpq://"):].split("?")[0].partition(":")
         try:

@@ -25,6 +25,8 @@ from qz_drake.planning.static_gait import StaticGaitConfig, cuboid_terrain, sear
 
 DEPTH_STUDY_GAIT = StaticGaitConfig(height_count=3, pitch_count=1, roll_count=1, max_nodes=2000)
 """Search settings of the depth study: footholds and three body heights (section 4.2)."""
+# Most terrains one study may search: 20 times Fig. 10's 50 (a terrain takes seconds per depth).
+MAX_TERRAINS = 1000
 
 
 @dataclasses.dataclass
@@ -80,8 +82,8 @@ def depth_study(depths=(1, 2, 3, 4), terrains: int = 50, *, steps: int = 12, max
     depths = [int(d) for d in depths]
     if not depths or min(depths) < 1:
         raise bad_value("depths", depths, "must be one or more depths >= 1")
-    if int(terrains) < 1:
-        raise bad_value("terrains", terrains, "must be >= 1")
+    if not 1 <= int(terrains) <= MAX_TERRAINS:
+        raise bad_value("terrains", terrains, f"must be within [1, {MAX_TERRAINS}]")
     if int(steps) < 1:
         raise bad_value("steps", steps, "must be >= 1")
     if not (np.isfinite(max_height) and max_height >= 0):

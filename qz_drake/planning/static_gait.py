@@ -60,6 +60,14 @@ from qz_drake.robot.quadruped import LEGS, QuadrupedGeometry
 
 LEG_ORDER = ("LF", "RB", "RF", "LB")
 """The standard swing order of section 3.1."""
+# The largest search a user may ask for. A decision tries up to max_nodes states, about 2 ms
+# each (measured on scenarios/static_gait/static_gait_cuboids.yaml), and recurses one level
+# per step looked ahead; paper 003 looks 1-4 steps ahead, its depth study tries 2000 states.
+MAX_STEPS = 1000  # swings, 250 gait cycles
+MAX_DEPTH = 100  # steps looked ahead
+MAX_NODES = 100_000  # states tried per decision: minutes of search
+MAX_CANDIDATES = 100  # of each kind: footholds kept, heights, pitches, rolls
+MAX_FOOTHOLD_GRID = 10_000  # points of the candidate foothold grid (foothold_half_size / spacing)
 # The standing side pair opposite each swing foot (Eq. 21's faced edge).
 _OPPOSITE_SIDE = {"LF": ("RF", "RB"), "RB": ("LF", "LB"), "RF": ("LF", "LB"), "LB": ("RF", "RB")}
 
@@ -249,6 +257,18 @@ def _check_config(config: StaticGaitConfig) -> None:
     for name in ("foothold_count", "height_count", "pitch_count", "roll_count", "max_nodes"):
         if int(getattr(config, name)) < 1:
             raise bad_value(f"static_gait.{name}", getattr(config, name), "must be >= 1")
+        most = MAX_NODES if name == "max_nodes" else MAX_CANDIDATES
+        if int(getattr(config, name)) > most:
+            raise bad_value(f"static_gait.{name}", getattr(config, name), f"must be at most {most}")
+    half = np.asarray(config.foothold_half_size, dtype=float)
+    if half.shape != (2,) or not (np.all(np.isfinite(half)) and np.all(half >= 0)):
+        raise bad_value("static_gait.foothold_half_size", list(config.foothold_half_size),
+                        "expected two sizes >= 0 (along, across the heading) [m]")
+    along, across = 2 * half / float(config.foothold_spacing) + 1
+    if along * across > MAX_FOOTHOLD_GRID:
+        raise bad_value("static_gait.foothold_spacing", config.foothold_spacing,
+                        f"{along:.3g} x {across:.3g} candidate footholds in foothold_half_size "
+                        f"{list(config.foothold_half_size)}; at most {MAX_FOOTHOLD_GRID}")
 
 
 class _Search:
@@ -493,10 +513,10 @@ def search_gait(heightmap, start_xy, heading: float, steps: int, depth: int = 4,
     """
     config = config or StaticGaitConfig()
     _check_config(config)
-    if int(steps) < 1:
-        raise bad_value("steps", steps, "must be >= 1")
-    if int(depth) < 1:
-        raise bad_value("depth", depth, "must be >= 1")
+    if not 1 <= int(steps) <= MAX_STEPS:
+        raise bad_value("steps", steps, f"must be within [1, {MAX_STEPS}] swings")
+    if not 1 <= int(depth) <= MAX_DEPTH:
+        raise bad_value("depth", depth, f"must be within [1, {MAX_DEPTH}] steps ahead")
     try:
         start = np.asarray(start_xy, dtype=float).reshape(2)
     except ValueError:

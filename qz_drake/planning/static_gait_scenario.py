@@ -20,9 +20,10 @@ import numpy as np
 import yaml
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
-from qz_drake.config import TerrainConfig, read_text_file, yaml_load
+from qz_drake.config import MAX_PLANT_STEPS, MAX_SIMULATED_TIME, TerrainConfig, read_text_file, yaml_load
 from qz_drake.errors import ConfigError, bad_value
-from qz_drake.planning.static_gait import LEGS, GaitSearchResult, StaticGaitConfig, cuboid_terrain, search_gait
+from qz_drake.planning.static_gait import (LEGS, MAX_DEPTH, MAX_STEPS, GaitSearchResult, StaticGaitConfig,
+                                           cuboid_terrain, search_gait)
 from qz_drake.planning.static_gait import _check_config as check_gait_config
 from qz_drake.planning.static_gait_sim import StaticGaitSimConfig, simulate_static_gait
 from qz_drake.planning.static_gait_sim import _check_config as check_sim_config
@@ -88,18 +89,45 @@ def validate_static_gait_scenario(scenario: StaticGaitScenario) -> StaticGaitSce
         if t.kind == "cuboids" and key not in CUBOID_PARAMS:
             raise bad_value(f"scenario.terrain.params.{key}", value,
                             f"unknown cuboids parameter (valid: {', '.join(CUBOID_PARAMS)})")
+    if scenario.random_seed < 0:
+        raise bad_value("scenario.random_seed", scenario.random_seed, "must be >= 0 (it seeds numpy's generator)")
     if len(scenario.start_xy) != 2 or not all(math.isfinite(v) for v in scenario.start_xy):
         raise bad_value("scenario.start_xy", scenario.start_xy, "expected two finite numbers [m]")
     if not math.isfinite(scenario.heading):
         raise bad_value("scenario.heading", scenario.heading, "must be finite")
-    if scenario.steps < 1:
-        raise bad_value("scenario.steps", scenario.steps, "must be >= 1")
-    if scenario.depth < 1:
-        raise bad_value("scenario.depth", scenario.depth, "must be >= 1")
+    if not 1 <= scenario.depth <= MAX_DEPTH:
+        raise bad_value("scenario.depth", scenario.depth, f"must be within [1, {MAX_DEPTH}] steps ahead")
     # The search's and the walk's own checks, before anything runs.
     check_gait_config(scenario.gait)
     check_sim_config(scenario.simulation)
+    check_walk_length(scenario)
     return scenario
+
+
+def check_walk_length(scenario: StaticGaitScenario, steps_field: str = "scenario.steps") -> None:
+    """Refuses a walk longer than a robot scenario may simulate (MAX_SIMULATED_TIME, and
+    MAX_PLANT_STEPS plant steps, IK samples or monitor checks): its swings (named
+    ``steps_field``) or a step too fine are named with the most the run allows."""
+    s = scenario.simulation
+    if scenario.steps < 1:
+        raise bad_value(steps_field, scenario.steps, "must be >= 1")
+    per_swing = s.shift_duration + s.swing_duration
+    standing = s.settle_duration + s.hold_duration
+    walk = standing + scenario.steps * per_swing
+    default_step = StaticGaitSimConfig().time_step
+    for name in ("time_step", "sample_period", "monitor_period"):
+        period = getattr(s, name)
+        if period < default_step and walk / period > MAX_PLANT_STEPS:
+            raise bad_value(f"scenario.simulation.{name}", period,
+                            f"a walk of {walk:.4g} s in steps of {period:g} s is {walk / period:.3g} steps; "
+                            f"at most {MAX_PLANT_STEPS} in one run")
+    longest = min(MAX_SIMULATED_TIME, MAX_PLANT_STEPS * s.time_step)
+    if walk > longest or scenario.steps > MAX_STEPS:
+        most = min(MAX_STEPS, int((longest - standing) // per_swing))
+        raise bad_value(steps_field, scenario.steps,
+                        f"{scenario.steps} swings of {per_swing:g} s are a walk of {walk:.4g} s; at most {most} "
+                        f"swings ({longest:g} s simulated, at most {MAX_PLANT_STEPS} plant steps of "
+                        f"{s.time_step:g} s) in one run")
 
 
 def load_static_gait_scenario(path) -> StaticGaitScenario:

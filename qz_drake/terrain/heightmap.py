@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import struct
+import zipfile
 import zlib
 from pathlib import Path
 
@@ -266,12 +267,16 @@ class HeightMap:
         path = Path(path)
         if not path.is_file():
             raise _error("heightmap.file", str(path), "no such file")
+        if not zipfile.is_zipfile(path):
+            # numpy reads a file that is no zip archive as a pickle and says to trust it.
+            raise _error("heightmap.file", str(path), "not a zip archive, so not a .npz heightmap (HeightMap.save_npz, "
+                                                      "qz terrain --save)")
         try:
             with np.load(path, allow_pickle=False) as data:
                 materials = data["materials"] if "materials" in data and data["materials"].size else None
                 names = tuple(str(s) for s in data["material_names"]) if "material_names" in data else ()
                 return cls(data["heights"], float(data["resolution"]), tuple(data["origin"]), materials, names)
-        except (KeyError, ValueError, OSError, zlib.error) as e:
+        except (KeyError, ValueError, OSError, EOFError, zlib.error, zipfile.BadZipFile) as e:
             raise _error("heightmap.file", str(path), f"not a qz_drake heightmap .npz ({e})") from None
 
     def save_png(self, path: str | Path) -> Path:
@@ -325,6 +330,12 @@ class HeightMap:
         if high < low:
             raise _error("heightmap.max_height", max_height, f"must be >= min_height {min_height}")
         values, full_scale, opaque = _read_height_image(path)
+        rows, columns = values.shape
+        if rows < 2 or columns < 2:
+            res = _finite_float("heightmap.resolution", resolution)
+            raise _error("heightmap.image", str(path),
+                         f"{columns} x {rows} pixels; a heightmap needs at least 2 x 2, and a robot as many as "
+                         f"span its feet ({1 / res:.3g} pixels per metre at resolution {res:g} m)")
         heights = low + values.astype(np.float64) / full_scale * (high - low)
         if opaque is not None:
             heights = np.where(opaque, heights, low)

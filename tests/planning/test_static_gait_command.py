@@ -93,7 +93,9 @@ def test_depth_and_steps_override_and_a_dead_end_exits_1(tmp_path, capsys):
     (FLAT + "start_xy: [5.0, 0.0]\n", [], "scenario.start_xy"),
     (FLAT.replace("kind: cuboids", "kind: moon"), [], "scenario.terrain.kind"),
     (FLAT + "gait: {stride: -0.1}\n", [], "static_gait.stride"),
-    (FLAT + "simulation: {kp: 0.0}\n", [], "simulation.kp"),
+    # Into FLAT's own simulation section: a second `simulation:` key is refused as a duplicate.
+    (FLAT.replace("simulation: {hold_duration: 0.2}", "simulation: {hold_duration: 0.2, kp: 0.0}"), [],
+     "simulation.kp"),
 ])
 def test_bad_input_exits_2_naming_the_field(tmp_path, capsys, text, argv, named):
     assert main(["static-gait", _scenario(tmp_path, text), "--out", str(tmp_path / "o"), *argv]) == 2
