@@ -20,7 +20,7 @@ from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 from qz_drake.config import Scenario, check_simulated_time
 from qz_drake.scene import GRAVITY
 from qz_drake.station import make_station
-from qz_drake.systems.joint_pd import JointPdController
+from qz_drake.systems.joint_pd import JointPdController, add_joint_pd
 from qz_drake.state_layout import BASE_POS, BASE_XY, BASE_Z, JOINT_Q, base_pose, base_rpy, tilt_deg
 from qz_drake.viz.recording import RECORDING_FPS, recording_meshcat
 
@@ -80,20 +80,9 @@ def add_tracking_controller(builder, station, info, plan=None, *, kp: float, kd:
     if plan_port is None:
         plan_port = builder.AddSystem(ConstantValueSource(AbstractValue.Make(plan))).get_output_port()
     tracker = builder.AddSystem(InverseKinematicsTracker(topology=info.topology, params=info.params))
-    if position_mode:
-        controller = builder.AddSystem(JointPdController(kp=0.0, kd=0.0, params=info.params,
-                                                         update_period=tracker.update_period))
-    else:
-        controller = builder.AddSystem(JointPdController(kp=kp, kd=kd, params=info.params))
+    controller = add_joint_pd(builder, station, tracker, params=info.params, kp=kp, kd=kd,
+                              position_mode=position_mode, update_period=tracker.update_period)
     builder.Connect(plan_port, tracker.GetInputPort("trajectory"))
-    if position_mode:
-        builder.Connect(tracker.GetOutputPort("position_command"), station.GetInputPort("joint_position_command"))
-        builder.Connect(tracker.GetOutputPort("velocity_command"), station.GetInputPort("joint_velocity_command"))
-    builder.Connect(station.GetOutputPort("state"), controller.GetInputPort("state"))
-    builder.Connect(tracker.GetOutputPort("desired_state"), controller.GetInputPort("desired_state"))
-    builder.Connect(tracker.GetOutputPort("foot_force_feedforward"),
-                    controller.GetInputPort("foot_force_feedforward"))
-    builder.Connect(controller.GetOutputPort("joint_torque"), station.GetInputPort("joint_torque"))
     return tracker, controller
 
 
@@ -458,6 +447,8 @@ def build_walk(scenario: Scenario, *, route_source: FixedRoute | None = None, me
     tracker, _ = add_tracking_controller(builder, station, info, kp=control.kp, kd=control.kd,
                                          plan_port=missions.plan_port,
                                          position_mode=scenario.station.control_mode == "position")
+    if station.HasInputPort("plan"):  # a planning process's station sends each plan to its servo
+        builder.Connect(missions.plan_port, station.GetInputPort("plan"))
     logs = dict(zip(("state", "contact", "trunk"), _log_station(builder, station)))
     logs["desired"] = LogVectorOutput(tracker.GetOutputPort("desired_state"), builder, 1.0 / LOG_RATE)
     logs["leg"], logs["self"] = (_optional_log(builder, station, name) for name in ("leg_link_force", "self_contact"))
@@ -505,6 +496,10 @@ def run_walk(built: BuiltWalk, scenario: Scenario, *, max_duration: float | None
             break
         if missions.done and missions.log.plans and \
                 context.get_time() >= missions.log.plans[-1].end_time + 0.5:
+            break
+        halted = getattr(station, "halted", None)  # a station whose robot stopped (the servo's safe stop)
+        if halted is not None and halted(context):
+            stopped = True
             break
         if progress is not None:
             progress(context.get_time(), _expected_end(missions, built.targets, limit), len(missions.log.plans))

@@ -29,7 +29,8 @@ def test_the_parser_imports_none_of_the_slow_libraries():
     assert not [m for m in imported if m in SLOW or m.startswith(tuple(f"{s}." for s in SLOW))]
     # Nor the package's own modules beyond the command's and the light ones its options name.
     assert {m for m in imported if m.startswith("qz_drake.") and not m.startswith("qz_drake.cli")} == {
-        "qz_drake.bench", "qz_drake.errors", "qz_drake.hardware", "qz_drake.hardware.relay"}
+        "qz_drake.bench", "qz_drake.errors", "qz_drake.hardware", "qz_drake.hardware.relay",
+        "qz_drake.hardware.scheduling"}
     top = _qz("--help")
     assert top.returncode == 0 and "capability" in top.stdout and "simulate" in top.stdout, top.stderr
 

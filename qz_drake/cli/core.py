@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 from functools import partial
 from pathlib import Path
@@ -27,8 +28,10 @@ def _cmd_simulate(args) -> int:
     heightmap = prepare_scenario(scenario)
     # The map is built once: the station takes the checked one.
     station_factory, realtime_rate = partial(make_station, heightmap=heightmap), 0.0
+    servo = contextlib.nullcontext()
     if args.station == "lcm":
         from qz_drake.hardware.loopback import make_lcm_loopback_station, make_remote_lcm_station
+        from qz_drake.hardware.planning_station import ServoProcess, make_planning_lcm_station
         from qz_drake.hardware.relay import check_lcm_url
 
         # The station connects inside simulate(), after the work has begun.
@@ -37,12 +40,17 @@ def _cmd_simulate(args) -> int:
         if args.lcm_url == "memq://":
             # The simulated robot driver in the same diagram, over an in-process LCM.
             station_factory = partial(make_lcm_loopback_station, config=config)
+        elif args.servo == "process":
+            # A driver in another process (qz robot-sim, the robot): the joint PD in a servo
+            # process of its own, which no planning holds up; this one plans.
+            station_factory = partial(make_planning_lcm_station, lcm_url=args.lcm_url, config=config)
+            servo = ServoProcess(scenario, lcm_url=args.lcm_url, config=config, log=Path(args.out) / "servo.log")
         else:
-            # A driver in another process (qz robot-sim, the robot): both sides in real time.
+            # Everything in this process, paced to real time (planning holds up the commands).
             station_factory = partial(make_remote_lcm_station, lcm_url=args.lcm_url, config=config)
             realtime_rate = args.realtime_rate
     output_folder(args.out)  # made once every input is checked, the hardware settings too
-    with ProgressReport(f"simulate {scenario.name}: building", unit="s simulated", digits=1) as report:
+    with ProgressReport(f"simulate {scenario.name}: building", unit="s simulated", digits=1) as report, servo:
         result = simulate(scenario, duration=args.duration, out_dir=args.out, station_factory=station_factory,
                           realtime_rate=realtime_rate, route_source=route_source_for(scenario),
                           progress=simulation_progress(report, f"simulate {scenario.name}"))
@@ -112,6 +120,10 @@ def register(subparsers) -> None:
                         "driver in another process (qz robot-sim, the robot)")
     p.add_argument("--realtime-rate", type=float, default=1.0,
                    help="with --station lcm and a network URL: pacing, the same as the driver's")
+    p.add_argument("--servo", choices=("process", "inline"), default="process",
+                   help="with --station lcm and a network URL: process: the joint PD in a `qz servo` process "
+                        "this command starts, fed with each plan's references, so that no planning holds up a "
+                        "command; inline: everything in this process")
     p.set_defaults(func=_cmd_simulate)
 
     p = subparsers.add_parser("terrain", help="draw a generated terrain as a PNG", epilog=LazyText(terrain_kinds_text),

@@ -55,6 +55,8 @@ from qz_drake.systems.joint_pd import add_joint_pd
 # The player moves its plan clock between the interface's status read (RECEIVE_PHASE) and its
 # command (COMMAND_PHASE), so that a command reads the references of its own period.
 PLAYER_PHASE = 0.5 * (RECEIVE_PHASE + COMMAND_PHASE)
+# The player tells the planning process its state (qz_servo) after the command is out.
+REPORT_PHASE = 0.5 * (COMMAND_PHASE + 1.0)
 # The references' update period the tables carry (the IK tracker's 200 Hz). [s]
 REFERENCE_PERIOD = 0.005
 
@@ -142,7 +144,9 @@ class ReferencePlayer(LeafSystem):
         self._row = self.DeclareDiscreteState(np.asarray(standing, dtype=float))
         self.DeclarePeriodicUnrestrictedUpdateEvent(self._period, PLAYER_PHASE * self._period, self._update)
         self.DeclareInitializationDiscreteUpdateEvent(self._initial_row)
-        self.DeclarePeriodicPublishEvent(self._period, PLAYER_PHASE * self._period, self._publish)
+        # After the period's command has gone (COMMAND_PHASE): the planning process waits for
+        # this message, the robot for the command.
+        self.DeclarePeriodicPublishEvent(self._period, REPORT_PHASE * self._period, self._publish)
         held = {self.discrete_state_ticket(self._row)}
         for name, part in (("desired_state", DESIRED_STATE), ("foot_force_feedforward", FORCES),
                            ("position_command", Q_DES), ("velocity_command", V_DES), ("contact_plan", CONTACT)):
@@ -229,7 +233,7 @@ class ReferencePlayer(LeafSystem):
         t = context.get_time()
         m = qz_servo()
         # One a period; the last one (the report) one more.
-        m.utime, m.sequence = int(round(t * 1e6)), int(round(t / self._period - PLAYER_PHASE)) + 1 + bool(report)
+        m.utime, m.sequence = int(round(t * 1e6)), int(round(t / self._period - REPORT_PHASE)) + 1 + bool(report)
         m.status_utime, m.plan_time, m.reference_end, m.holding = s.status_utime, s.plan_time, s.table.end_time, s.holding
         m.late_holds, m.late_hold_time, m.longest_late_hold = s.late_holds, s.late_hold_time, s.longest_late_hold
         m.safe_stop, m.reason, m.report = bool(s.safe_stop), s.safe_stop, report
@@ -257,12 +261,17 @@ class LatencyRecorder:
         self._arrivals: dict[int, float] = {}
         self.latencies: list[float] = []
         self.gaps: list[float] = []
+        self.longest_status_gap = 0.0
+        self._last_status = math.inf  # (no gap before the first)
         self._last_command = math.nan
         lcm.Subscribe(channel, self._on_status)
 
     def _on_status(self, data: bytes) -> None:
         (sequence,) = self._SEQUENCE.unpack_from(data, self._SEQUENCE_OFFSET)
-        self._arrivals[sequence] = time.monotonic()
+        now = time.monotonic()
+        self.longest_status_gap = max(self.longest_status_gap, now - self._last_status)
+        self._last_status = now
+        self._arrivals[sequence] = now
         if len(self._arrivals) > 64:  # only the newest few can still be answered
             for key in sorted(self._arrivals)[:-32]:
                 del self._arrivals[key]
@@ -286,7 +295,8 @@ class LatencyRecorder:
         ms = np.asarray(self.latencies) * 1e3
         return {"commands_answering_a_status": int(ms.size), "latency_median_ms": float(np.median(ms)),
                 "latency_p99_ms": float(np.percentile(ms, 99)), "latency_max_ms": float(ms.max()),
-                "longest_command_gap_ms": float(max(self.gaps, default=0.0) * 1e3)}
+                "longest_command_gap_ms": float(max(self.gaps, default=0.0) * 1e3),
+                "longest_status_gap_ms": self.longest_status_gap * 1e3}
 
 
 class Servo:
