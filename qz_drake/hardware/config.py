@@ -4,14 +4,15 @@ One typed dataclass with a YAML form (``load_hardware_config``), defaults in one
 timing of one control period ``h`` (both sides use the same period, each on its own clock)::
 
     driver:     0       physics / servo tick: applies the latched command
-                h/4     publishes qz_status (and qz_pose) measured after the tick
+                h/16    publishes qz_status (and qz_pose) measured after the tick
     interface:  h/2     decodes the newest status, runs the watchdog and the estimator
                 3h/4    publishes qz_command computed from that status
-    driver:     7h/8    checks and latches the newest command for the next tick
+    driver:     15h/16  checks and latches the newest command for the next tick
 
-so a command reaches the driver half a period after the status it answers, before the
-driver's next tick: the status-to-command budget is 5h/8, and in the lockstep simulation the
-controller sees the same measurement at the same tick as against the simulation station.
+so a command reaches the driver before its next tick: the status-to-command budget is 7h/8,
+and in the lockstep simulation the controller sees the same measurement at the same tick as
+against the simulation station. A servo in another process (qz_drake.hardware.servo) answers
+a status as soon as it comes, not at 3h/4 of a clock of its own.
 """
 
 # (No "from __future__ import annotations": pydrake.common.yaml reads the field types.)
@@ -35,7 +36,7 @@ class ChannelConfig:
     reference: str = "QZ_REFERENCE"
     # Planning process -> servo: qz_planner heartbeats.
     planner: str = "QZ_PLANNER"
-    # Servo -> planning process: qz_servo, once per control period.
+    # Servo -> planning process: qz_servo, every fifth control period.
     servo: str = "QZ_SERVO"
 
 

@@ -55,8 +55,10 @@ from qz_drake.systems.joint_pd import add_joint_pd
 # The player moves its plan clock between the interface's status read (RECEIVE_PHASE) and its
 # command (COMMAND_PHASE), so that a command reads the references of its own period.
 PLAYER_PHASE = 0.5 * (RECEIVE_PHASE + COMMAND_PHASE)
-# The player tells the planning process its state (qz_servo) after the command is out.
+# The player tells the planning process its state (qz_servo) after the command is out, every
+# REPORT_PERIODS control periods (100 Hz at 500 Hz).
 REPORT_PHASE = 0.5 * (COMMAND_PHASE + 1.0)
+REPORT_PERIODS = 5
 # The references' update period the tables carry (the IK tracker's 200 Hz). [s]
 REFERENCE_PERIOD = 0.005
 
@@ -145,8 +147,9 @@ class ReferencePlayer(LeafSystem):
         self.DeclarePeriodicUnrestrictedUpdateEvent(self._period, PLAYER_PHASE * self._period, self._update)
         self.DeclareInitializationDiscreteUpdateEvent(self._initial_row)
         # After the period's command has gone (COMMAND_PHASE): the planning process waits for
-        # this message, the robot for the command.
-        self.DeclarePeriodicPublishEvent(self._period, REPORT_PHASE * self._period, self._publish)
+        # this message, the robot for the command. Every REPORT_PERIODS periods: the planning
+        # process looks at the plan clock every 10 ms, and each message is work for the relay.
+        self.DeclarePeriodicPublishEvent(REPORT_PERIODS * self._period, REPORT_PHASE * self._period, self._publish)
         held = {self.discrete_state_ticket(self._row)}
         for name, part in (("desired_state", DESIRED_STATE), ("foot_force_feedforward", FORCES),
                            ("position_command", Q_DES), ("velocity_command", V_DES), ("contact_plan", CONTACT)):
@@ -232,8 +235,9 @@ class ReferencePlayer(LeafSystem):
         s: PlayerState = context.get_abstract_state(self._state).get_value()
         t = context.get_time()
         m = qz_servo()
-        # One a period; the last one (the report) one more.
-        m.utime, m.sequence = int(round(t * 1e6)), int(round(t / self._period - REPORT_PHASE)) + 1 + bool(report)
+        # One a report period; the last one (the report) one more.
+        m.utime = int(round(t * 1e6))
+        m.sequence = int(round((t / self._period - REPORT_PHASE) / REPORT_PERIODS)) + 1 + bool(report)
         m.status_utime, m.plan_time, m.reference_end, m.holding = s.status_utime, s.plan_time, s.table.end_time, s.holding
         m.late_holds, m.late_hold_time, m.longest_late_hold = s.late_holds, s.late_hold_time, s.longest_late_hold
         m.safe_stop, m.reason, m.report = bool(s.safe_stop), s.safe_stop, report

@@ -14,6 +14,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from qz_drake.config import Scenario
 from qz_drake.errors import ConfigError
+from qz_drake.hardware import driver as driver_module
 from qz_drake.hardware.config import HardwareConfig, load_hardware_config
 from qz_drake.hardware.loopback import make_lcm_loopback_station
 from qz_drake.simulation import _standing_controller
@@ -165,10 +166,11 @@ def test_a_stale_or_malformed_command_latches_the_drivers_safe_stop():
     root = simulator.get_context()
     driver = station.station_metrics(root)["lcm_driver"]
     assert driver["stale"] == 1 and driver["safe_stop_latched"] and driver["holding"]
-    # Command 99 was taken in at 98.875 periods; the first check at which it is older than the
-    # budget latches, and says so.
+    # Command 99 was taken in at 98 periods and the driver's command phase; the first check at
+    # which it is older than the budget latches, and says so.
     timeout = HardwareConfig().command_timeout
-    assert driver["safe_stop_time_s"] == pytest.approx((98.875 + math.floor(timeout / H) + 1) * H)
+    taken_in = 98 + driver_module.COMMAND_PHASE
+    assert driver["safe_stop_time_s"] == pytest.approx((taken_in + math.floor(timeout / H) + 1) * H)
     assert driver["safe_stop_reason"] == (f"command stale for {(math.floor(timeout / H) + 1) * H * 1e3:.1f} ms "
                                           f"(timeout {timeout * 1e3:.1f} ms)")
     assert station.station_metrics(root)["lcm_interface"]["driver_safe_stop"]

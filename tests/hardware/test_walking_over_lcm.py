@@ -15,6 +15,7 @@ import pytest
 from qz_drake.cli import main
 from qz_drake.config import ControllerConfig, Scenario, Waypoint, load_scenario
 from qz_drake.hardware.config import HardwareConfig
+from qz_drake.hardware.driver import STATUS_PHASE
 from qz_drake.hardware.loopback import make_lcm_loopback_station
 from qz_drake.simulation import simulate
 from qz_drake.state_layout import tilt_deg
@@ -56,9 +57,9 @@ def test_status_outage_while_walking_latches_a_safe_stop_and_the_robot_stands():
     interface = result.metrics["lcm_interface"]
     assert interface["stale"] == 1 and interface["safe_stops"] == 1 and interface["safe_stop_latched"]
     # Latched at the first check at which the last status was older than the budget: within a
-    # period of the budget after the first missing status would have come (a quarter period
-    # past its tick).
-    missing_at = (first_missing - 1 + 0.25) * H
+    # period of the budget after the first missing status would have come (the driver's status
+    # phase past its tick).
+    missing_at = (first_missing - 1 + STATUS_PHASE) * H
     timeout = HardwareConfig().status_timeout
     assert timeout - H < interface["safe_stop_time_s"] - missing_at <= timeout + H
     # The walk's outcome names the safe stop and its cause before the missed target.

@@ -9,7 +9,7 @@ import struct
 
 class qz_servo(object):
     """
-    The servo's state for the planning process, once per control period: its plan clock (the
+    The servo's state for the planning process, every fifth control period: its plan clock (the
     planning process runs its simulation no further ahead of it than a small lead), whether it
     holds a stance because no reference reaches further, and its safe stop.
     """
