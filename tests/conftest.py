@@ -1,6 +1,35 @@
 """Fixtures shared across test folders."""
 
+import sys
+
 import pytest
+
+# torch's intra-op threads when the tests were collected (tests/capability's modules set one).
+_torch_threads = None
+
+
+def pytest_collection_finish(session):
+    global _torch_threads
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        _torch_threads = torch.get_num_threads()
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    """Each test, its fixtures included, starts with torch's threads as they were collected.
+    Loading a capability model sets them to the free cores (qz_drake.threads) and training sets
+    none, so a training test that came after a model load on a quiet moment trained with two
+    threads: test_training.py's `learned` took 102 s in a loaded `make test` and 11 s alone
+    (the same training, 93 s with two threads and 13 s with one, the other core busy)."""
+    global _torch_threads
+    torch = sys.modules.get("torch")
+    if torch is None:
+        return
+    if _torch_threads is None:
+        _torch_threads = torch.get_num_threads()
+    elif torch.get_num_threads() != _torch_threads:
+        torch.set_num_threads(_torch_threads)
 
 
 @pytest.fixture(scope="session")
