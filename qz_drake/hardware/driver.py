@@ -39,8 +39,10 @@ from qz_drake.state_layout import BASE_POS, BASE_QUAT, BASE_VEL, IMU_SIZE, JOINT
 # command a sixteenth of a period before the tick (see qz_drake.hardware.config): a Drake
 # plant's step and another system's update at the same time see each other's old values, so
 # the command is latched first and the tick applies it. Between the two, 7/8 of a period is
-# the command's budget (at a quarter and seven eighths, 5/8 of it: a servo in another process
-# answering through the relay in 0.8-1.3 ms made 45-85 % of its commands a period late at 500 Hz).
+# the command's budget, what a robot's driver, whose tick takes microseconds, leaves a servo in
+# another process. (This simulated driver's own step takes most of a period at real time on a
+# 2-core machine, so its statuses leave late whatever the phase: a servo answering in 0.8 ms
+# through the relay still had 70-100 % of its commands applied a period late.)
 STATUS_PHASE = 0.0625
 COMMAND_PHASE = 0.9375
 

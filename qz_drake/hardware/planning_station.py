@@ -49,7 +49,7 @@ from qz_drake.hardware.config import HardwareConfig, validate_hardware_config
 from qz_drake.hardware.interface import (_CONTACT, _HELD_SIZE, _IMU, _TAU, PoseTrack, decoded_status,
                                          scenario_station_info, updated_pose_track)
 from qz_drake.hardware.qz_lcm import qz_planner, qz_servo, qz_status
-from qz_drake.hardware.references import encode_table, plan_references
+from qz_drake.hardware.references import encode_table, plan_references, table_chunks
 from qz_drake.hardware.servo import REFERENCE_PERIOD
 from qz_drake.robot.params import NUM_JOINTS
 from qz_drake.state_layout import STATE_SIZE
@@ -243,7 +243,7 @@ class ReferencePublisher(LeafSystem):
 
     Checked every reference period: a plan object it has not sent yet (None, or the input left
     unconnected as a standing run leaves it: nothing) is solved into a table
-    (references.plan_references) and published at once.
+    (references.plan_references) and published at once, a second of rows to a message.
 
     Args:
         link: the servo link (its LCM and channels).
@@ -273,9 +273,11 @@ class ReferencePublisher(LeafSystem):
         if plan is None or plan is last:
             return
         table = plan_references(plan, topology=self._topology, params=self._params, rate=1.0 / REFERENCE_PERIOD)
-        data = encode_table(table, sequence=count + 1, utime=int(time.monotonic() * 1e6))
-        self._link.lcm.Publish(self._link.config.channels.reference, data)
-        state.get_mutable_abstract_state(self._sent).set_value((plan, count + 1))
+        for chunk in table_chunks(table):
+            count += 1
+            data = encode_table(chunk, sequence=count, utime=int(time.monotonic() * 1e6))
+            self._link.lcm.Publish(self._link.config.channels.reference, data)
+        state.get_mutable_abstract_state(self._sent).set_value((plan, count))
 
 
 class StatusListener(LeafSystem):

@@ -19,7 +19,7 @@ from qz_drake.hardware.config import HardwareConfig
 from qz_drake.hardware.interface import scenario_station_info
 from qz_drake.hardware.qz_lcm import qz_planner, qz_servo
 from qz_drake.hardware.references import (ROW_SIZE, ReferenceTable, decode_table, encode_table, plan_references,
-                                          standing_row)
+                                          standing_row, table_chunks)
 from qz_drake.hardware.servo import Servo
 from qz_drake.simulation import _tripod_planner
 from qz_drake.state_layout import BASE_POS, tilt_deg
@@ -185,3 +185,14 @@ def test_a_planning_process_that_exits_latches_a_safe_stop(walk_flat):
 def test_a_standing_row_carries_the_weight():
     row = standing_row(np.zeros(18), 100.0)
     assert row[36:54].reshape(6, 3)[:, 2].tolist() == [100.0] * 6 and math.isclose(row[54:].sum(), 6)
+
+
+def test_a_table_sent_a_second_at_a_time_is_the_whole_table(walk_flat):
+    scenario, info, plan, _ = walk_flat
+    table = plan_references(plan, topology=info.topology, params=info.params)
+    chunks = [decode_table(encode_table(c, sequence=k, utime=0))[1] for k, c in enumerate(table_chunks(table, 50))]
+    assert len(chunks) == math.ceil(len(table.rows) / 50) > 2
+    merged = ReferenceTable(start_time=0.0, period=table.period, rows=standing_row(np.zeros(18), 1.0)[None])
+    for chunk in chunks:
+        merged = merged.merged(chunk)
+    assert np.array_equal(merged.after(table.start_time).rows, table.rows)
