@@ -32,33 +32,42 @@ def pytest_runtest_setup(item):
         torch.set_num_threads(_torch_threads)
 
 
-@pytest.fixture(scope="session")
-def synthetic_model_dir(tmp_path_factory):
-    """A capability model of the nominal topology trained on synthetic trials whose label is a
-    known rule (success when the patch's height range is at most 0.15 m): real CNNs, real
-    files, for the planners' end-to-end tests while no model ships. Ensembles of two (the
-    planners read their spread; five would triple the training for no other test)."""
+def _train_synthetic_model(scenes: int, headings: int, max_epochs: int, patience: int):
+    """(arrays, TrainingResult): the nominal topology's networks trained on synthetic trials whose
+    label is a known rule (success when the patch's height range is at most 0.15 m), in
+    ensembles of two (the planners read their spread; five would triple the training for no
+    other test)."""
     import torch
 
-    from qz_drake.capability.model import save_model
     from qz_drake.capability.synthetic import synthetic_arrays
     from qz_drake.capability.training import TrainingConfig, train_networks
 
     torch.set_num_threads(1)
-    arrays, manifest = synthetic_arrays(scenes=40, headings=12)
+    arrays, manifest = synthetic_arrays(scenes=scenes, headings=headings)
     # No component fingerprints: the model describes no robot configuration, so the robot
     # check of CapabilityModel.load lets it through.
     result = train_networks(arrays, fingerprint=manifest["fingerprint"], fingerprints=None,
-                            config=TrainingConfig(max_epochs=40, patience=8, ensemble=2))
-    # The planners' tests rely on the three nominal networks being there and having learned
-    # the rule on held-out scenes: ranked against the rule itself (the labels have 3 % flipped,
-    # which caps the AUC against them near 0.9 on these 72 test trials a network).
+                            config=TrainingConfig(max_epochs=max_epochs, patience=patience, ensemble=2))
+    assert sorted(result.networks) == [("nominal", "diagonal"), ("nominal", "orthogonal"), ("nominal", "turn")]
+    return arrays, result
+
+
+@pytest.fixture(scope="session")
+def synthetic_model_dir(tmp_path_factory):
+    """A capability model that has learned the synthetic rule (_train_synthetic_model): real
+    CNNs, real files, for the planners' end-to-end tests with a model other than the shipped
+    one (all of them slow; its training takes 30 s on the project's 2-core machine)."""
     import numpy as np
+    import torch
     from sklearn.metrics import roc_auc_score
 
+    from qz_drake.capability.model import save_model
     from qz_drake.capability.synthetic import synthetic_rule
 
-    assert sorted(result.networks) == [("nominal", "diagonal"), ("nominal", "orthogonal"), ("nominal", "turn")]
+    arrays, result = _train_synthetic_model(scenes=40, headings=12, max_epochs=40, patience=8)
+    # The planners' tests rely on the three nominal networks having learned the rule on
+    # held-out scenes: ranked against the rule itself (the labels have 3 % flipped, which caps
+    # the AUC against them near 0.9 on these 72 test trials a network).
     test = np.isin(arrays["scene"], result.split["test"])
     for (_, kind), network in result.networks.items():
         rows = test & (arrays["kind"] == kind)
@@ -69,6 +78,19 @@ def synthetic_model_dir(tmp_path_factory):
             p = network.net.probability(torch.as_tensor(arrays["patch"][rows]), torch.as_tensor(extra)).numpy()
         assert roc_auc_score(synthetic_rule(arrays["patch"][rows]), p) > 0.95, (kind, network.card["test"])
     return save_model(result, tmp_path_factory.mktemp("synthetic_model"))
+
+
+@pytest.fixture(scope="session")
+def briefly_trained_model_dir(tmp_path_factory):
+    """synthetic_model_dir's recipe trained for two epochs on 16 scenes (1-3 s): the same
+    networks and files, not the rule learned, for the tests that need a saved model other than
+    the shipped one and never how well it predicts (a results folder's model identity, the
+    commands that take --model, goals refused before planning). Even a random model's plan
+    from (0, 0) to (3, 0.5) on flat ground reaches the goal, as qz plan's test asks."""
+    from qz_drake.capability.model import save_model
+
+    _, result = _train_synthetic_model(scenes=16, headings=6, max_epochs=2, patience=2)
+    return save_model(result, tmp_path_factory.mktemp("briefly_trained_model"))
 
 
 class StraightPlan:

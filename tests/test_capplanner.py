@@ -389,7 +389,7 @@ def test_capplanner_is_tuned_on_the_same_tuning_worlds_as_astar(synthetic_model_
         tune_capplanner(tmp_path, topology_doubts=(1.0,), progress=False)
 
 
-def test_capplanner_results_are_not_resumed_with_another_model(synthetic_model_dir, tmp_path):
+def test_capplanner_results_are_not_resumed_with_another_model(briefly_trained_model_dir, tmp_path):
     """A results folder records the weights CapPlanner walked with (CapabilityModel.identity):
     resuming it with another model (e.g. the shipped one after a retrain) is refused before any
     walk, naming --model; the same model resumes."""
@@ -397,10 +397,10 @@ def test_capplanner_results_are_not_resumed_with_another_model(synthetic_model_d
     from qz_drake.errors import QzError
     from qz_drake.experiments.fig9 import MODEL_IDENTITY, ExperimentConfig, TaskSpec, run_experiment
 
-    synthetic, shipped = CapabilityModel.load(synthetic_model_dir), CapabilityModel.load()
+    synthetic, shipped = CapabilityModel.load(briefly_trained_model_dir), CapabilityModel.load()
     assert synthetic.identity != shipped.identity and len(shipped.identity) == 16
-    assert CapabilityModel.load(synthetic_model_dir).identity == synthetic.identity
-    config = ExperimentConfig(capability_model=str(synthetic_model_dir), scale=0.3)
+    assert CapabilityModel.load(briefly_trained_model_dir).identity == synthetic.identity
+    config = ExperimentConfig(capability_model=str(briefly_trained_model_dir), scale=0.3)
     settings = {**dataclasses.asdict(config), MODEL_IDENTITY: shipped.identity}
     (tmp_path / "settings.json").write_text(json.dumps(settings))
     walked = json.dumps({"key": TaskSpec("obstacles", "simple", 0, "capplanner").key, "terrain": "obstacles",
@@ -450,7 +450,7 @@ def test_results_written_before_a_setting_existed_still_resume(tmp_path):
                           config=dataclasses.replace(config, astar_max_recoveries=0), progress=False)["ran"] == 0
 
 
-def test_one_planners_half_is_walked_before_the_other_is_tuned(synthetic_model_dir, tmp_path):
+def test_one_planners_half_is_walked_before_the_other_is_tuned(briefly_trained_model_dir, tmp_path):
     """A* walks depend on none of CapPlanner's settings and CapPlanner's on none of A*'s: a
     folder holding A*'s half takes CapPlanner's tuned settings when CapPlanner first walks there,
     then holds them; an A*-only resume keeps them whatever its own CapPlanner settings are."""
@@ -465,12 +465,13 @@ def test_one_planners_half_is_walked_before_the_other_is_tuned(synthetic_model_d
     cell = dict(terrains=("obstacles",), difficulties=("simple",), tasks=1, progress=False)
     astar_half = ExperimentConfig(scale=0.3, astar_max_step_height=0.24)
     run_experiment(tmp_path, planners=("astar",), config=astar_half, reuse=record, **cell)
-    tuned = dataclasses.replace(astar_half, capability_model=str(synthetic_model_dir),
+    tuned = dataclasses.replace(astar_half, capability_model=str(briefly_trained_model_dir),
                                 capplanner_failure_reward=-200.0, capplanner_plan_failure_risk=1.0)
     summary = run_experiment(tmp_path, planners=("capplanner",), config=tuned, reuse=record, **cell)
     assert summary["reused"] == 1 and {r["planner"] for r in summary["rows"]} == {"astar", "capplanner"}
     settings = json.loads((tmp_path / "settings.json").read_text())
-    assert settings == {**dataclasses.asdict(tuned), MODEL_IDENTITY: CapabilityModel.load(synthetic_model_dir).identity}
+    identity = CapabilityModel.load(briefly_trained_model_dir).identity
+    assert settings == {**dataclasses.asdict(tuned), MODEL_IDENTITY: identity}
     # CapPlanner has results now: other CapPlanner settings are refused, naming the setting.
     with pytest.raises(QzError, match="capplanner_failure_reward -200.0, this run's -100.0"):
         run_experiment(tmp_path, planners=("capplanner",), config=dataclasses.replace(tuned, capplanner_failure_reward=-100.0),
@@ -626,9 +627,9 @@ def test_experiment_takes_a_tuning_and_refuses_a_missing_or_foreign_one(tmp_path
     assert run.returncode == 2 and len(lines) == 1 and "--astar-tuning" in lines[0], run.stderr
 
 
-def test_qz_plan_writes_the_utility_map_and_names_bad_input(synthetic_model_dir, tmp_path):
+def test_qz_plan_writes_the_utility_map_and_names_bad_input(briefly_trained_model_dir, tmp_path):
     run = subprocess.run(QZ + ["plan", "--terrain", "flat", "--start", "0,0", "--goal", "3,0.5",
-                               "--model", str(synthetic_model_dir), "--out", str(tmp_path), "--json"],
+                               "--model", str(briefly_trained_model_dir), "--out", str(tmp_path), "--json"],
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     out = json.loads(run.stdout)
@@ -637,7 +638,7 @@ def test_qz_plan_writes_the_utility_map_and_names_bad_input(synthetic_model_dir,
     for args, field in ((["--goal", "50,0"], "--goal"), (["--start", "1,x"], "--start"),
                         (["--model", str(tmp_path)], "model")):
         base = ["plan", "--terrain", "flat", "--start", "0,0", "--goal", "3,0.5", "--model",
-                str(synthetic_model_dir), "--out", str(tmp_path / "bad")]
+                str(briefly_trained_model_dir), "--out", str(tmp_path / "bad")]
         for i in range(0, len(args), 2):
             base[base.index(args[i]) + 1] = args[i + 1]
         bad = subprocess.run(QZ + base, capture_output=True, text=True, timeout=300)
@@ -645,7 +646,7 @@ def test_qz_plan_writes_the_utility_map_and_names_bad_input(synthetic_model_dir,
         assert bad.returncode == 2 and len(lines) == 1 and field in lines[0], bad.stderr
 
 
-def test_a_capplanner_goal_inside_an_obstacle_or_off_the_map_names_the_field(synthetic_model_dir):
+def test_a_capplanner_goal_inside_an_obstacle_or_off_the_map_names_the_field(briefly_trained_model_dir):
     from qz_drake.errors import QzError
 
     sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent / "planning"))
@@ -657,7 +658,7 @@ def test_a_capplanner_goal_inside_an_obstacle_or_off_the_map_names_the_field(syn
         scenario = Scenario(name="bad_goal", robot=RobotConfig(initial_xy=list(START)),
                             terrain=TerrainConfig(region=[-4, 4, -3, 4]),
                             controller=ControllerConfig(kind="walk", planner="capplanner",
-                                                        capability_model=str(synthetic_model_dir),
+                                                        capability_model=str(briefly_trained_model_dir),
                                                         route=[Waypoint(x=goal[0], y=goal[1])]))
         with pytest.raises(QzError, match=r"scenario.controller.route\[0\].*" + match):
             walk(scenario, heightmap=world, route_source=CapPlannerRoute())

@@ -91,7 +91,7 @@ def test_walks_missions_are_scored_per_mission_and_per_cell():
         score_missions(records[3:], model, scale=0.3)
 
 
-def test_the_command_scores_a_trained_model_on_a_runs_missions(synthetic_model_dir, tmp_path, capsys):
+def test_the_command_scores_a_trained_model_on_a_runs_missions(briefly_trained_model_dir, tmp_path, capsys):
     import json
 
     from qz_drake.cli import main
@@ -106,7 +106,7 @@ def test_the_command_scores_a_trained_model_on_a_runs_missions(synthetic_model_d
                for s, outcome in enumerate(("walked", "failed", "no_plan"))]
     (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
     (tmp_path / "settings.json").write_text(json.dumps({"scale": 0.3}))
-    assert main(["experiment", "score-missions", str(tmp_path), "--model", str(synthetic_model_dir)]) == 0
+    assert main(["experiment", "score-missions", str(tmp_path), "--model", str(briefly_trained_model_dir)]) == 0
     text = capsys.readouterr().out
     assert "6 missions of 3 walks (0 walks kept none): walked 4, no plan 1, executed and failed 1" in text
     assert "| astar | stairs | simple | 3 | 0.67 |" in text
@@ -115,10 +115,12 @@ def test_the_command_scores_a_trained_model_on_a_runs_missions(synthetic_model_d
     other.mkdir()
     (other / "results.jsonl").write_text(json.dumps(records[1]) + "\n")
     (other / "settings.json").write_text(json.dumps({"scale": 0.3}))
-    assert main(["experiment", "score-missions", str(tmp_path), str(other), "--model", str(synthetic_model_dir)]) == 0
+    assert main(["experiment", "score-missions", str(tmp_path), str(other),
+                 "--model", str(briefly_trained_model_dir)]) == 0
     assert "8 missions of 4 walks (0 walks kept none): walked 5, no plan 1, executed and failed 2" in capsys.readouterr().out
     (other / "settings.json").write_text(json.dumps({"scale": 1.0}))
-    assert main(["experiment", "score-missions", str(tmp_path), str(other), "--model", str(synthetic_model_dir)]) == 2
+    assert main(["experiment", "score-missions", str(tmp_path), str(other),
+                 "--model", str(briefly_trained_model_dir)]) == 2
     assert "scale" in capsys.readouterr().err
     assert main(["experiment", "score-missions", str(tmp_path / "nothing")]) == 2
     assert "results" in capsys.readouterr().err
