@@ -19,6 +19,11 @@ from qz_drake.config import MissionTiming
 from qz_drake.systems.blc import TrajectoryOptimizationBLC
 from qz_drake.state_layout import tilt_deg
 from qz_drake.terrain import make_terrain
+from qz_drake.trajopt.parameters import BlcParameters
+
+# Missions into a 1 m wall, which no solve can plan: the solves stop after six Ipopt iterations
+# instead of at the 5 s time limit (10 s of make test); the first 0.3 m mission takes four.
+WALL_BLC = BlcParameters(max_iterations=6)
 
 
 def _fixed(system, heightmap, state, target, topology="nominal"):
@@ -62,7 +67,7 @@ def test_solves_at_start_and_again_only_when_the_mission_changes():
 def test_a_failed_solve_is_logged_and_the_previous_plan_kept():
     heightmap = make_terrain("step", height=1.0, start_x=1.5)  # a 1 m wall
     state = standing_state(heightmap, get_topology("nominal"))
-    blc = TrajectoryOptimizationBLC()
+    blc = TrajectoryOptimizationBLC(blc_params=WALL_BLC)
     context = _fixed(blc, heightmap, state, (0.3, 0.0, 0.0))
     simulator = Simulator(blc, context)
     simulator.Initialize()
@@ -185,7 +190,7 @@ def test_a_mission_that_failed_to_plan_is_retried_one_tripod_cycle_longer():
 def test_a_mission_no_retry_can_plan_is_one_failure_and_the_plan_is_kept():
     heightmap = make_terrain("step", height=1.0, start_x=1.5)  # a 1 m wall
     state = standing_state(heightmap, get_topology("nominal"))
-    blc = TrajectoryOptimizationBLC(mission_retries=1)
+    blc = TrajectoryOptimizationBLC(mission_retries=1, blc_params=WALL_BLC)
     context = _fixed(blc, heightmap, state, (0.3, 0.0, 0.0))
     simulator = Simulator(blc, context)
     simulator.Initialize()
