@@ -22,7 +22,7 @@ from qz_drake.terrain import make_terrain
 from qz_drake.trajopt.parameters import BlcParameters
 
 # Missions into a 1 m wall, which no solve can plan: the solves stop after six Ipopt iterations
-# instead of at the 5 s time limit (10 s of make test); the first 0.3 m mission takes four.
+# instead of at the 5 s time limit (15 s of make test); the first 0.3 m mission takes four.
 WALL_BLC = BlcParameters(max_iterations=6)
 
 
