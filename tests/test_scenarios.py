@@ -13,7 +13,12 @@ from qz_drake.simulation import simulate
 # contact is walk_slope's, a walk on a heightmap read from a picture walk_own_terrain's (grid_map's
 # heightmap_generated.png), and the grid_map test field under the standing robot, mesh contact
 # included, test_station's.
-SLOW = {"walk_grid_map"}
+# walk_flat: the same 3 m on the same ground is walk_flat_position's, which differs only in
+# driving the joints through the drives' PD; the tripod walk on flat ground in torque mode is
+# test_walking's route on flat ground, under that test's stricter assertions.
+# walk_flat_blc: the BLC-planned walk on flat ground is test_walking's, which also counts its
+# solves; a scenario file with planner: blc walks in walk_stairs_blc.
+SLOW = {"walk_grid_map", "walk_flat", "walk_flat_blc"}
 WALKS = [pytest.param(p, id=p.stem, marks=[pytest.mark.slow] if p.stem in SLOW else [])
          for p in sorted((Path(__file__).resolve().parents[1] / "scenarios").glob("walk_*.yaml"))]
 
