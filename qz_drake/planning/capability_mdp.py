@@ -985,6 +985,12 @@ def plan(model, heightmap, start_xy, start_heading: int, goal_xy, *, start_topol
     from qz_drake.capability.model import predict_map
 
     config = (config or CapabilityMdpConfig()).check()
+    xmin, xmax, ymin, ymax = heightmap.bounds
+    for name, xy in (("start_xy", start_xy), ("goal_xy", goal_xy)):
+        # Off the map, the MDP would plan to the nearest cell on it and say nothing.
+        if not (xmin <= xy[0] <= xmax and ymin <= xy[1] <= ymax):  # NaN too
+            raise bad_value(name, tuple(float(v) for v in xy), f"off the map (x in [{xmin:g}, {xmax:g}], "
+                                                                f"y in [{ymin:g}, {ymax:g}])")
     # The grid is anchored on the start: the robot starts at a cell centre, as the grid world has it.
     capability_map = predict_map(model, heightmap, config.topologies or None, cell_size=config.cell_size,
                                  anchor=start_xy)

@@ -2,6 +2,7 @@
 one of which holds a low ridge that a stub capability model calls impossible."""
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -506,3 +507,12 @@ def test_the_plan_keeps_the_feet_on_the_map():
     visited = result.cells[1:-1]
     assert len(visited) and all(y - MAP_EDGE_REACH >= 0.0 for _, y in visited)
     assert not inside[0].any() and inside[1, 1:-1].all()
+
+
+@pytest.mark.parametrize("start, goal, named", [((0.0, 0.0), (4.0, 0.0), "goal_xy = (4.0, 0.0)"),
+                                                ((-9.0, 0.0), (1.0, 0.0), "start_xy = (-9.0, 0.0)"),
+                                                ((0.0, 0.0), (float("nan"), 0.0), "goal_xy = (nan, 0.0)")])
+def test_a_start_or_goal_off_the_map_is_named_before_any_planning(start, goal, named):
+    heightmap = HeightMap(np.zeros((40, 100)), 0.05, (-1.0, -1.0))  # x in [-1, 3.95]
+    with pytest.raises(QzError, match=re.escape(named) + ".*off the map"):
+        plan(None, heightmap, start, 0, goal)  # refused before the model is asked anything
