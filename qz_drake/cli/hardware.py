@@ -18,7 +18,7 @@ import signal
 from qz_drake.errors import bad_value
 from qz_drake.hardware.relay import DEFAULT_PORT as DEFAULT_RELAY_PORT
 from qz_drake.hardware.relay import connect_lcm, tcpq_url
-from qz_drake.hardware.scheduling import DEFAULT_PRIORITY, request_realtime_priority
+from qz_drake.hardware.scheduling import DEFAULT_PRIORITY, check_priority, realtime_priority
 
 
 def load_hardware_file(path: str | None):
@@ -49,7 +49,7 @@ def run_robot_sim(args) -> int:
     if not (math.isfinite(args.realtime_rate) and args.realtime_rate >= 0):
         raise bad_value("--realtime-rate", args.realtime_rate, "must be >= 0 (0: as fast as possible)")
     config = load_hardware_file(args.hardware)
-    scheduling = request_realtime_priority(args.realtime_priority)
+    check_priority(args.realtime_priority)
     lcm = connect_lcm(args.lcm_url, "--lcm-url")
     meshcat = None
     if args.meshcat:
@@ -65,7 +65,8 @@ def run_robot_sim(args) -> int:
     signal.signal(signal.SIGTERM, _interrupt)
     simulator.Initialize()
     end = math.inf if args.duration is None else args.duration
-    with ProgressReport("robot-sim", args.duration, unit="s simulated", digits=1) as report:
+    with realtime_priority(args.realtime_priority) as scheduling, \
+            ProgressReport("robot-sim", args.duration, unit="s simulated", digits=1) as report:
         try:
             while simulator.get_context().get_time() < end:
                 simulator.AdvanceTo(min(end, simulator.get_context().get_time() + 1.0))
@@ -90,12 +91,12 @@ def run_servo(args) -> int:
     if args.parent_pid is not None and args.parent_pid <= 0:
         raise bad_value("--parent-pid", args.parent_pid, "must be a process id")
     config = load_hardware_file(args.hardware)
-    scheduling = request_realtime_priority(args.realtime_priority)
+    check_priority(args.realtime_priority)
+    with realtime_priority(args.realtime_priority) as scheduling:
+        def ready():
+            print(json.dumps({"servo": "serving", "lcm_url": args.lcm_url, "scheduling": scheduling}), flush=True)
 
-    def ready():
-        print(json.dumps({"servo": "serving", "lcm_url": args.lcm_url, "scheduling": scheduling}), flush=True)
-
-    report = serve(scenario, lcm_url=args.lcm_url, config=config, parent_pid=args.parent_pid, ready=ready)
+        report = serve(scenario, lcm_url=args.lcm_url, config=config, parent_pid=args.parent_pid, ready=ready)
     print(json.dumps({**report, "scheduling": scheduling}), flush=True)
     return 1 if report["safe_stop"] else 0
 
@@ -103,15 +104,16 @@ def run_servo(args) -> int:
 def run_lcm_relay(args) -> int:
     from qz_drake.hardware.relay import LcmTcpRelay
 
-    scheduling = request_realtime_priority(args.realtime_priority)
+    check_priority(args.realtime_priority)
     relay = LcmTcpRelay(args.port)
     # Stopped with Ctrl-C or a plain kill alike, so a script's `kill %1` also prints the counters.
     signal.signal(signal.SIGTERM, lambda *_: relay.close())
-    print(json.dumps({"lcm_url": relay.url, "listening": True, "scheduling": scheduling}), flush=True)
-    try:
-        relay.serve_forever()
-    except KeyboardInterrupt:
-        pass
+    with realtime_priority(args.realtime_priority) as scheduling:
+        print(json.dumps({"lcm_url": relay.url, "listening": True, "scheduling": scheduling}), flush=True)
+        try:
+            relay.serve_forever()
+        except KeyboardInterrupt:
+            pass
     print(json.dumps(relay.counters()), flush=True)
     return 0
 

@@ -11,6 +11,7 @@ robot-sim``, ``qz lcm-relay``) takes only what it uses, so the planner keeps the
 
 from __future__ import annotations
 
+import contextlib
 import os
 
 from qz_drake.errors import bad_value
@@ -20,15 +21,31 @@ from qz_drake.errors import bad_value
 DEFAULT_PRIORITY = 40
 
 
-def request_realtime_priority(priority: int, field: str = "--realtime-priority") -> str:
-    """Runs this process under SCHED_FIFO at ``priority`` (1-99; 0: leaves it as it is);
-    returns what it runs under, e.g. "SCHED_FIFO 40", or "normal: <why not>"."""
+def check_priority(priority: int, field: str = "--realtime-priority") -> int:
+    """The priority, or QzError naming ``field`` for one outside 0-99."""
     if not 0 <= priority <= 99:
         raise bad_value(field, priority, "must be 0 (normal scheduling) or a SCHED_FIFO priority, 1..99")
+    return priority
+
+
+@contextlib.contextmanager
+def realtime_priority(priority: int, field: str = "--realtime-priority"):
+    """Runs this process under SCHED_FIFO at ``priority`` (1-99; 0: as it is) for the ``with``
+    block and then as before, so that a command run in another program's process (a test's
+    ``main([...])``) does not leave it real-time: its children (a browser, a compiler's
+    threads) would inherit the policy and starve one another. Yields what it runs under, e.g.
+    "SCHED_FIFO 40", or "normal: <why not>"."""
+    check_priority(priority, field)
     if priority == 0:
-        return "normal"
+        yield "normal"
+        return
     try:
+        before = os.sched_getscheduler(0), os.sched_getparam(0)
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     except (AttributeError, OSError) as e:  # not Linux, or not privileged: run as before
-        return f"normal: SCHED_FIFO refused ({getattr(e, 'strerror', None) or e})"
-    return f"SCHED_FIFO {priority}"
+        yield f"normal: SCHED_FIFO refused ({getattr(e, 'strerror', None) or e})"
+        return
+    try:
+        yield f"SCHED_FIFO {priority}"
+    finally:
+        os.sched_setscheduler(0, before[0], before[1])

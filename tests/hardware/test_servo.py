@@ -196,3 +196,18 @@ def test_a_table_sent_a_second_at_a_time_is_the_whole_table(walk_flat):
     for chunk in chunks:
         merged = merged.merged(chunk)
     assert np.array_equal(merged.after(table.start_time).rows, table.rows)
+
+
+def test_real_time_scheduling_is_undone_when_its_block_ends():
+    # A command run in a test's own process (main([...])) must not leave it real-time: its
+    # children (a browser) would inherit SCHED_FIFO and starve one another.
+    from qz_drake.errors import QzError
+    from qz_drake.hardware.scheduling import realtime_priority
+
+    before = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+    with realtime_priority(10) as got:
+        assert got == "SCHED_FIFO 10" or got.startswith("normal: SCHED_FIFO refused")
+    assert (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority) == before
+    with pytest.raises(QzError, match="--realtime-priority = 100"):
+        with realtime_priority(100):
+            pass
