@@ -120,7 +120,7 @@ class ReferencePlayer(LeafSystem):
     tracker. Once a period (between the interface's status read and its command) the player
     takes in the tables and the planner's heartbeat that came, moves its plan clock (module
     doc) and holds the row in force. Before any table it holds ``standing``. It publishes its
-    state (qz_servo) every period. Tables and heartbeats arrive through ``lcm`` subscriptions
+    state (qz_servo) every REPORT_PERIODS periods, after the command. Tables and heartbeats arrive through ``lcm`` subscriptions
     (every table is kept: a table replaces the rows from its start on, so none may be lost, and
     Drake's LcmSubscriberSystem keeps only the newest message).
 
