@@ -6,6 +6,8 @@ watchdog can count the message as rejected and say why in its latch reason.
 
 from __future__ import annotations
 
+import struct
+
 import math
 
 import numpy as np
@@ -59,6 +61,17 @@ def message_key(message, problem: str, data: bytes) -> tuple[int, int]:
     if message is not None:
         return int(message.utime), int(message.sequence)
     return (-1, hash(data)) if problem else (0, 0)
+
+
+# qz_status, qz_pose and qz_command begin with the type's 8-byte fingerprint, then int64 utime and
+# int64 sequence (big-endian): read from the bytes without decoding the rest.
+_UTIME_SEQUENCE = struct.Struct(">qq")
+
+
+def encoded_key(data: bytes) -> tuple[int, int]:
+    """(utime, sequence) of an encoded qz_status, qz_pose or qz_command, read from its header (a
+    callback that only needs when a message came or which it is, at 500 Hz, without decoding it)."""
+    return _UTIME_SEQUENCE.unpack_from(data, 8)
 
 
 def joint_limits(params: QingzhuiParams) -> tuple[np.ndarray, np.ndarray]:

@@ -117,11 +117,7 @@ class StatusReceiver(LeafSystem):
         # Encoded messages (bytes, see EncodedMessageSerializer).
         self._status = self.DeclareAbstractInputPort("lcm_status", AbstractValue.Make(b""))
         self._pose = self.DeclareAbstractInputPort("lcm_pose", AbstractValue.Make(b""))
-        held = np.zeros(_HELD_SIZE)
-        held[:STATE_SIZE] = prior_state
-        held[_IMU] = [1, 0, 0, 0, 0, 0, 0, 0, 0, 9.81]
-        held[_CONTACT] = 1.0
-        self._held = self.DeclareDiscreteState(held)
+        self._held = self.DeclareDiscreteState(initial_held(prior_state))
         self._link = self.DeclareAbstractState(AbstractValue.Make(LinkState()))
         self._pose_track = self.DeclareAbstractState(AbstractValue.Make(PoseTrack()))
         period = config.control_period
@@ -184,6 +180,16 @@ class StatusReceiver(LeafSystem):
     def _decode(self, m: qz_status, track: PoseTrack, context) -> np.ndarray:
         held = context.get_discrete_state(self._held).get_value().copy()
         return decoded_status(held, m, track, self._config.max_pose_extrapolation)
+
+
+def initial_held(prior_state: np.ndarray) -> np.ndarray:
+    """A receiver's held vector before the first status: the expected state, a level IMU at
+    rest, every foot down, no safe stop."""
+    held = np.zeros(_HELD_SIZE)
+    held[:STATE_SIZE] = prior_state
+    held[_IMU] = [1, 0, 0, 0, 0, 0, 0, 0, 0, 9.81]
+    held[_CONTACT] = 1.0
+    return held
 
 
 def updated_pose_track(track: PoseTrack, data: bytes) -> PoseTrack:

@@ -27,7 +27,6 @@ import dataclasses
 import json
 import math
 import os
-import struct
 import subprocess
 import sys
 import tempfile
@@ -44,9 +43,9 @@ from pydrake.systems.primitives import ConstantVectorSource
 
 from qz_drake.config import Scenario, save_scenario
 from qz_drake.errors import QzError
-from qz_drake.hardware.codec import decode, joint_limits, status_problem
+from qz_drake.hardware.codec import decode, encoded_key, joint_limits, status_problem
 from qz_drake.hardware.config import HardwareConfig, validate_hardware_config
-from qz_drake.hardware.interface import (_CONTACT, _HELD_SIZE, _IMU, _TAU, PoseTrack, decoded_status,
+from qz_drake.hardware.interface import (_CONTACT, _IMU, _TAU, PoseTrack, decoded_status, initial_held,
                                          scenario_station_info, updated_pose_track)
 from qz_drake.hardware.qz_lcm import qz_planner, qz_servo, qz_status
 from qz_drake.hardware.references import encode_table, plan_references, table_chunks
@@ -318,11 +317,7 @@ class StatusListener(LeafSystem):
         self._poses = TimeSeries(HISTORY_SPAN * 1e6)
         link.lcm.Subscribe(config.channels.status, lambda data: self._keep(self._statuses, data))
         link.lcm.Subscribe(config.channels.pose, lambda data: self._keep(self._poses, data))
-        held = np.zeros(_HELD_SIZE)
-        held[:STATE_SIZE] = prior_state
-        held[_IMU] = [1, 0, 0, 0, 0, 0, 0, 0, 0, 9.81]
-        held[_CONTACT] = 1.0
-        self._held = self.DeclareDiscreteState(held)
+        self._held = self.DeclareDiscreteState(initial_held(prior_state))
         # (the status used last: its utime; statuses used, statuses rejected)
         self._seen = self.DeclareAbstractState(AbstractValue.Make((0, 0, 0)))
         self.DeclarePeriodicUnrestrictedUpdateEvent(config.control_period, 0.0, self._update)
@@ -331,11 +326,8 @@ class StatusListener(LeafSystem):
             self.DeclareVectorOutputPort(name, part.stop - part.start, self._output(part),
                                          {self.discrete_state_ticket(self._held)})
 
-    # qz_status's and qz_pose's utime: the int64 after LCM's 8-byte fingerprint.
-    _UTIME = struct.Struct(">q")
-
     def _keep(self, series: TimeSeries, data: bytes) -> None:
-        utime = self._UTIME.unpack_from(data, 8)[0]
+        utime = encoded_key(data)[0]
         if not series.keys or utime >= series.keys[-1]:  # a robot's clock only moves on
             series.append(utime, data)
 

@@ -32,7 +32,6 @@ import json
 import math
 import os
 import signal
-import struct
 import time
 
 import numpy as np
@@ -42,6 +41,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem
 
 from qz_drake.config import Scenario
+from qz_drake.hardware.codec import encoded_key
 from qz_drake.hardware.config import HardwareConfig, validate_hardware_config
 from qz_drake.hardware.interface import COMMAND_PHASE, RECEIVE_PHASE, make_hardware_interface
 from qz_drake.hardware.qz_lcm import qz_planner, qz_servo
@@ -83,9 +83,8 @@ class PlayerState:
     late_holds: int = 0
     late_hold_time: float = 0.0
     longest_late_hold: float = 0.0
-    # Why the planner cannot be followed ("" while it can), and when that was seen. [s]
+    # Why the planner cannot be followed ("" while it can; the interface's latch records when).
     fault: str = ""
-    fault_time: float = math.nan
     # The safe stop latched on the servo's interface, whatever latched it ("" while none).
     safe_stop: str = ""
     # The newest robot status taken in when the plan clock last moved (its utime). [us]
@@ -158,11 +157,8 @@ class ReferencePlayer(LeafSystem):
     def _keep_heartbeat(self, data: bytes) -> None:
         self._heartbeat[0] = data
 
-    # qz_status's utime: the int64 after LCM's 8-byte fingerprint.
-    _UTIME = struct.Struct(">q")
-
     def _keep_status_time(self, data: bytes) -> None:
-        self._status_utime[0] = self._UTIME.unpack_from(data, 8)[0]
+        self._status_utime[0] = encoded_key(data)[0]
 
     def _held(self, part: slice):
         def calc(context, output: BasicVector):
@@ -182,16 +178,14 @@ class ReferencePlayer(LeafSystem):
             try:
                 _, table = decode_table(data)
             except ValueError as e:
-                return dataclasses.replace(s, fault=s.fault or f"malformed reference table: {e}",
-                                           fault_time=t if not s.fault else s.fault_time)
+                return dataclasses.replace(s, fault=s.fault or f"malformed reference table: {e}")
             s = dataclasses.replace(s, table=s.table.merged(table), tables=s.tables + 1)
         data = self._heartbeat[0]
         if data:
             try:
                 m = qz_planner.decode(data)
             except ValueError as e:
-                return dataclasses.replace(s, fault=s.fault or f"malformed planner heartbeat: {e}",
-                                           fault_time=t if not s.fault else s.fault_time)
+                return dataclasses.replace(s, fault=s.fault or f"malformed planner heartbeat: {e}")
             if (m.utime, m.sequence) != s.heartbeat_key:
                 s = dataclasses.replace(s, heartbeat_key=(m.utime, m.sequence), heartbeat_time=t,
                                         planner_time=max(s.planner_time, m.plan_time),
@@ -205,8 +199,7 @@ class ReferencePlayer(LeafSystem):
         if (not s.fault and not s.finished and math.isfinite(s.heartbeat_time)
                 and silence > self._config.planner_timeout):
             s = dataclasses.replace(s, fault=f"planner silent for {silence:.3f} s (timeout "
-                                             f"{self._config.planner_timeout} s): its process stopped or hung",
-                                    fault_time=t)
+                                             f"{self._config.planner_timeout} s): its process stopped or hung")
         step = self._period
         reach = max(s.table.end_time, s.planner_time)
         if s.plan_time + step <= reach + 1e-9:
@@ -256,11 +249,6 @@ class LatencyRecorder:
     the command that answers it (the interface's command hook), and the wall time between two
     commands. Statuses are matched by sequence number, read from the encoded message."""
 
-    # Where qz_status's sequence sits in an encoded message: after LCM's 8-byte fingerprint and
-    # the int64 utime.
-    _SEQUENCE = struct.Struct(">q")
-    _SEQUENCE_OFFSET = 16
-
     def __init__(self, lcm: DrakeLcm, channel: str):
         self._arrivals: dict[int, float] = {}
         self.latencies: list[float] = []
@@ -271,7 +259,7 @@ class LatencyRecorder:
         lcm.Subscribe(channel, self._on_status)
 
     def _on_status(self, data: bytes) -> None:
-        (sequence,) = self._SEQUENCE.unpack_from(data, self._SEQUENCE_OFFSET)
+        sequence = encoded_key(data)[1]
         now = time.monotonic()
         self.longest_status_gap = max(self.longest_status_gap, now - self._last_status)
         self._last_status = now
