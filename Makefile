@@ -8,6 +8,9 @@ OUT ?= out/demo
 # on 2 cores; `make test-all` runs them too (about 20 minutes on 2 cores).
 PYTEST_MARK ?= not slow
 PYTEST_ARGS ?=
+# pytest-xdist's worker processes, one per core of the 2-core machine (most tests are one
+# process on one core); PYTEST_WORKERS=0 runs every test in pytest's own process.
+PYTEST_WORKERS ?= 2
 
 .PHONY: setup demo test test-all test-fast bench urdf clean collect fig9
 
@@ -25,13 +28,15 @@ demo: $(STAMP)
 	$(VENV)/bin/qz demo --out $(OUT)
 
 test: $(STAMP)
-	$(PY) -m pytest -q $(if $(PYTEST_MARK),-m "$(PYTEST_MARK)") $(PYTEST_ARGS)
+	$(PY) -m pytest -q -n $(PYTEST_WORKERS) $(if $(PYTEST_MARK),-m "$(PYTEST_MARK)") $(PYTEST_ARGS)
 
+# One process: the slow tests include walks at real time across processes, which a second
+# test beside them would slow.
 test-all: $(STAMP)
 	$(PY) -m pytest -q $(PYTEST_ARGS)
 
 test-fast: $(STAMP)
-	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
+	$(PY) -m pytest -q -n $(PYTEST_WORKERS) -m "not slow" $(PYTEST_ARGS)
 
 bench: $(STAMP)
 	# pyastar2d, the C++ A* that `qz bench astar` compares against.

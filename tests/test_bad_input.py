@@ -520,6 +520,9 @@ def _python(code: str, folder: Path):
     import sys
 
     path = os.pathsep.join([str(folder), *filter(None, [os.environ.get("PYTHONPATH")])])
+    # Ctrl-C as in a terminal: a pytest-xdist worker ignores SIGINT, and an ignored signal stays
+    # ignored in the processes it starts (Python then installs no KeyboardInterrupt handler).
+    code = "import signal\nsignal.signal(signal.SIGINT, signal.default_int_handler)\n" + code
     return subprocess.Popen([sys.executable, "-c", code], cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, start_new_session=True, env={**os.environ, "PYTHONPATH": path})
 
