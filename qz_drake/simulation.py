@@ -275,7 +275,7 @@ class FixedRoute:
     * ``unreachable(system)``: why it found no route (empty: it did; the walk then never starts);
     * ``blc_parameters()``: the BLC's parameters when the caller gives none (None: the defaults);
     * ``mission_retries``: how often the BLC solves a failed mission again when the caller does
-      not say;
+      not say, and ``blc_ladder``: the BLC ladder's rungs instead (None: the retries');
     * ``chooses_goal_heading``: whether the goal's heading is the route source's to choose (not
       judged);
     * ``name``: who plans the route, in messages (e.g. "CapPlanner gave up ...");
@@ -284,6 +284,7 @@ class FixedRoute:
     """
 
     mission_retries = 0
+    blc_ladder = None
     chooses_goal_heading = False
     # Who plans the route, in messages.
     name = "the fixed route"
@@ -357,7 +358,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
          max_duration: float | None = None, heightmap=None, stop_on_failure: bool = False,
          blc_params=None, station_factory=make_station, realtime_rate: float = 0.0,
          mission_retries: int | None = None, progress=None, route_source: FixedRoute | None = None,
-         on_judged=None) -> SimulationResult:
+         on_judged=None, blc_ladder=None) -> SimulationResult:
     """Walks a scenario's route: missions planned from the measured state, IK + joint PD; builds
     (build_walk), runs (run_walk), judges (judge_walk_run) and writes its files.
 
@@ -368,7 +369,9 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
     has failed (capability trials: the rest of the walk cannot change the label). ``blc_params``
     are the BLC's BlcParameters (None: the route source's). ``mission_retries``: how often the
     BLC system solves a mission that failed to plan again, one tripod cycle longer each time
-    (None: the route source's). ``station_factory``, ``realtime_rate`` and ``progress`` as in
+    (None: the route source's). ``blc_ladder``: the rungs a refused mission is solved on instead
+    (TrajectoryOptimizationBLC's ``ladder``; None: the route source's, or the retries').
+    ``station_factory``, ``realtime_rate`` and ``progress`` as in
     simulate(); ``progress`` hears the missions planned so far. ``on_judged(built, run, result)``
     is called once the walk is judged, before its files are written (to read the missions'
     logs: qz_drake.capability.walk_missions); a walk that never started does not call it."""
@@ -377,7 +380,8 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
         out.mkdir(parents=True, exist_ok=True)
         meshcat = meshcat or recording_meshcat()
     built = build_walk(scenario, route_source=route_source, meshcat=meshcat, heightmap=heightmap,
-                       blc_params=blc_params, station_factory=station_factory, mission_retries=mission_retries)
+                       blc_params=blc_params, station_factory=station_factory, mission_retries=mission_retries,
+                       blc_ladder=blc_ladder)
     if isinstance(built, WalkNotStarted):
         return _unplanned(scenario, out, built)
     run = run_walk(built, scenario, max_duration=max_duration, stop_on_failure=stop_on_failure,
@@ -405,7 +409,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
 
 def build_walk(scenario: Scenario, *, route_source: FixedRoute | None = None, meshcat: Meshcat | None = None,
                mesh_dir: Path | None = None, heightmap=None, blc_params=None, station_factory=make_station,
-               mission_retries: int | None = None) -> BuiltWalk | WalkNotStarted:
+               mission_retries: int | None = None, blc_ladder=None) -> BuiltWalk | WalkNotStarted:
     """The walk's diagram: station, missions (the tripod plan, or the BLC system fed by the
     route source), IK tracker and joint PD, loggers. Arguments as in walk()."""
     from qz_drake.errors import bad_value
@@ -432,12 +436,16 @@ def build_walk(scenario: Scenario, *, route_source: FixedRoute | None = None, me
     wall_start = time.perf_counter()
     if route_source is not None:
         blc_params = route_source.blc_parameters() if blc_params is None else blc_params
+        ladder = getattr(route_source, "blc_ladder", None) if blc_ladder is None else blc_ladder
         retries = route_source.mission_retries if mission_retries is None else mission_retries
+        if ladder is not None and mission_retries is None:
+            retries = 0  # the ladder replaces the route source's retries
         source = route_source.make(scenario, info, targets)
         unreachable = route_source.unreachable(source)
         if unreachable:
             return WalkNotStarted(f"goal unreachable: {unreachable}", "unreachable", source.counts())
-        missions = _BlcMissions(builder, station, info, source, control, blc_params, mission_retries=retries)
+        missions = _BlcMissions(builder, station, info, source, control, blc_params, mission_retries=retries,
+                                ladder=ladder)
         if meshcat is not None:
             route_source.add_visuals(builder, source, meshcat, info)
     else:
@@ -603,7 +611,8 @@ class _BlcMissions:
     a route source made (``source``: the fixed route's MissionTargetSequencer, CapPlanner's
     CapabilityVIPlanner; see FixedRoute); the wiring is the same."""
 
-    def __init__(self, builder, station, info, source, control, blc_params=None, mission_retries: int = 0):
+    def __init__(self, builder, station, info, source, control, blc_params=None, mission_retries: int = 0,
+                 ladder=None):
         from pydrake.common.value import AbstractValue
         from pydrake.systems.primitives import ConstantValueSource
 
@@ -612,7 +621,7 @@ class _BlcMissions:
         self.blc = builder.AddSystem(TrajectoryOptimizationBLC(
             params=info.params, timing=control.timing,
             settle_time=SETTLE_TIME, blc_params=blc_params, initial_topology=info.topology.name,
-            mission_retries=mission_retries))
+            mission_retries=mission_retries, ladder=ladder))
         self.blc.set_name("blc")
         self.targets = builder.AddSystem(source)
         heightmap = builder.AddSystem(ConstantValueSource(AbstractValue.Make(info.heightmap)))

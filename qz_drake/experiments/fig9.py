@@ -54,6 +54,9 @@ class ExperimentConfig:
     # planned 4, the same mission with 200 Ipopt iterations instead of 30 none (BENCHMARKS
     # "fig9", session 40).
     blc_retries: int = 0
+    # The BLC ladder instead (TrajectoryOptimizationBLC's ``ladder``, e.g. "cycles+1,split"), for
+    # both planners alike; "": the retries'. Not with blc_retries.
+    blc_ladder: str = ""
     # CapPlanner's capability model folder; empty: the shipped one.
     capability_model: str = ""
     # World scale (1: the experiment; smaller: tiny tasks for tests, see worlds.make_task).
@@ -212,6 +215,7 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
 
         result = walk(scenario, heightmap=task.heightmap, stop_on_failure=True,
                       out_dir=spec.record_dir or None, mission_retries=config.blc_retries,
+                      blc_ladder=config.blc_ladder or None,
                       route_source=route_source or route_source_for(scenario),
                       on_judged=keep_missions if config.record_missions else None,
                       blc_params=BlcParameters(max_iterations=config.blc_max_iterations,
@@ -445,7 +449,8 @@ WALKS_PER_WORKER = 20
 # fall was below 0.05 (CapabilityVIPlanner's default).
 SETTINGS_BEFORE_THEY_EXISTED = {"astar_max_recoveries": 0, "capplanner_min_route_success": 0.05,
                                 "recovery_back_out": False, "capplanner_topology_doubt": False,
-                                "capplanner_measured_stance": False, "capplanner_refused_in_every_topology": False}
+                                "capplanner_measured_stance": False, "capplanner_refused_in_every_topology": False,
+                                "blc_ladder": ""}
 
 
 def _settings(out: Path) -> dict:
@@ -573,6 +578,8 @@ def planner_differences(settings: dict) -> list[str]:
     retry = ("no retry" if not retries else
              f"a refused mission solved again up to {retries} time{'s' if retries > 1 else ''}, one tripod cycle "
              "longer each time")
+    if c.get("blc_ladder"):
+        retry = f"a refused mission solved again on the ladder {c['blc_ladder']}"
     out = [f"Shared: the BLC ({c['blc_max_iterations']} Ipopt iterations a mission, {retry}), the IK tracker "
            f"and joint PD, the strict verdict, the time budget ({c['time_factor']:g} x the straight-line walking "
            f"time + {c['time_margin']:g} s), the speed and tripod phase."]
@@ -757,6 +764,13 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
     if config.blc_retries > MAX_BLC_RETRIES:
         raise bad_value("--blc-retries", config.blc_retries, f"more than {MAX_BLC_RETRIES} (each retry is another "
                                                              f"BLC solve of a mission, one tripod cycle longer)")
+    if not isinstance(config.blc_ladder, str):
+        raise bad_value("--blc-ladder", config.blc_ladder, "expected rungs separated by commas")
+    from qz_drake.systems.blc_plan import parse_ladder
+
+    parse_ladder(config.blc_ladder, "--blc-ladder")
+    if config.blc_ladder and config.blc_retries:
+        raise bad_value("--blc-ladder", config.blc_ladder, "give a ladder or --blc-retries, not both")
     for t in terrains:
         make_task(t, "simple", 0, scale=config.scale)
     for d in difficulties:

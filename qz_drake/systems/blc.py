@@ -6,10 +6,12 @@ whenever its local target (x, y, yaw) or topology input changes, over the height
 state on the ``state`` input (base pose and the feet from leg kinematics). If it is still
 running (the route side asked ahead, as paper 000 does so that the robot need not stand while
 the BLC solves), the new one starts where the current plan is expected to end, and takes over
-on the ``plan`` output at that time. A failed solve is recorded and, with ``mission_retries``,
-solved again with one more tripod cycle per retry; a mission no solve could plan is a failure
-(``log.failures``) and the previous plan stays on the output, so the tracker holds the robot
-where that plan ended; nothing raises.
+on the ``plan`` output at that time. A failed solve is recorded and the mission is solved again
+on the rungs of the BLC ladder, in order, until one plans (``ladder``: one or more tripod cycles
+longer, or split in two halves chained; ``mission_retries``: the ladder of one more cycle per
+retry); a mission no rung could plan is a failure (``log.failures``, with the first solve's
+reason) and the previous plan stays on the output, so the tracker holds the robot where that
+plan ended; nothing raises.
 
 Solving takes wall time but no simulated time: like paper 000's robot, which stands while the
 BLC solves, the plan starts at the simulated time of the update that asked for it.
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -28,8 +31,11 @@ from qz_drake.config import MissionTiming
 from qz_drake.errors import ConfigError, bad_value
 from qz_drake.robot.params import DEFAULT_PARAMS, NUM_LEGS
 from qz_drake.robot.topology import TOPOLOGY_NAMES
-from qz_drake.systems.mission_sequencer import MissionStart, measured_start
+from qz_drake.systems.blc_plan import expected_end, parse_ladder, retry_ladder
+from qz_drake.systems.mission_sequencer import measured_start
 from qz_drake.state_layout import STATE_SIZE
+
+__all__ = ["BlcLog", "BlcSolveRecord", "TopologySwitchRecord", "TrajectoryOptimizationBLC", "expected_end"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,10 +51,12 @@ class BlcSolveRecord:
     success: bool
     # Wall time of the solve. [s]
     solve_time: float
-    # Why it failed ("" for a success); a retry's reason says which retry it was.
+    # Why it failed ("" for a success); a rung's reason says which rung it was.
     reason: str
-    # Ipopt iterations.
+    # Ipopt iterations (all of a split rung's solves).
     iterations: int
+    # The rung of the BLC ladder this solve was ("": the mission as asked, its first solve).
+    rung: str = ""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,7 +79,8 @@ class BlcLog:
 
     solves: list[BlcSolveRecord] = dataclasses.field(default_factory=list)
     switches: list[TopologySwitchRecord] = dataclasses.field(default_factory=list)
-    # Indices into ``solves`` of the failed solves that were followed by a retry of the mission.
+    # Indices into ``solves`` of the failed solves that were followed by a retry of the mission
+    # (the next rung of the ladder).
     retried: list[int] = dataclasses.field(default_factory=list)
 
     @property
@@ -83,16 +92,6 @@ class BlcLog:
     @property
     def solve_time_s(self) -> float:
         return float(sum(s.solve_time for s in self.solves))
-
-
-def expected_end(plan) -> MissionStart:
-    """The mission start a plan is expected to end in: its base pose and feet at end_time."""
-    t = plan.end_time
-    p = plan.base_position(t)
-    rpy = plan.base_rpy(t)
-    return MissionStart(time=t, xy_yaw=(float(p[0]), float(p[1]), float(rpy[2])),
-                        feet_W=np.asarray(plan.foot_positions(t), dtype=float), base_z=float(p[2]),
-                        roll_pitch=(float(rpy[0]), float(rpy[1])))
 
 
 class TrajectoryOptimizationBLC(LeafSystem):
@@ -146,15 +145,28 @@ class TrajectoryOptimizationBLC(LeafSystem):
             one tripod cycle longer (a different problem: other footholds and timing). 0 (the
             capability trials' BLC, whose labels are first solves) or more (CapPlanner's
             walks: the robot stands while the BLC solves, so a retry costs wall time only).
+        ladder: the rungs a mission whose first solve failed is solved on, in order, until one
+            plans (qz_drake.systems.blc_plan.parse_ladder: "cycles+N", "split", "split+N"; a
+            sequence or a comma-separated string); None: ``mission_retries``'s. Deterministic:
+            each rung is a solve (two for a split) with the BLC's iteration limit.
+        ladder_budget: wall time a mission's solves may take before no further rung is tried
+            (the log says so); it binds only when solves run into their time limits. [s]
     """
 
     def __init__(self, *, params=DEFAULT_PARAMS, timing: MissionTiming | None = None, blc_params=None,
                  check_period: float = 0.05, settle_time: float = 0.0,
-                 initial_topology: str | None = None, mission_retries: int = 0):
+                 initial_topology: str | None = None, mission_retries: int = 0,
+                 ladder=None, ladder_budget: float = 120.0):
         super().__init__()
         if isinstance(mission_retries, bool) or not isinstance(mission_retries, int) or mission_retries < 0:
             raise bad_value("mission_retries", mission_retries, "must be a whole number >= 0", ConfigError)
-        self._retries = mission_retries
+        if ladder is not None and mission_retries:
+            raise bad_value("mission_retries", mission_retries, "give a ladder or mission retries, not both",
+                            ConfigError)
+        self._ladder = retry_ladder(mission_retries) if ladder is None else parse_ladder(ladder, "ladder")
+        if isinstance(ladder_budget, bool) or not (isinstance(ladder_budget, (int, float)) and ladder_budget > 0):
+            raise bad_value("ladder_budget", ladder_budget, "must be a positive number of seconds", ConfigError)
+        self._ladder_budget = float(ladder_budget)
         if not check_period > 0:
             raise bad_value("check_period", check_period, "must be positive", ConfigError)
         if not settle_time >= 0:
@@ -279,19 +291,29 @@ class TrajectoryOptimizationBLC(LeafSystem):
                 switch.start_time, robot_topology, topology, end_time=float(switch.end_time),
                 end_feet=tuple(map(tuple, np.asarray(start.feet_W, dtype=float).tolist()))))
         planner = self._planner(heightmap)
-        attempt = 0
-        while True:
-            plan, reason = planner(start, target, topology, start.time, extra_cycles=attempt)
+        first_reason, spent = "", 0.0
+        for k, rung in enumerate(("",) + self._ladder):
+            clock = time.perf_counter()
+            plan, reason = planner(start, target, topology, start.time, rung=rung)
+            solve_time = time.perf_counter() - clock
+            spent += solve_time
             solution = planner.last_solution
+            last = plan is not None or k == len(self._ladder) or spent >= self._ladder_budget
+            if k == 0:
+                first_reason = reason
+            elif reason and last:
+                # A mission no rung could plan is refused with its first solve's reason.
+                reason = f"{first_reason}; no rung of the ladder planned it (last: {rung}: {reason})"
+                if k < len(self._ladder):
+                    reason += f"; the ladder's budget of {self._ladder_budget:g} s was spent"
+            elif reason:
+                reason = f"rung {rung}: {reason}"
             self.log.solves.append(BlcSolveRecord(
                 start_time=start.time, target=target, topology=topology, success=plan is not None,
-                solve_time=solution.solve_time,
-                reason=f"retry {attempt} (+{attempt} tripod cycles): {reason}" if attempt and reason else reason,
-                iterations=int(solution.iterations)))
-            if plan is not None or attempt >= self._retries:
+                solve_time=solve_time, reason=reason, iterations=planner.last_iterations, rung=rung))
+            if last:
                 break
             self.log.retried.append(len(self.log.solves) - 1)
-            attempt += 1
         state.get_mutable_abstract_state(self._solution).set_value(solution)
         if plan is not None:
             state.get_mutable_abstract_state(self._next if ahead else self._plan).set_value(plan)

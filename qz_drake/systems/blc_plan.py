@@ -9,11 +9,14 @@ p_W_base = p_W_CoM - R_WB com_B. Times are shifted to simulation time.
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 from pydrake.math import RollPitchYaw
 
+from qz_drake.errors import ConfigError, bad_value
 from qz_drake.robot.params import NUM_LEGS
+from qz_drake.systems.mission_sequencer import MissionStart
 
 
 class BlcPlan:
@@ -59,13 +62,121 @@ class BlcPlan:
         return None
 
 
+def expected_end(plan) -> MissionStart:
+    """The mission start a plan is expected to end in: its base pose and feet at end_time."""
+    t = plan.end_time
+    p = plan.base_position(t)
+    rpy = plan.base_rpy(t)
+    return MissionStart(time=t, xy_yaw=(float(p[0]), float(p[1]), float(rpy[2])),
+                        feet_W=np.asarray(plan.foot_positions(t), dtype=float), base_z=float(p[2]),
+                        roll_pitch=(float(rpy[0]), float(rpy[1])))
+
+
+class ChainedPlan:
+    """Two or more BlcPlans one after the other, each starting where the one before ends: one
+    mission that the BLC ladder's ``split`` rung planned in parts. It reads like a BlcPlan (the
+    tracker, the sequencers and expected_end see one plan from the first part's start to the
+    last part's end); ``solution`` is the last part's and ``parts`` lists them all."""
+
+    def __init__(self, parts):
+        parts = list(parts)
+        if len(parts) < 2:
+            raise bad_value("parts", len(parts), "a chained plan needs at least two", ConfigError)
+        for before, after in zip(parts, parts[1:]):
+            if abs(after.start_time - before.end_time) > 1e-9:
+                raise bad_value("parts", f"a part starting at {after.start_time:g} s",
+                                f"expected the end of the one before, {before.end_time:g} s", ConfigError)
+        self.parts = parts
+        self.solution = parts[-1].solution
+        self.topology = parts[-1].topology
+        self.start_time = parts[0].start_time
+        self.end_time = parts[-1].end_time
+
+    def __deepcopy__(self, memo):
+        return self  # immutable, as its parts
+
+    def _part(self, t: float) -> int:
+        for k, part in enumerate(self.parts[:-1]):
+            if float(t) < part.end_time:
+                return k
+        return len(self.parts) - 1
+
+    def base_rpy(self, t: float) -> np.ndarray:
+        return self.parts[self._part(t)].base_rpy(t)
+
+    def base_position(self, t: float) -> np.ndarray:
+        return self.parts[self._part(t)].base_position(t)
+
+    def foot_positions(self, t: float) -> np.ndarray:
+        return self.parts[self._part(t)].foot_positions(t)
+
+    def foot_forces(self, t: float) -> np.ndarray:
+        return self.parts[self._part(t)].foot_forces(t)
+
+    def contact(self, t: float) -> np.ndarray:
+        return self.parts[self._part(t)].contact(t)
+
+    def stance_start(self, leg: int, t: float) -> float | None:
+        k = self._part(t)
+        start = self.parts[k].stance_start(leg, t)
+        # A foot standing through the junction touched down in the part before (each part
+        # begins and ends with every foot in stance, on the same footholds).
+        while start is not None and k > 0 and abs(start - self.parts[k].start_time) <= 1e-9:
+            k -= 1
+            earlier = self.parts[k].stance_start(leg, self.parts[k].end_time)
+            if earlier is None:
+                break
+            start = earlier
+        return start
+
+
+# A rung of the BLC ladder: "cycles+N", the mission N tripod cycles longer; "split" or "split+N",
+# the mission in two halves (the nearer one first, each timed by the mission rule, N cycles
+# longer), chained.
+_RUNG = re.compile(r"^(cycles|split)(?:\+([1-4]))?$")
+RUNG_HELP = "expected 'cycles+N' or 'split' or 'split+N' (N = 1..4)"
+
+
+def parse_ladder(ladder, field: str = "blc.ladder") -> tuple[str, ...]:
+    """The BLC ladder's rungs from a sequence or a comma-separated string ("" or None: none);
+    a malformed or repeated rung raises QzError naming ``field``."""
+    if ladder is None:
+        return ()
+    if isinstance(ladder, str):
+        ladder = [rung.strip() for rung in ladder.split(",") if rung.strip()]
+    rungs = []
+    for rung in ladder:
+        match = _RUNG.match(rung) if isinstance(rung, str) else None
+        if match is None or (match.group(1) == "cycles" and match.group(2) is None):
+            raise bad_value(field, rung, RUNG_HELP, ConfigError)
+        if rung in rungs:
+            raise bad_value(field, rung, "is given twice", ConfigError)
+        rungs.append(rung)
+    return tuple(rungs)
+
+
+def retry_ladder(retries: int) -> tuple[str, ...]:
+    """The ladder of ``mission_retries``: one tripod cycle longer per retry."""
+    return tuple(f"cycles+{k}" for k in range(1, int(retries) + 1))
+
+
+def _rung_cycles(rung: str) -> tuple[bool, int]:
+    match = _RUNG.match(rung)
+    if match is None:
+        raise bad_value("rung", rung, RUNG_HELP, ConfigError)
+    return match.group(1) == "split", int(match.group(2) or 0)
+
+
 def blc_mission_planner(heightmap, params, control, blc_params=None):
     """A MissionSequencer planner that solves the BLC from the measured base pose and feet.
 
     ``control`` gives the mission timing (``speed`` [m/s], ``phase_duration`` [s]); blc_params
     the solver's BlcParameters (None: defaults); a call's ``extra_cycles`` lengthens the
-    mission by that many tripod cycles (a retry). The returned callable keeps its statistics in
-    ``plan.stats`` and its latest BlcSolution (failed or not) in ``plan.last_solution``."""
+    mission by that many tripod cycles (a retry) and its ``rung`` (a rung of the BLC ladder,
+    parse_ladder; "" the mission as asked) says how else to solve it. The returned callable
+    keeps its statistics in ``plan.stats``, its latest BlcSolution (failed or not) in
+    ``plan.last_solution`` and the Ipopt iterations of its last call (all its solves) in
+    ``plan.last_iterations``."""
     from qz_drake.robot.topology import get_topology
     from qz_drake.trajopt.robot_model import qingzhui
     from qz_drake.trajopt.solver import BlcTask, solve_blc
@@ -76,7 +187,33 @@ def blc_mission_planner(heightmap, params, control, blc_params=None):
     robots = {}
     stats = {"solves": 0, "failures": 0, "solve_time_s": 0.0}
 
-    def plan(start, target, topology, start_time, extra_cycles: int = 0):
+    def plan(start, target, topology, start_time, extra_cycles: int = 0, rung: str = ""):
+        if not rung:
+            planned, reason = solve(start, target, topology, start_time, extra_cycles)
+            plan.last_iterations = int(plan.last_solution.iterations)
+            return planned, reason
+        split, cycles = _rung_cycles(rung)
+        if not split:
+            planned, reason = solve(start, target, topology, start_time, extra_cycles + cycles)
+            plan.last_iterations = int(plan.last_solution.iterations)
+            return planned, reason
+        # Halfway in x, y and heading; each half timed by the mission rule.
+        x0, y0, yaw0 = start.xy_yaw
+        turn = math.remainder(target[2] - yaw0, 2 * math.pi)
+        middle = (0.5 * (x0 + target[0]), 0.5 * (y0 + target[1]), yaw0 + 0.5 * turn)
+        first, reason = solve(start, middle, topology, start_time, extra_cycles + cycles)
+        iterations = int(plan.last_solution.iterations)
+        if first is None:
+            plan.last_iterations = iterations
+            return None, f"{reason} (first half)"
+        second, reason = solve(expected_end(first), target, topology, first.end_time,
+                               extra_cycles + cycles)
+        plan.last_iterations = iterations + int(plan.last_solution.iterations)
+        if second is None:
+            return None, f"{reason} (second half)"
+        return ChainedPlan([first, second]), ""
+
+    def solve(start, target, topology, start_time, extra_cycles):
         robot = robots.setdefault(topology, qingzhui(topology))
         x0, y0, yaw0 = start.xy_yaw
         com_B = np.asarray(robot.com_B, dtype=float)
@@ -119,4 +256,5 @@ def blc_mission_planner(heightmap, params, control, blc_params=None):
 
     plan.stats = stats
     plan.last_solution = None
+    plan.last_iterations = 0
     return plan

@@ -17,6 +17,7 @@ from qz_drake.simulation import add_tracking_controller
 from qz_drake.station import make_station, standing_state
 from qz_drake.config import MissionTiming
 from qz_drake.systems.blc import TrajectoryOptimizationBLC
+from qz_drake.systems.blc_plan import ChainedPlan, parse_ladder
 from qz_drake.state_layout import tilt_deg
 from qz_drake.terrain import make_terrain
 from qz_drake.trajopt.parameters import BlcParameters
@@ -143,19 +144,20 @@ def test_a_mission_asked_ahead_starts_where_the_current_plan_ends():
 
 
 def _failing_first_attempt(blc, fail_when):
-    """Wraps the system's BLC planner: attempts for which ``fail_when(target, extra_cycles)``
-    is true are solved, then reported failed (as a dense check failing by a hair would be)."""
+    """Wraps the system's BLC planner: attempts for which ``fail_when(target, rung)`` is true
+    are solved, then reported failed (as a dense check failing by a hair would be)."""
     make = blc._planner
     durations = []
 
     def planner_for(heightmap):
         inner = make(heightmap)
 
-        def plan(start, target, topology, start_time, extra_cycles=0):
-            result, reason = inner(start, target, topology, start_time, extra_cycles=extra_cycles)
+        def plan(start, target, topology, start_time, extra_cycles=0, rung=""):
+            result, reason = inner(start, target, topology, start_time, extra_cycles=extra_cycles, rung=rung)
             plan.last_solution = inner.last_solution
+            plan.last_iterations = inner.last_iterations
             durations.append(inner.last_solution.duration)
-            if fail_when(target, extra_cycles):
+            if fail_when(target, rung):
                 return None, "BLC: dense check: (a test's failure)"
             return result, reason
 
@@ -169,7 +171,7 @@ def test_a_mission_that_failed_to_plan_is_retried_one_tripod_cycle_longer():
     heightmap = make_terrain("flat")
     state = standing_state(heightmap, get_topology("nominal"))
     blc = TrajectoryOptimizationBLC(mission_retries=2)
-    durations = _failing_first_attempt(blc, lambda target, extra: target[0] > 0.5 and extra == 0)
+    durations = _failing_first_attempt(blc, lambda target, rung: target[0] > 0.5 and rung == "")
     context = _fixed(blc, heightmap, state, (0.3, 0.0, 0.0))
     simulator = Simulator(blc, context)
     simulator.Initialize()
@@ -198,7 +200,53 @@ def test_a_mission_no_retry_can_plan_is_one_failure_and_the_plan_is_kept():
     blc.GetInputPort("target").FixValue(context, np.array([2.0, 0.0, 0.0]))
     simulator.AdvanceTo(0.1)
     assert [s.success for s in blc.log.solves] == [True, False, False]
-    assert len(blc.log.failures) == 1 and blc.log.failures[0].reason.startswith("retry 1 (+1 tripod cycles): BLC")
+    assert [s.rung for s in blc.log.solves] == ["", "", "cycles+1"]
+    # The refusal says why the first solve failed, then that the ladder planned nothing.
+    reason = blc.log.failures[0].reason
+    assert len(blc.log.failures) == 1 and reason.startswith(blc.log.solves[1].reason), reason
+    assert reason.startswith("BLC: ") and "no rung of the ladder planned it (last: cycles+1: BLC" in reason
     assert blc.GetOutputPort("plan").Eval(context) is first
     with pytest.raises(QzError, match="mission_retries"):
         TrajectoryOptimizationBLC(mission_retries=-1)
+
+
+def test_a_split_rung_plans_the_mission_in_two_halves_that_read_as_one_plan():
+    heightmap = make_terrain("flat")
+    state = standing_state(heightmap, get_topology("nominal"))
+    blc = TrajectoryOptimizationBLC(ladder="split")
+    _failing_first_attempt(blc, lambda target, rung: target[0] > 0.5 and rung == "")
+    context = _fixed(blc, heightmap, state, (0.3, 0.0, 0.0))
+    simulator = Simulator(blc, context)
+    simulator.Initialize()
+    first = blc.GetOutputPort("plan").Eval(context)
+    simulator.AdvanceTo(first.end_time + 0.05)
+    blc.GetInputPort("target").FixValue(context, np.array([1.1, 0.0, 0.0]))
+    simulator.AdvanceTo(first.end_time + 0.1)
+    assert [(s.success, s.rung) for s in blc.log.solves] == [(True, ""), (False, ""), (True, "split")]
+    assert blc.log.retried == [1] and not blc.log.failures
+    plan = blc.GetOutputPort("plan").Eval(context)
+    assert isinstance(plan, ChainedPlan) and len(plan.parts) == 2
+    half, rest = plan.parts
+    # The nearer half ends halfway from the measured start (the fixed state input: x = 0); the
+    # second starts where it ends, at its end time.
+    np.testing.assert_allclose(half.base_position(half.end_time)[:2], [0.55, 0.0], atol=2e-3)
+    assert rest.start_time == half.end_time and plan.end_time == rest.end_time
+    for t in (half.end_time - 1e-6, half.end_time, half.end_time + 1e-6):
+        np.testing.assert_allclose(plan.base_position(t), half.base_position(half.end_time), atol=1e-4)
+        np.testing.assert_allclose(plan.foot_positions(t), half.foot_positions(half.end_time), atol=1e-4)
+    np.testing.assert_allclose(plan.base_position(plan.end_time)[:2], [1.1, 0.0], atol=2e-3)
+    # A foot standing through the junction touched down in the first half.
+    for leg in range(6):
+        assert plan.stance_start(leg, half.end_time + 0.05) < half.end_time
+
+
+def test_ladder_rungs_are_checked_and_named():
+    assert parse_ladder("cycles+1, split, split+2") == ("cycles+1", "split", "split+2")
+    assert parse_ladder(None) == parse_ladder("") == ()
+    for bad in ("cycles", "split+9", "longer", "split,split"):
+        with pytest.raises(QzError, match="ladder"):
+            TrajectoryOptimizationBLC(ladder=bad)
+    with pytest.raises(QzError, match="mission_retries"):
+        TrajectoryOptimizationBLC(ladder="split", mission_retries=1)
+    with pytest.raises(QzError, match="ladder_budget"):
+        TrajectoryOptimizationBLC(ladder_budget=0)
