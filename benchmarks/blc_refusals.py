@@ -4,10 +4,15 @@ metres before it, as a walk asks for them; every mission whose first solve is re
 again on each rung of the BLC ladder, one at a time, so that any order of rungs can be scored.
 
     python benchmarks/blc_refusals.py OUT.jsonl --world stairs-hard-3 --feature up [--y 0.03]
+    python benchmarks/blc_refusals.py OUT.jsonl --replay RUN [RUN ...]
+
 
 One JSON line per start: the start (x, y), its first solve (success, reason, iterations, wall
 time), the lead-in (how many missions brought the robot there, and on which rungs), and for a
 refused first solve each rung's outcome. Resumable: starts already in OUT are skipped.
+``--replay`` takes instead the refused missions of recorded walks (Fig. 9 results folders or a
+tuning's, walked with ``--record-missions``): each is solved again from the very start its BLC
+was given (whether the refusal reproduces), then on each rung.
 ``--summary OUT.jsonl ...`` prints the table of BENCHMARKS.md "blc ladder" for the files given.
 
 The BLC is the Fig. 9 experiment's (30 Ipopt iterations, 30 s, MissionTiming's speed and
@@ -154,6 +159,59 @@ def run(out: Path, world: str, feature: str, y: float | None) -> None:
                   f"{ {k: v['success'] for k, v in row.get('rungs', {}).items()} }", flush=True)
 
 
+def replay(out: Path, runs) -> None:
+    """The refused missions of recorded walks, solved again from their recorded BLC start."""
+    from qz_drake.config import MissionTiming
+    from qz_drake.experiments.worlds import make_task
+    from qz_drake.robot.params import DEFAULT_PARAMS
+    from qz_drake.systems.blc_plan import blc_mission_planner
+    from qz_drake.systems.mission_sequencer import MissionStart
+    from qz_drake.trajopt.parameters import BlcParameters
+
+    done = set()
+    if out.exists():
+        done = {json.loads(line)["id"] for line in out.read_text().splitlines() if line.strip()}
+    refused = []
+    for run in runs:
+        for results in sorted(Path(run).rglob("results.jsonl")):
+            settings = json.loads((results.parent / "settings.json").read_text())
+            for line in results.read_text().splitlines():
+                record = json.loads(line)
+                if 50 <= int(record["seed"]) <= 99:
+                    raise SystemExit(f"{results}: a world of seed {record['seed']} (kept for checks outside the project)")
+                for k, m in enumerate(record.get("mission_records") or []):
+                    if m["outcome"] == "no_plan" and m.get("blc_start"):
+                        refused.append((f"{results.parent}:{record['key']}:{k}", record, settings, m))
+    with out.open("a") as f:
+        for key, record, settings, m in refused:
+            if key in done:
+                continue
+            task = make_task(record["terrain"], record["difficulty"], int(record["seed"]))
+            timing = MissionTiming(speed=settings["speed"], phase_duration=settings["phase_duration"])
+            planner = blc_mission_planner(task.heightmap, DEFAULT_PARAMS, timing, BlcParameters(
+                max_iterations=settings["blc_max_iterations"], time_limit=settings["blc_time_limit"]))
+            b = m["blc_start"]
+            start = MissionStart(time=0.0, xy_yaw=tuple(b["xy_yaw"]), feet_W=np.array(b["feet"]),
+                                 base_z=b["base_z"], roll_pitch=tuple(b["roll_pitch"]))
+            row = {"id": key, "world": f"{record['terrain']}-{record['difficulty']}-{record['seed']}",
+                   "planner": record["planner"], "topology": m["topology"], "target": m["target"],
+                   "start": b["xy_yaw"], "recorded": m["message"], "lead_in": ""}
+            clock = time.perf_counter()
+            plan, reason = planner(start, tuple(m["target"]), m["topology"], 0.0, rung="")
+            row["first"] = {"success": plan is not None, "reason": reason, "iterations": planner.last_iterations,
+                            "wall_s": time.perf_counter() - clock}
+            row["rungs"] = {}
+            for rung in RUNGS:
+                clock = time.perf_counter()
+                planned, reason = planner(start, tuple(m["target"]), m["topology"], 0.0, rung=rung)
+                row["rungs"][rung] = {"success": planned is not None, "reason": reason,
+                                      "iterations": planner.last_iterations, "wall_s": time.perf_counter() - clock}
+            f.write(json.dumps(row) + "\n")
+            f.flush()
+            print(f"{key}: first {row['first']['success']}; rungs "
+                  f"{ {k: v['success'] for k, v in row['rungs'].items()} }", flush=True)
+
+
 def summary(paths) -> None:
     """Per file: starts, lead-ins refused, first solves planned, and what each ladder order
     would plan (rungs tried in order until one plans) with its median and worst extra time."""
@@ -181,7 +239,10 @@ def summary(paths) -> None:
                 extra.append(cost)
             times = f"{np.median(extra):.1f} / {max(extra):.1f} s" if extra else "-"
             cells.append(f"{planned} ({times})")
-        name = f"{rows[0]['world']} {rows[0]['feature']} y={rows[0]['y']:.2f}" if rows else path
+        if rows and "feature" in rows[0]:
+            name = f"{rows[0]['world']} {rows[0]['feature']} y={rows[0]['y']:.2f}"
+        else:
+            name = f"refused missions of {path}"
         print(f"| {name} | {len(rows)} | {len(rows) - len(measured)} | {first} | " + " | ".join(cells) + " |")
 
 
@@ -192,13 +253,18 @@ def main(argv=None) -> int:
     parser.add_argument("--feature", choices=("up", "down"), default="up")
     parser.add_argument("--y", type=float, default=None, help="the row (default: the task's start y)")
     parser.add_argument("--summary", action="store_true", help="print the table of the files given")
+    parser.add_argument("--replay", nargs="+", type=Path, default=None,
+                        help="results folders of walks with recorded missions: their refused missions")
     args = parser.parse_args(argv)
     if args.summary:
         summary(args.out)
         return 0
     if len(args.out) != 1:
-        parser.error("one OUT file for a sweep")
-    run(args.out[0], args.world, args.feature, args.y)
+        parser.error("one OUT file for a sweep or a replay")
+    if args.replay:
+        replay(args.out[0], args.replay)
+    else:
+        run(args.out[0], args.world, args.feature, args.y)
     return 0
 
 

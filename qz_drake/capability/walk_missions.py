@@ -116,8 +116,9 @@ def walk_mission_records(built, run, result, criteria) -> list[dict]:
     Each record: ``start_time`` [s], ``start`` (x, y, yaw) and ``feet`` (6, 3) in the world where
     the BLC planned it from [m, rad], ``target`` (x, y, yaw), ``topology``, ``switched_from``
     (the topology of a switch made for it, "" without), ``outcome`` (walked, no_plan, failed),
-    ``reason`` (the verdict's first, or the BLC's failure code), ``message``, ``sim_time_s``.
-    JSON-ready."""
+    ``reason`` (the verdict's first, or the BLC's failure code), ``message``, ``sim_time_s``;
+    a refused one also ``blc_start``, the mission start the BLC was given (``xy_yaw``,
+    ``base_z``, ``roll_pitch``, ``feet``). JSON-ready."""
     windows = WalkWindows(built, run, result, criteria)
     log = built.missions.log
     blc = built.missions.blc.log
@@ -148,6 +149,10 @@ def walk_mission_records(built, run, result, criteria) -> list[dict]:
                   "target": [float(v) for v in s.target], "topology": s.topology,
                   "switched_from": switch.from_topology if switch else "", "outcome": NO_PLAN,
                   "reason": blc_failure_code(s.reason), "message": s.reason[:200], "sim_time_s": 0.0}
+        if s.start:  # the BLC's own inputs, to solve the mission again (benchmarks/blc_refusals.py)
+            record["blc_start"] = {"xy_yaw": list(s.start[:3]), "base_z": s.start[3],
+                                   "roll_pitch": list(s.start[4:6]),
+                                   "feet": [list(foot) for foot in s.start_feet]}
         if switch is not None:  # the robot reconfigured for it: the switch itself judged
             before, _ = windows.measured_at(switch.start_time)
             later = [o["begin"] for o in timeline if o is not e and o["begin"] > switch.start_time + 1e-9]

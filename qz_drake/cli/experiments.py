@@ -45,7 +45,8 @@ def run_fig9(args) -> int:
                               recovery_back_out=not args.no_back_out,
                               capplanner_measured_stance=not args.no_measured_stance,
                               capplanner_refused_in_every_topology=not args.retry_other_topologies,
-                              blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, **tuned)
+                              blc_retries=args.blc_retries, blc_ladder=args.blc_ladder,
+                              record_missions=args.record_missions, **tuned)
     summary = run_experiment(args.out, planners=_names(args.planners, "--planners", tuple(PLANNERS)),
                              terrains=_names(args.terrains, "--terrains", TERRAINS),
                              difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
@@ -181,7 +182,8 @@ def run_tune_astar(args) -> int:
                         difficulties=_names(args.difficulties, "--difficulties", TUNING_DIFFICULTIES),
                         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
                         config=ExperimentConfig(scale=args.scale, recovery_back_out=not args.no_back_out,
-                                                blc_retries=args.blc_retries, blc_ladder=args.blc_ladder),
+                                                blc_retries=args.blc_retries, blc_ladder=args.blc_ladder,
+                                                record_missions=args.record_missions),
                         progress=not args.json)
     _print_tuning(report, args)
     return 0
@@ -209,7 +211,8 @@ def run_tune_capplanner(args) -> int:
                                 recovery_back_out=not args.no_back_out,
                                 capplanner_measured_stance=not args.no_measured_stance,
                                 capplanner_refused_in_every_topology=not args.retry_other_topologies,
-                                blc_retries=args.blc_retries, blc_ladder=args.blc_ladder),
+                                blc_retries=args.blc_retries, blc_ladder=args.blc_ladder,
+                                record_missions=args.record_missions),
         progress=not args.json)
     _print_tuning(report, args)
     return 0
@@ -236,6 +239,9 @@ def _back_out_argument(p) -> None:
     p.add_argument("--blc-retries", type=int, default=0,
                    help="solve a mission the BLC could not plan again up to N times, one tripod cycle longer "
                         "each time, for both planners (default 0: first solves only, as the capability trials)")
+    p.add_argument("--record-missions", action="store_true",
+                   help="keep every mission of each walk in its record, a refused one with the start the BLC was "
+                        "given (qz experiment score-missions; benchmarks/blc_refusals.py replay)")
     p.add_argument("--blc-ladder", default="",
                    help="solve a mission the BLC could not plan again on these rungs, in order, until one plans, "
                         "for both planners: cycles+N (N tripod cycles longer), split, split+N (two halves "

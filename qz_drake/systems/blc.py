@@ -57,6 +57,11 @@ class BlcSolveRecord:
     iterations: int
     # The rung of the BLC ladder this solve was ("": the mission as asked, its first solve).
     rung: str = ""
+    # Where the BLC planned it from (the mission start it was given: a measured one, or a
+    # plan's expected end): base link x, y, yaw, z, roll, pitch [m, rad] and the six foot-sphere
+    # centres in the world, (6, 3) as nested tuples [m]. Empty for a switch that failed.
+    start: tuple = ()
+    start_feet: tuple = ()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -292,6 +297,9 @@ class TrajectoryOptimizationBLC(LeafSystem):
                 end_feet=tuple(map(tuple, np.asarray(start.feet_W, dtype=float).tolist()))))
         planner = self._planner(heightmap)
         first_reason, spent = "", 0.0
+        base_z = math.nan if start.base_z is None else float(start.base_z)
+        where = (*(float(v) for v in start.xy_yaw), base_z, *(float(v) for v in start.roll_pitch))
+        feet = tuple(map(tuple, np.asarray(start.feet_W, dtype=float).tolist()))
         for k, rung in enumerate(("",) + self._ladder):
             clock = time.perf_counter()
             plan, reason = planner(start, target, topology, start.time, rung=rung)
@@ -310,7 +318,8 @@ class TrajectoryOptimizationBLC(LeafSystem):
                 reason = f"rung {rung}: {reason}"
             self.log.solves.append(BlcSolveRecord(
                 start_time=start.time, target=target, topology=topology, success=plan is not None,
-                solve_time=solve_time, reason=reason, iterations=planner.last_iterations, rung=rung))
+                solve_time=solve_time, reason=reason, iterations=planner.last_iterations, rung=rung,
+                start=where, start_feet=feet))
             if last:
                 break
             self.log.retried.append(len(self.log.solves) - 1)

@@ -212,3 +212,16 @@ def test_in_a_walk_astar_goes_round_the_missions_the_blc_refuses_with_the_same_l
             assert np.hypot(*(np.subtract(after["start"][:2], before["target"][:2]))) < 0.15
     refused = [r for r in records if r["outcome"] == "no_plan"]
     assert all(r["reason"].startswith("blc_") and len(r["feet"]) == 6 for r in refused)
+    # A refused one keeps the start its BLC was given: solved again from it (the refusal
+    # benchmark, benchmarks/blc_refusals.py --replay), the same refusal.
+    from qz_drake.robot.params import DEFAULT_PARAMS
+    from qz_drake.systems.blc_plan import blc_mission_planner
+    from qz_drake.systems.mission_sequencer import MissionStart
+
+    given = refused[0]["blc_start"]
+    start = MissionStart(time=0.0, xy_yaw=tuple(given["xy_yaw"]), feet_W=np.array(given["feet"]),
+                         base_z=given["base_z"], roll_pitch=tuple(given["roll_pitch"]))
+    planner = blc_mission_planner(world, DEFAULT_PARAMS, scenario.controller.timing,
+                                  BlcParameters(max_iterations=30, time_limit=30))
+    plan, reason = planner(start, tuple(refused[0]["target"]), refused[0]["topology"], 0.0)
+    assert plan is None and reason[:200] == refused[0]["message"]
