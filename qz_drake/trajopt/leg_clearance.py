@@ -110,6 +110,7 @@ def clearance_field(terrain, footprint: float, relief_limit: float, region,
     if isinstance(terrain, FlatTerrain):
         return None
     if isinstance(terrain, GridTerrain):
+        terrain = terrain.given  # the links clear the map as given
         key = tuple(round(float(v), 6) for v in (footprint, relief_limit, smoothing))
         cache = terrain.__dict__.setdefault("_clearance_fields", {})
         if key not in cache:
@@ -238,6 +239,7 @@ def raw_ground(terrain):
     function."""
     if not isinstance(terrain, GridTerrain):
         return terrain.height
+    terrain = terrain.given
     heights, origin, res = terrain.heights, terrain.origin, terrain.resolution
     H, W = heights.shape
 

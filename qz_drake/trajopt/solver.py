@@ -222,7 +222,7 @@ def solve_blc(task: BlcTask, robot: RobotModel | None = None, terrain=None,
     clock = time.perf_counter()
     params = params or BlcParameters()
     robot = robot or qingzhui(task.topology)
-    terrain = as_terrain(terrain)
+    terrain = as_terrain(terrain, params.terrain_foot_scale)
     start, rpy, feet, target, schedule = _resolve(task, robot, terrain, params)
     layout = PhaseLayout(schedule, params) if params.optimize_phase_durations else None
     formulation = BlcFormulation(robot, terrain, params, schedule, start_position=start,

@@ -137,6 +137,7 @@ def support_field(terrain, radius: float, drop: float, region=None) -> SupportFi
     over ``region`` (xmin, xmax, ymin, ymax)."""
     key = (round(float(radius), 6), round(float(drop), 6))
     if isinstance(terrain, GridTerrain):
+        terrain = terrain.given  # footholds are supported by the map as given
         cache = terrain.__dict__.setdefault("_support_fields", {})
         if key not in cache:
             cache[key] = field_from_grid(terrain.heights, terrain.resolution, terrain.origin, radius, drop)

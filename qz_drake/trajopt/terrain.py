@@ -10,6 +10,14 @@ of the function it evaluates, so every constraint Jacobian is exact.
   interpolant. Nodal slopes are limited like PCHIP's (zero at extrema and wherever a neighbouring
   secant is flat), so steps do not ring; the twist is zero. Outside the grid the border extends
   as a plateau, like ``HeightMap.height``.
+* ``FootScaleTerrain``: a fine map (a depth camera's, 2 cm cells with pixel noise) as the feet
+  meet it: each cell the highest point within ``2 scale`` (the foot rests on the tops, not in
+  the pits between them), averaged with Gaussian weights (sigma ``scale``) over the same disc, so
+  that heights and normals are those of the foot's scale and the surface is nowhere below the
+  map as given (every cell of the disc round a point is at least as high as the point). The
+  NLP solves on it; the fields of the legs' links and of the footholds' support, and the dense
+  verdict's clearances, read the map as given (``given``). On a map whose cells are larger than
+  the disc it is the map itself (``as_terrain`` then returns the GridTerrain).
 * Closed-form terrains after TOWR's ``height_map_examples.cc`` (flat, block, stairs, gap, slope),
   with their edges smoothed by a C2 quintic over ``edge_width`` so that derivatives exist
   everywhere (TOWR's block uses a 0.03 m ramp for the same reason).
@@ -299,6 +307,61 @@ class GridTerrain(TerrainModel):
         """The wrapped map itself (the BLC saves the map it was given)."""
         return self.heights, self.origin, self.resolution
 
+    @property
+    def given(self) -> "GridTerrain":
+        """The map as given (the leg and support fields and the dense verdict read it)."""
+        return self
+
+
+def foot_scale_heights(heights, resolution: float, scale: float) -> np.ndarray | None:
+    """The heights of FootScaleTerrain (module docstring): the highest cell within 2 scale, then
+    a Gaussian mean (sigma scale) over the same disc; None when that disc holds no cell but the
+    centre (the map is already at the foot's scale or coarser). [m]"""
+    from scipy import ndimage
+
+    reach = 2.0 * float(scale) / float(resolution)
+    n = int(math.floor(reach + 1e-9))
+    if n < 1:
+        return None
+    offsets = np.arange(-n, n + 1)
+    dx, dy = np.meshgrid(offsets, offsets)
+    d2 = dx * dx + dy * dy
+    disc = d2 <= reach * reach + 1e-9
+    tops = ndimage.maximum_filter(np.asarray(heights, dtype=float), footprint=disc, mode="nearest")
+    sigma = float(scale) / float(resolution)
+    weights = np.where(disc, np.exp(-0.5 * d2 / sigma ** 2), 0.0)
+    return ndimage.correlate(tops, weights / weights.sum(), mode="nearest")
+
+
+class FootScaleTerrain(GridTerrain):
+    """A fine gridded map at the foot's scale (module docstring); ``given`` is the map as given."""
+
+    name = "grid_foot_scale"
+
+    def __init__(self, heightmap, scale: float):
+        given = GridTerrain(heightmap)
+        if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
+            raise bad_value("blc.terrain_foot_scale", scale, "must be a positive length", TerrainError)
+        smoothed = foot_scale_heights(given.heights, given.resolution, scale)
+        if smoothed is None:
+            raise bad_value("blc.terrain_foot_scale", scale, f"a map of {given.resolution:g} m cells is "
+                            f"already at that scale (as_terrain keeps it as it is)", TerrainError)
+        import types
+
+        super().__init__(types.SimpleNamespace(heights=smoothed, resolution=given.resolution,
+                                               origin=given.origin))
+        self.heightmap = heightmap
+        self.scale = float(scale)
+        self._given = given
+
+    @property
+    def given(self) -> GridTerrain:
+        return self._given
+
+    def grid(self, xmin=None, xmax=None, ymin=None, ymax=None, resolution=None):
+        """The map as given (the BLC saves the map it was given)."""
+        return self._given.grid()
+
 
 def _hermite_values(a):
     """The cubic Hermite basis (phi_0, psi_0, phi_1, psi_1) on the unit cell at a."""
@@ -337,13 +400,16 @@ def grid_window(origin, resolution: float, shape, region) -> tuple[slice, slice]
     return slice(j0, j1), slice(i0, i1)
 
 
-def as_terrain(terrain) -> TerrainModel:
-    """None -> flat ground; a TerrainModel as is; a gridded heightmap -> GridTerrain."""
+def as_terrain(terrain, foot_scale: float = 0.0) -> TerrainModel:
+    """None -> flat ground; a TerrainModel as is; a gridded heightmap -> GridTerrain, or with
+    ``foot_scale`` > 0 [m] and cells finer than twice that, FootScaleTerrain."""
     if terrain is None:
         return FlatTerrain()
     if isinstance(terrain, TerrainModel):
         return terrain
     if all(hasattr(terrain, a) for a in ("heights", "resolution", "origin")):
+        if foot_scale and float(terrain.resolution) <= 2.0 * float(foot_scale) + 1e-12:
+            return FootScaleTerrain(terrain, foot_scale)
         return GridTerrain(terrain)
     raise bad_value("terrain", type(terrain).__name__,
                     "expected a TerrainModel or a heightmap with heights, resolution, origin",

@@ -124,15 +124,16 @@ def dense_check(formulation, x: np.ndarray, rate: float | None = None) -> DenseC
     failures: list[str] = []
     weight = robot.weight
 
-    # Swing clearance (Eq. 4).
+    # Swing clearance (Eq. 4), above the map as given (a FootScaleTerrain's ``given``).
+    checked = getattr(terrain, "given", terrain)
     min_clearance, worst = np.inf, None
     for leg in range(v.num_legs):
         ts = swing_sample_times(v.schedule, leg, times)
         if not len(ts):
             continue
         c = parts.get(("dense", rate, "clearance", leg), lambda: TerrainConstraint(
-            v.foot_position[leg].sample(ts, 0), terrain, robot.foot_radius, 0.0, np.inf),
-            terrain=terrain)
+            v.foot_position[leg].sample(ts, 0), checked, robot.foot_radius, 0.0, np.inf),
+            terrain=checked)
         g = c.evaluate(x)
         k = int(np.argmin(g))
         if g[k] < min_clearance:
