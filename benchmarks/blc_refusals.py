@@ -12,7 +12,9 @@ time), the lead-in (how many missions brought the robot there, and on which rung
 refused first solve each rung's outcome. Resumable: starts already in OUT are skipped.
 ``--replay`` takes instead the refused missions of recorded walks (Fig. 9 results folders or a
 tuning's, walked with ``--record-missions``): each is solved again from the very start its BLC
-was given (whether the refusal reproduces), then on each rung.
+was given (whether the refusal reproduces), then on each rung; with ``--walk LADDER`` each is also
+walked in Drake from that stance (the robot standing at the recorded base x, y, yaw with its
+feet where they were, on the ground) by the BLC with that ladder, judged by the strict verdict.
 ``--summary OUT.jsonl ...`` prints the table of BENCHMARKS.md "blc ladder" for the files given.
 
 The BLC is the Fig. 9 experiment's (30 Ipopt iterations, 30 s, MissionTiming's speed and
@@ -159,7 +161,40 @@ def run(out: Path, world: str, feature: str, y: float | None) -> None:
                   f"{ {k: v['success'] for k, v in row.get('rungs', {}).items()} }", flush=True)
 
 
-def replay(out: Path, runs) -> None:
+def walk_from(task, m, ladder: str, settings) -> dict:
+    """The refused mission ``m`` walked in Drake from its recorded stance with the ladder."""
+    from qz_drake.config import (ControllerConfig, RobotConfig, Scenario, SimulationConfig, TerrainConfig,
+                                 Waypoint)
+    from qz_drake.robot.params import DEFAULT_PARAMS
+    from qz_drake.robot.topology import get_topology
+    from qz_drake.simulation import walk
+    from qz_drake.trajopt.parameters import BlcParameters
+
+    b = m["blc_start"]
+    x, y, yaw = b["xy_yaw"]
+    c, s = math.cos(yaw), math.sin(yaw)
+    feet = np.asarray(b["feet"], dtype=float)[:, :2] - [x, y]
+    feet_B = feet @ np.array([[c, -s], [s, c]])  # world offsets into the base frame
+    offsets = feet_B - get_topology(m["topology"], DEFAULT_PARAMS).footholds_B[:, :2]
+    tx, ty, tyaw = m["target"]
+    length = math.hypot(tx - x, ty - y) + 0.01
+    scenario = Scenario(
+        name="refused_mission", terrain=TerrainConfig(kind="flat", region=[x - 3, x + 3, y - 3, y + 3]),
+        robot=RobotConfig(topology=m["topology"], initial_xy=[x, y], initial_yaw=yaw,
+                          initial_foot_offsets=offsets.tolist()),
+        simulation=SimulationConfig(duration=25.0),
+        controller=ControllerConfig(kind="walk", planner="blc", mission_length=max(length, 0.3),
+                                    speed=settings["speed"], phase_duration=settings["phase_duration"],
+                                    route=[Waypoint(x=tx, y=ty, yaw=tyaw, topology=m["topology"])]))
+    result = walk(scenario, heightmap=task.heightmap, stop_on_failure=True, blc_ladder=ladder or None,
+                  blc_params=BlcParameters(max_iterations=settings["blc_max_iterations"],
+                                           time_limit=settings["blc_time_limit"]))
+    metrics = result.metrics
+    return {"success": bool(metrics["success"]), "reasons": list(metrics.get("reasons", [])),
+            "message": str(metrics.get("reason", ""))[:300], "blc_solves": int(metrics.get("blc_solves", 0))}
+
+
+def replay(out: Path, runs, walk_ladder: str | None = None) -> None:
     """The refused missions of recorded walks, solved again from their recorded BLC start."""
     from qz_drake.config import MissionTiming
     from qz_drake.experiments.worlds import make_task
@@ -206,10 +241,13 @@ def replay(out: Path, runs) -> None:
                 planned, reason = planner(start, tuple(m["target"]), m["topology"], 0.0, rung=rung)
                 row["rungs"][rung] = {"success": planned is not None, "reason": reason,
                                       "iterations": planner.last_iterations, "wall_s": time.perf_counter() - clock}
+            if walk_ladder is not None:
+                row["walk"] = {"ladder": walk_ladder, **walk_from(task, m, walk_ladder, settings)}
             f.write(json.dumps(row) + "\n")
             f.flush()
             print(f"{key}: first {row['first']['success']}; rungs "
-                  f"{ {k: v['success'] for k, v in row['rungs'].items()} }", flush=True)
+                  f"{ {k: v['success'] for k, v in row['rungs'].items()} }; walk "
+                  f"{row.get('walk', {}).get('success')} {row.get('walk', {}).get('message', '')[:100]}", flush=True)
 
 
 def summary(paths) -> None:
@@ -244,6 +282,18 @@ def summary(paths) -> None:
         else:
             name = f"refused missions of {path}"
         print(f"| {name} | {len(rows)} | {len(rows) - len(measured)} | {first} | " + " | ".join(cells) + " |")
+    for path in paths:
+        rows = [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
+        walked = [r for r in rows if "walk" in r]
+        if walked:
+            reasons = {}
+            for r in walked:
+                if not r["walk"]["success"]:
+                    key = (r["walk"]["reasons"] or ["?"])[0]
+                    reasons[key] = reasons.get(key, 0) + 1
+            print(f"\n{path}: walked in Drake from the recorded stance with the ladder "
+                  f"{walked[0]['walk']['ladder']}: {sum(r['walk']['success'] for r in walked)} of {len(walked)}"
+                  + (" (failures: " + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())) + ")" if reasons else ""))
 
 
 def main(argv=None) -> int:
@@ -255,6 +305,8 @@ def main(argv=None) -> int:
     parser.add_argument("--summary", action="store_true", help="print the table of the files given")
     parser.add_argument("--replay", nargs="+", type=Path, default=None,
                         help="results folders of walks with recorded missions: their refused missions")
+    parser.add_argument("--walk", default=None, metavar="LADDER",
+                        help="with --replay: walk each refused mission in Drake from its stance with this ladder")
     args = parser.parse_args(argv)
     if args.summary:
         summary(args.out)
@@ -262,7 +314,7 @@ def main(argv=None) -> int:
     if len(args.out) != 1:
         parser.error("one OUT file for a sweep or a replay")
     if args.replay:
-        replay(args.out[0], args.replay)
+        replay(args.out[0], args.replay, args.walk)
     else:
         run(args.out[0], args.world, args.feature, args.y)
     return 0
