@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-RUNGS = ("cycles+1", "split", "cycles+2", "split+1")
+RUNGS = ("cycles+1", "split", "cycles+2", "split+1", "short")
 STEP = 0.1
 COUNT = 36
 BEFORE = 2.5
@@ -254,7 +254,8 @@ def summary(paths) -> None:
     """Per file: starts, lead-ins refused, first solves planned, and what each ladder order
     would plan (rungs tried in order until one plans) with its median and worst extra time."""
     ladders = [("cycles+1",), ("cycles+1", "cycles+2"), ("split",), ("cycles+1", "split"),
-               ("split", "cycles+1"), ("cycles+1", "split", "cycles+2", "split+1")]
+               ("cycles+1", "split", "cycles+2", "split+1"), ("cycles+1", "cycles+2", "short"),
+               ("cycles+1", "short", "cycles+2", "split")]
     print("| sweep | starts | lead-in refused | first solves planned | "
           + " | ".join(f"ladder {', '.join(ladder)}" for ladder in ladders) + " |")
     print("| --- " * (4 + len(ladders)) + "|")
@@ -270,11 +271,17 @@ def summary(paths) -> None:
                     continue
                 cost = 0.0
                 for rung in ladder:
+                    if rung not in r["rungs"]:
+                        cost = math.nan  # a row measured before the rung existed
+                        break
                     cost += r["rungs"][rung]["wall_s"]
                     if r["rungs"][rung]["success"]:
                         planned += 1
                         break
                 extra.append(cost)
+            if any(math.isnan(c) for c in extra):
+                cells.append("-")
+                continue
             times = f"{np.median(extra):.1f} / {max(extra):.1f} s" if extra else "-"
             cells.append(f"{planned} ({times})")
         if rows and "feature" in rows[0]:

@@ -245,7 +245,7 @@ def _back_out_argument(p) -> None:
     p.add_argument("--blc-ladder", default="",
                    help="solve a mission the BLC could not plan again on these rungs, in order, until one plans, "
                         "for both planners: cycles+N (N tripod cycles longer), split, split+N (two halves "
-                        "chained), comma-separated; not with --blc-retries")
+                        "chained), short (the target 0.1 m nearer), comma-separated; not with --blc-retries")
 
 
 def _stance_argument(p) -> None:

@@ -151,7 +151,7 @@ class TrajectoryOptimizationBLC(LeafSystem):
             capability trials' BLC, whose labels are first solves) or more (CapPlanner's
             walks: the robot stands while the BLC solves, so a retry costs wall time only).
         ladder: the rungs a mission whose first solve failed is solved on, in order, until one
-            plans (qz_drake.systems.blc_plan.parse_ladder: "cycles+N", "split", "split+N"; a
+            plans (qz_drake.systems.blc_plan.parse_ladder: "cycles+N", "split", "split+N", "short"; a
             sequence or a comma-separated string); None: ``mission_retries``'s. Deterministic:
             each rung is a solve (two for a split) with the BLC's iteration limit.
         ladder_budget: wall time a mission's solves may take before no further rung is tried

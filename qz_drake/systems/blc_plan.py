@@ -132,9 +132,13 @@ class ChainedPlan:
 
 # A rung of the BLC ladder: "cycles+N", the mission N tripod cycles longer; "split" or "split+N",
 # the mission in two halves (the nearer one first, each timed by the mission rule, N cycles
-# longer), chained.
-_RUNG = re.compile(r"^(cycles|split)(?:\+([1-4]))?$")
-RUNG_HELP = "expected 'cycles+N' or 'split' or 'split+N' (N = 1..4)"
+# longer), chained; "short", its target SHORTEN nearer along the way (the route's next mission
+# starts from where the robot stands, so a mission may end a little short; measured on the
+# Fig. 9 world stairs-hard-3, a 1 m mission ending 0.40 m before the first riser was refused on
+# every other rung and planned ending 0.05 m nearer or farther).
+_RUNG = re.compile(r"^(cycles|split|short)(?:\+([1-4]))?$")
+RUNG_HELP = "expected 'cycles+N', 'split', 'split+N' or 'short' (N = 1..4)"
+SHORTEN = 0.1  # [m]
 
 
 def parse_ladder(ladder, field: str = "blc.ladder") -> tuple[str, ...]:
@@ -147,7 +151,8 @@ def parse_ladder(ladder, field: str = "blc.ladder") -> tuple[str, ...]:
     rungs = []
     for rung in ladder:
         match = _RUNG.match(rung) if isinstance(rung, str) else None
-        if match is None or (match.group(1) == "cycles" and match.group(2) is None):
+        if match is None or (match.group(1) == "cycles" and match.group(2) is None) or \
+                (match.group(1) == "short" and match.group(2) is not None):
             raise bad_value(field, rung, RUNG_HELP, ConfigError)
         if rung in rungs:
             raise bad_value(field, rung, "is given twice", ConfigError)
@@ -160,11 +165,11 @@ def retry_ladder(retries: int) -> tuple[str, ...]:
     return tuple(f"cycles+{k}" for k in range(1, int(retries) + 1))
 
 
-def _rung_cycles(rung: str) -> tuple[bool, int]:
+def _rung_kind(rung: str) -> tuple[str, int]:
     match = _RUNG.match(rung)
     if match is None:
         raise bad_value("rung", rung, RUNG_HELP, ConfigError)
-    return match.group(1) == "split", int(match.group(2) or 0)
+    return match.group(1), int(match.group(2) or 0)
 
 
 def blc_mission_planner(heightmap, params, control, blc_params=None):
@@ -192,8 +197,16 @@ def blc_mission_planner(heightmap, params, control, blc_params=None):
             planned, reason = solve(start, target, topology, start_time, extra_cycles)
             plan.last_iterations = int(plan.last_solution.iterations)
             return planned, reason
-        split, cycles = _rung_cycles(rung)
-        if not split:
+        kind, cycles = _rung_kind(rung)
+        if kind == "short":
+            x0, y0, _ = start.xy_yaw
+            length = math.hypot(target[0] - x0, target[1] - y0)
+            if length < 2 * SHORTEN:
+                plan.last_iterations = 0
+                return None, f"BLC: a mission of {length:.2f} m is too short to end {SHORTEN:g} m nearer"
+            k = 1.0 - SHORTEN / length
+            target = (x0 + k * (target[0] - x0), y0 + k * (target[1] - y0), target[2])
+        if kind != "split":
             planned, reason = solve(start, target, topology, start_time, extra_cycles + cycles)
             plan.last_iterations = int(plan.last_solution.iterations)
             return planned, reason

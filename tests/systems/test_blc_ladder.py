@@ -41,3 +41,24 @@ def test_a_step_down_the_first_solve_refuses_plans_one_tripod_cycle_longer_and_h
     # ones are still on the platform (0.39 m).
     np.testing.assert_allclose(plan.foot_positions(plan.end_time)[:, 2], [0.03, 0.03, 0.39, 0.39, 0.39, 0.03],
                                atol=0.005)
+
+
+def test_a_mission_refused_for_where_it_ends_plans_ending_a_little_nearer():
+    # Up the Fig. 9 world stairs-hard-3 from standing 1.4 m before the first riser: a 1 m move
+    # ending 0.40 m before it is refused (and one cycle longer, and in two halves); ending
+    # 0.1 m nearer plans.
+    from qz_drake.robot.topology import get_topology
+    from qz_drake.scene import standing_state
+    from qz_drake.systems.mission_sequencer import measured_start
+
+    world = make_task("stairs", "hard", 3).heightmap
+    riser, y = -1.05, 0.125
+    start = measured_start(standing_state(world, get_topology("nominal"), xy=(riser - 1.4, y)), 0.0, DEFAULT_PARAMS)
+    planner = blc_mission_planner(world, DEFAULT_PARAMS, MissionTiming(),
+                                  BlcParameters(max_iterations=30, time_limit=30.0))
+    target = (riser - 0.4, y, 0.0)
+    plan, reason = planner(start, target, "nominal", 0.0)
+    assert plan is None, "the first solve planned: the case no longer shows the rung"
+    plan, reason = planner(start, target, "nominal", 0.0, rung="short")
+    assert plan is not None and plan.solution.success and plan.solution.dense.passed, reason
+    np.testing.assert_allclose(plan.base_position(plan.end_time)[:2], (riser - 0.5, y), atol=0.01)
