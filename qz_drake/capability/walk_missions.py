@@ -117,7 +117,8 @@ def walk_mission_records(built, run, result, criteria) -> list[dict]:
     the BLC planned it from [m, rad], ``target`` (x, y, yaw), ``topology``, ``switched_from``
     (the topology of a switch made for it, "" without), ``outcome`` (walked, no_plan, failed),
     ``reason`` (the verdict's first, or the BLC's failure code), ``message``, ``sim_time_s``;
-    a refused one also ``blc_start``, the mission start the BLC was given (``xy_yaw``,
+    a planned one also ``rung``, the rung of the BLC ladder that planned it ("": its first
+    solve); a refused one ``blc_start``, the mission start the BLC was given (``xy_yaw``,
     ``base_z``, ``roll_pitch``, ``feet``). JSON-ready."""
     windows = WalkWindows(built, run, result, criteria)
     log = built.missions.log
@@ -142,7 +143,8 @@ def walk_mission_records(built, run, result, criteria) -> list[dict]:
                             "switched_from": switch.from_topology if switch else "",
                             "outcome": WALKED if verdict.success else FAILED,
                             "reason": verdict.reasons[0] if verdict.reasons else "",
-                            "message": "; ".join(verdict.messages)[:200], "sim_time_s": seconds})
+                            "message": "; ".join(verdict.messages)[:200], "sim_time_s": seconds,
+                            "rung": s.rung})
             continue
         pose, feet = windows.measured_at(e["t0"])
         record = {"start_time": e["begin"], "start": list(pose), "feet": np.asarray(feet, dtype=float).round(5).tolist(),
