@@ -639,7 +639,8 @@ def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "",
     worktree) of the code the manifest names, every mismatched trial is run again with that
     code on this machine: where it gives exactly what the new code gives, the difference is
     the machine's, not the change's; it is accepted and listed in the certification
-    (``machine_differences``). The tree must have the manifest's fingerprints.
+    (``machine_differences``). The tree must have the manifest's fingerprints. An episode
+    dataset's mismatched episodes are run again whole, every mission compared.
     """
     from qz_drake.capability.dataset import DatasetLock, read_manifest
 
@@ -647,10 +648,11 @@ def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "",
     if isinstance(sample, bool) or not isinstance(sample, int) or sample < 1:
         raise bad_value("--sample", sample, "must be a positive whole number")
     check_workers(workers)
+    from pathlib import Path
+
+    if reference_code is not None and not (Path(reference_code) / "qz_drake" / "__init__.py").is_file():
+        raise bad_value("--reference-code", str(reference_code), "not a source tree with a qz_drake package")
     manifest = read_manifest(path)
-    if manifest.get("settings", {}).get("protocol") == "episodes" and reference_code is not None:
-        raise bad_value("--reference-code", str(reference_code), "is for trial datasets: an episode "
-                                                                  "dataset is recertified on this machine's runs alone")
     lock = DatasetLock(path, field="dataset")  # no collection may write it meanwhile
     try:
         return _recertify(path, manifest, sample, workers, command, clock, reference_code)
@@ -726,7 +728,8 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
     machine = []
     if mismatches and reference_code is not None:
         indices = [m["index"] for m in mismatches]
-        reference = _run_with_code(reference_code, [s for s in specs if s.index in indices], settings, old)
+        reference = _run_with_code(reference_code, [s for s in specs if s.index in indices], settings, old,
+                                   episodes=episodes)
         for m in list(mismatches):
             here = differing_fields(reference[m["index"]], records_to_arrays(rerun[m["index"]]),
                                     skip=TIME_FIELDS)
@@ -763,19 +766,26 @@ if root not in Path(qz_drake.__file__).resolve().parents:
     sys.exit(f"--reference-code = {str(root)!r}: its qz_drake is not the one imported ({qz_drake.__file__})")
 config = TrialConfig(**job["settings"])
 parts = fingerprints(config)
+episodes = job.get("episodes", False)
 for key in sorted(set(parts) | set(job["fingerprints"])):
     if parts.get(key) != job["fingerprints"].get(key):
         sys.exit(f"--reference-code = {str(root)!r}: its {key} fingerprint {parts.get(key)!r} is not the "
                  f"manifest's {job['fingerprints'].get(key)!r} (not the certified code)")
-records = [run_trial(TrialSpec(*spec), config) for spec in job["specs"]]
+if episodes:
+    from qz_drake.capability.collect import execute_episode
+    from qz_drake.capability.episodes import EpisodeSpec
+    records = [r for spec in job["specs"] for r in execute_episode(EpisodeSpec(*spec), config)]
+else:
+    records = [run_trial(TrialSpec(*spec), config) for spec in job["specs"]]
 np.savez(job["out"], **records_to_arrays(records))
 """
 
 
-def _run_with_code(root, specs, settings: dict, fingerprints_expected: dict) -> dict:
-    """index -> the record of each spec run by the code in the source tree ``root`` (a fresh
-    interpreter with ``root`` first on its path), after checking that the tree has the expected
-    fingerprints. Raises a ConfigError naming --reference-code when it is not that code."""
+def _run_with_code(root, specs, settings: dict, fingerprints_expected: dict, episodes: bool = False) -> dict:
+    """index -> the record arrays of each spec run by the code in the source tree ``root`` (a
+    fresh interpreter with ``root`` first on its path; an episode's records, one row per
+    mission), after checking that the tree has the expected fingerprints. Raises a ConfigError
+    naming --reference-code when it is not that code."""
     import json
     import os
     import subprocess
@@ -790,7 +800,9 @@ def _run_with_code(root, specs, settings: dict, fingerprints_expected: dict) -> 
         raise bad_value("--reference-code", str(root), "not a source tree with a qz_drake package")
     with tempfile.TemporaryDirectory() as tmp:
         job = {"root": str(root), "settings": settings, "fingerprints": fingerprints_expected,
-               "specs": [[s.seed, s.index, s.scene, s.heading_sample, s.topology, s.kind] for s in specs],
+               "episodes": episodes,
+               "specs": [[s.seed, s.index, s.scene, s.topology] if episodes else
+                         [s.seed, s.index, s.scene, s.heading_sample, s.topology, s.kind] for s in specs],
                "out": str(Path(tmp) / "reference.npz")}
         (Path(tmp) / "job.json").write_text(json.dumps(job))
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root.resolve())] + (
@@ -807,7 +819,8 @@ def _run_with_code(root, specs, settings: dict, fingerprints_expected: dict) -> 
             raise bad_value("--reference-code", str(root), f"its trials did not run ({message[:200]})")
         with np.load(job["out"], allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
-    return {int(i): {k: v[n:n + 1] for k, v in arrays.items()} for n, i in enumerate(arrays["index"])}
+    index = np.asarray(arrays["index"])
+    return {int(i): {k: v[index == i] for k, v in arrays.items()} for i in np.unique(index)}
 
 
 def _largest_relative_difference(a: dict, b: dict) -> float:

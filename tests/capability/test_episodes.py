@@ -168,6 +168,7 @@ def test_an_episode_collection_stores_a_record_per_mission_and_resumes(one_episo
     assert result.changed == ["controller"] and result.rerun == 1 and result.identical, result.mismatches
     assert result.unit == "episodes"
     assert json.loads((moved / "manifest.json").read_text())["fingerprints"] == current
+    # The certified code to tell a machine's difference from a change's must be a source tree.
     with pytest.raises(Exception, match="--reference-code"):
         recertify(moved, reference_code=tmp_path)
     with pytest.raises(Exception, match="--kinds"):
