@@ -9,7 +9,9 @@ OUT ?= out/demo
 PYTEST_MARK ?= not slow
 PYTEST_ARGS ?=
 # pytest-xdist's worker processes, one per core of the 2-core machine (most tests are one
-# process on one core); PYTEST_WORKERS=0 runs every test in pytest's own process.
+# process on one core), an idle one taking tests from the other's queue (worksteal: the suite's
+# longest tests, notebooks of 20-30 s, do not leave one core idle at the end);
+# PYTEST_WORKERS=0 runs every test in pytest's own process.
 PYTEST_WORKERS ?= 2
 
 .PHONY: setup demo test test-all test-fast bench urdf clean collect fig9
@@ -28,7 +30,7 @@ demo: $(STAMP)
 	$(VENV)/bin/qz demo --out $(OUT)
 
 test: $(STAMP)
-	$(PY) -m pytest -q -n $(PYTEST_WORKERS) $(if $(PYTEST_MARK),-m "$(PYTEST_MARK)") $(PYTEST_ARGS)
+	$(PY) -m pytest -q -n $(PYTEST_WORKERS) --dist worksteal $(if $(PYTEST_MARK),-m "$(PYTEST_MARK)") $(PYTEST_ARGS)
 
 # One process: the slow tests include walks at real time across processes, which a second
 # test beside them would slow.
@@ -36,7 +38,7 @@ test-all: $(STAMP)
 	$(PY) -m pytest -q $(PYTEST_ARGS)
 
 test-fast: $(STAMP)
-	$(PY) -m pytest -q -n $(PYTEST_WORKERS) -m "not slow" $(PYTEST_ARGS)
+	$(PY) -m pytest -q -n $(PYTEST_WORKERS) --dist worksteal -m "not slow" $(PYTEST_ARGS)
 
 bench: $(STAMP)
 	# pyastar2d, the C++ A* that `qz bench astar` compares against.
