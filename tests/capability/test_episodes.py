@@ -199,3 +199,48 @@ def test_an_episode_the_code_no_longer_reproduces_is_refused_with_its_mission(on
     assert not refused.identical and refused.mismatches[0]["fields"] == ["blc_iterations"]
     assert refused.mismatches[0]["mission"] == 2
     assert json.loads((altered / "manifest.json").read_text()) == manifest  # nothing written
+
+
+@pytest.mark.slow  # a second interpreter walks the episode again on a copy of the code: about a minute
+def test_an_episode_dataset_is_recertified_with_the_certified_code_telling_a_machines_difference(one_episode, tmp_path):
+    import json
+    import os
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from qz_drake.capability.collect import recertify
+
+    # The certified code: a copy of this tree whose verdict module differs in syntax only, so
+    # that the running code is "a change" against a manifest naming the copy.
+    certified = tmp_path / "certified"
+    shutil.copytree(Path(__file__).resolve().parents[2] / "qz_drake", certified / "qz_drake",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    with open(certified / "qz_drake" / "verdict.py", "a") as f:
+        f.write("\n_CERTIFIED_COPY = True\n")
+    manifest = json.loads((one_episode / "manifest.json").read_text())
+    settings = {k: v for k, v in manifest["settings"].items() if k != "protocol"}
+    script = ("import json, sys; from qz_drake.capability.dataset import fingerprints; "
+              "from qz_drake.capability.trials import TrialConfig; "
+              "print(json.dumps(fingerprints(TrialConfig(**json.loads(sys.argv[1])))))")
+    run = subprocess.run([sys.executable, "-c", script, json.dumps(settings)], capture_output=True, text=True,
+                         env=dict(os.environ, PYTHONPATH=str(certified)), cwd=str(certified), timeout=300,
+                         check=True)
+    # Stored as another processor might have stored it: one mission's iteration count off by one.
+    data = tmp_path / "collected_elsewhere"
+    shutil.copytree(one_episode, data)
+    manifest["fingerprints"].update(json.loads(run.stdout))
+    (data / "manifest.json").write_text(json.dumps(manifest))
+    shard = data / manifest["shards"][0]["file"]
+    with np.load(shard) as stored:
+        arrays = {k: stored[k] for k in stored.files}
+    arrays["blc_iterations"] = arrays["blc_iterations"] + np.eye(1, len(arrays["index"]), dtype=int)[0]
+    np.savez_compressed(shard, **arrays)
+
+    refused = recertify(data, sample=1)
+    assert not refused.identical and [m["index"] for m in refused.mismatches] == [0]
+    # The certified code walks the episode here as the running code does: the machine's.
+    result = recertify(data, sample=1, reference_code=certified)
+    assert result.identical and result.changed == ["verdict"], result.mismatches
+    assert [m["index"] for m in result.machine_differences] == [0] and result.unit == "episodes"
