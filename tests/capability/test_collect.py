@@ -304,29 +304,17 @@ def _altered_copy(reference, dest: Path, fingerprints: dict, field: str, delta: 
     return dest, manifest, arrays
 
 
-def _fingerprints_of(tree: Path, settings: dict) -> dict:
-    script = ("import json, sys; from qz_drake.capability.dataset import fingerprints; "
-              "from qz_drake.capability.trials import TrialConfig; "
-              "print(json.dumps(fingerprints(TrialConfig(**json.loads(sys.argv[1])))))")
-    run = subprocess.run([sys.executable, "-c", script, json.dumps(settings)], capture_output=True, text=True,
-                         env=dict(os.environ, PYTHONPATH=str(tree)), cwd=str(tree), timeout=300, check=True)
-    return json.loads(run.stdout)
-
-
 @pytest.mark.slow  # a second interpreter on a second source tree: 13 s of make test's budget
-def test_recertify_with_the_certified_code_tells_a_machines_difference_from_the_changes(reference, tmp_path):
+def test_recertify_with_the_certified_code_tells_a_machines_difference_from_the_changes(reference, tmp_path,
+                                                                                         certified_code):
     # The certified code: a copy of this tree whose verdict module differs in syntax, not in
     # behaviour, so that the running code is "a change" against the manifest.
-    certified = tmp_path / "certified"
-    shutil.copytree(Path(__file__).resolve().parents[2] / "qz_drake", certified / "qz_drake",
-                    ignore=shutil.ignore_patterns("__pycache__"))
-    with open(certified / "qz_drake" / "verdict.py", "a") as f:
-        f.write("\n_CERTIFIED_COPY = True\n")
+    certified, fingerprints_of = certified_code
     settings = json.loads((reference / "manifest.json").read_text())["settings"]
     # Records as another processor might have stored them: an iteration count the code gives
     # on neither side here.
     data, manifest, arrays = _altered_copy(reference, tmp_path / "collected_elsewhere",
-                                           _fingerprints_of(certified, settings), "blc_iterations", 1)
+                                           fingerprints_of(settings), "blc_iterations", 1)
 
     refused = recertify(data, sample=2)
     assert not refused.identical and len(refused.mismatches) == 2

@@ -202,35 +202,20 @@ def test_an_episode_the_code_no_longer_reproduces_is_refused_with_its_mission(on
 
 
 @pytest.mark.slow  # a second interpreter walks the episode again on a copy of the code: about a minute
-def test_an_episode_dataset_is_recertified_with_the_certified_code_telling_a_machines_difference(one_episode, tmp_path):
+def test_an_episode_dataset_is_recertified_with_the_certified_code_telling_a_machines_difference(
+        one_episode, tmp_path, certified_code):
     import json
-    import os
     import shutil
-    import subprocess
-    import sys
-    from pathlib import Path
 
     from qz_drake.capability.collect import recertify
 
-    # The certified code: a copy of this tree whose verdict module differs in syntax only, so
-    # that the running code is "a change" against a manifest naming the copy.
-    certified = tmp_path / "certified"
-    shutil.copytree(Path(__file__).resolve().parents[2] / "qz_drake", certified / "qz_drake",
-                    ignore=shutil.ignore_patterns("__pycache__"))
-    with open(certified / "qz_drake" / "verdict.py", "a") as f:
-        f.write("\n_CERTIFIED_COPY = True\n")
+    certified, fingerprints_of = certified_code
     manifest = json.loads((one_episode / "manifest.json").read_text())
     settings = {k: v for k, v in manifest["settings"].items() if k != "protocol"}
-    script = ("import json, sys; from qz_drake.capability.dataset import fingerprints; "
-              "from qz_drake.capability.trials import TrialConfig; "
-              "print(json.dumps(fingerprints(TrialConfig(**json.loads(sys.argv[1])))))")
-    run = subprocess.run([sys.executable, "-c", script, json.dumps(settings)], capture_output=True, text=True,
-                         env=dict(os.environ, PYTHONPATH=str(certified)), cwd=str(certified), timeout=300,
-                         check=True)
     # Stored as another processor might have stored it: one mission's iteration count off by one.
     data = tmp_path / "collected_elsewhere"
     shutil.copytree(one_episode, data)
-    manifest["fingerprints"].update(json.loads(run.stdout))
+    manifest["fingerprints"].update(fingerprints_of(settings))
     (data / "manifest.json").write_text(json.dumps(manifest))
     shard = data / manifest["shards"][0]["file"]
     with np.load(shard) as stored:
