@@ -55,3 +55,16 @@ def test_a_readme_command_parses_and_its_inputs_exist(command):
         value = getattr(args, name, None)
         if isinstance(value, str) and not value.startswith("out/") and "/" in value:
             assert (REPO / value).exists(), f"{command}: {name} {value} does not exist"
+
+
+def test_what_readme_commands_write_goes_where_git_does_not_look():
+    # A new user runs README's commands in a clone: whatever they write (--out, the plan
+    # command's picture) lands under out/, which .gitignore names, so `git status` stays empty.
+    assert "/out/" in (REPO / ".gitignore").read_text().split()
+    for command in COMMANDS:
+        argv = shlex.split(command)
+        for option in ("--out", "--out-dir", "--output", "--png"):
+            if option in argv:
+                value = argv[argv.index(option) + 1]
+                assert value.startswith("out/"), f"{command}: writes {value}, which git would see"
+        assert "recertify" not in argv, f"{command}: rewrites a shipped dataset's manifest"
