@@ -231,8 +231,9 @@ def replay(out: Path, runs, walk_ladder: str | None = None) -> None:
             planner = blc_mission_planner(task.heightmap, DEFAULT_PARAMS, timing, BlcParameters(
                 max_iterations=settings["blc_max_iterations"], time_limit=settings["blc_time_limit"]))
             b = m["blc_start"]
+            base_z = None if b["base_z"] is None or math.isnan(b["base_z"]) else b["base_z"]  # NaN: unknown
             start = MissionStart(time=0.0, xy_yaw=tuple(b["xy_yaw"]), feet_W=np.array(b["feet"]),
-                                 base_z=b["base_z"], roll_pitch=tuple(b["roll_pitch"]))
+                                 base_z=base_z, roll_pitch=tuple(b["roll_pitch"]))
             row = {"id": key, "world": f"{record['terrain']}-{record['difficulty']}-{record['seed']}",
                    "planner": record["planner"], "topology": m["topology"], "target": m["target"],
                    "start": b["xy_yaw"], "recorded": m["message"], "lead_in": ""}
