@@ -15,7 +15,6 @@ depend on the machine's load.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import sys
