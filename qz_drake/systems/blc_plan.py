@@ -193,11 +193,7 @@ def blc_mission_planner(heightmap, params, control, blc_params=None):
     stats = {"solves": 0, "failures": 0, "solve_time_s": 0.0}
 
     def plan(start, target, topology, start_time, extra_cycles: int = 0, rung: str = ""):
-        if not rung:
-            planned, reason = solve(start, target, topology, start_time, extra_cycles)
-            plan.last_iterations = int(plan.last_solution.iterations)
-            return planned, reason
-        kind, cycles = _rung_kind(rung)
+        kind, cycles = _rung_kind(rung) if rung else ("", 0)
         if kind == "short":
             x0, y0, _ = start.xy_yaw
             length = math.hypot(target[0] - x0, target[1] - y0)

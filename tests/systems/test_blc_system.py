@@ -167,18 +167,26 @@ def _failing_first_attempt(blc, fail_when):
     return durations
 
 
-def test_a_mission_that_failed_to_plan_is_retried_one_tripod_cycle_longer():
+def _second_mission_failing_first(blc, target_x: float):
+    """On flat ground, from the fixed standing state: a 0.3 m first mission plans; then a
+    second one to ``target_x`` whose first solve is reported failed. Returns (context, the
+    first plan, the solves' durations)."""
     heightmap = make_terrain("flat")
     state = standing_state(heightmap, get_topology("nominal"))
-    blc = TrajectoryOptimizationBLC(mission_retries=2)
     durations = _failing_first_attempt(blc, lambda target, rung: target[0] > 0.5 and rung == "")
     context = _fixed(blc, heightmap, state, (0.3, 0.0, 0.0))
     simulator = Simulator(blc, context)
     simulator.Initialize()
     first = blc.GetOutputPort("plan").Eval(context)
     simulator.AdvanceTo(first.end_time + 0.05)
-    blc.GetInputPort("target").FixValue(context, np.array([1.0, 0.0, 0.0]))
+    blc.GetInputPort("target").FixValue(context, np.array([target_x, 0.0, 0.0]))
     simulator.AdvanceTo(first.end_time + 0.1)
+    return context, first, durations
+
+
+def test_a_mission_that_failed_to_plan_is_retried_one_tripod_cycle_longer():
+    blc = TrajectoryOptimizationBLC(mission_retries=2)
+    context, first, durations = _second_mission_failing_first(blc, 1.0)
     # The failed attempt and its retry are both logged; the mission is planned, no failure.
     assert [s.success for s in blc.log.solves] == [True, False, True]
     assert blc.log.retried == [1] and not blc.log.failures
@@ -211,17 +219,8 @@ def test_a_mission_no_retry_can_plan_is_one_failure_and_the_plan_is_kept():
 
 
 def test_a_split_rung_plans_the_mission_in_two_halves_that_read_as_one_plan():
-    heightmap = make_terrain("flat")
-    state = standing_state(heightmap, get_topology("nominal"))
     blc = TrajectoryOptimizationBLC(ladder="split")
-    _failing_first_attempt(blc, lambda target, rung: target[0] > 0.5 and rung == "")
-    context = _fixed(blc, heightmap, state, (0.3, 0.0, 0.0))
-    simulator = Simulator(blc, context)
-    simulator.Initialize()
-    first = blc.GetOutputPort("plan").Eval(context)
-    simulator.AdvanceTo(first.end_time + 0.05)
-    blc.GetInputPort("target").FixValue(context, np.array([1.1, 0.0, 0.0]))
-    simulator.AdvanceTo(first.end_time + 0.1)
+    context, _, _ = _second_mission_failing_first(blc, 1.1)
     assert [(s.success, s.rung) for s in blc.log.solves] == [(True, ""), (False, ""), (True, "split")]
     assert blc.log.retried == [1] and not blc.log.failures
     plan = blc.GetOutputPort("plan").Eval(context)
