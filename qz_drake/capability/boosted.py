@@ -217,6 +217,24 @@ def softmax(raw: np.ndarray) -> np.ndarray:
     return e / total[..., None]
 
 
+def sigmoid(raw: np.ndarray) -> np.ndarray:
+    """The logistic function: a binary learner's probability of its class 1 from its raw score."""
+    return 1.0 / (1.0 + np.exp(-np.asarray(raw, dtype=np.float64)))
+
+
+def with_plan(outcomes: np.ndarray, planned: np.ndarray) -> np.ndarray:
+    """The three outcomes (..., 3) with the chance that the BLC plans taken from a plan learner
+    (``planned`` (...)): no plan 1 - planned; walked and failed share the rest as the outcome
+    learner shares its own walked and failed (an even split where it gives them nothing)."""
+    executed = outcomes[..., 0] + outcomes[..., 2]
+    walked = np.divide(outcomes[..., 0], executed, out=np.full(executed.shape, 0.5), where=executed > 0)
+    out = np.empty(np.shape(outcomes))
+    out[..., 0] = planned * walked
+    out[..., 1] = 1.0 - planned
+    out[..., 2] = planned * (1.0 - walked)
+    return out
+
+
 def _raw_scores_py(X, baseline, roots, feature, threshold, left, right, leaf, value, missing_left):
     out = np.empty((X.shape[0], roots.shape[1]))
     for s in range(X.shape[0]):
@@ -602,8 +620,10 @@ class BoostedConfig:
         return self
 
 
-def record_features(arrays: dict, rows: np.ndarray, mirror: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """(X, outcome index) of dataset rows; with ``mirror``, followed by their mirror images."""
+def record_features(arrays: dict, rows: np.ndarray, mirror: bool = False,
+                    labels: str = "outcomes") -> tuple[np.ndarray, np.ndarray]:
+    """(X, label) of dataset rows; with ``mirror``, followed by their mirror images. The label
+    is the outcome index (``labels`` "outcomes") or whether the BLC planned (1) or not ("plan")."""
     from qz_drake.capability.training import outcome_classes
 
     rows = np.asarray(rows, dtype=np.int64)
@@ -611,7 +631,9 @@ def record_features(arrays: dict, rows: np.ndarray, mirror: bool = False) -> tup
     topology = np.asarray(arrays["topology"]).astype(str)[rows]
     direction = np.asarray(arrays["direction"])[rows]
     patch, feet = np.asarray(arrays["patch"])[rows], np.asarray(arrays["feet"])[rows]
-    y = outcome_classes(np.asarray(arrays["success"])[rows], np.asarray(arrays["blc_success"])[rows])
+    planned = np.asarray(arrays["blc_success"])[rows]
+    y = outcome_classes(np.asarray(arrays["success"])[rows], planned) if labels == "outcomes" else \
+        planned.astype(np.int64)
     X = [features(patch, feet, kind, topology, direction)]
     labels = [y]
     if mirror:
@@ -623,16 +645,17 @@ def record_features(arrays: dict, rows: np.ndarray, mirror: bool = False) -> tup
     return np.concatenate(X), np.concatenate(labels)
 
 
-def _fit_member(X, y, Xv, yv, config: BoostedConfig, seed: int):
-    """One learner, grown ``BOOST_CHUNK`` iterations at a time until the validation log loss has
-    not improved for ``config.patience`` iterations (or ``max_iter``), then cut at its best
-    iteration. Returns (Trees, best iteration, validation log loss)."""
+def _fit_member(X, y, Xv, yv, config: BoostedConfig, seed: int, outcomes=OUTCOMES):
+    """One learner of ``outcomes`` (the three, or the plan learner's ("no_plan", "planned")),
+    grown ``BOOST_CHUNK`` iterations at a time until the validation log loss has not improved
+    for ``config.patience`` iterations (or ``max_iter``), then cut at its best iteration.
+    Returns (Trees, best iteration, validation log loss)."""
     from sklearn.ensemble import HistGradientBoostingClassifier
 
-    if len(np.unique(y)) < 3:
-        missing = sorted(set(OUTCOMES) - {OUTCOMES[i] for i in np.unique(y)})
+    if len(np.unique(y)) < len(outcomes):
+        missing = sorted(set(outcomes) - {outcomes[i] for i in np.unique(y)})
         raise ConfigError(f"dataset: the training records have no {' and no '.join(missing)} outcome; "
-                          "the three-outcome model needs all three")
+                          f"the learner of {', '.join(outcomes)} needs every one")
     model = HistGradientBoostingClassifier(
         loss="log_loss", max_iter=0, learning_rate=config.learning_rate,
         max_leaf_nodes=config.max_leaf_nodes, min_samples_leaf=config.min_samples_leaf,
@@ -653,12 +676,56 @@ def _fit_member(X, y, Xv, yv, config: BoostedConfig, seed: int):
 class BoostedTrainingResult:
     members: list  # [Trees]
     card: dict
+    plan_members: list = dataclasses.field(default_factory=list)  # [Trees], binary
+
+
+# The plan learner's two classes, in its label order (blc_success False, True).
+PLAN_OUTCOMES = ("no_plan", "planned")
+# Offset of the plan learners' seeds and bootstrap generator from the outcome learners'.
+PLAN_SEED_OFFSET = 7919
+
+
+def _without_switches(arrays: dict) -> dict:
+    keep = np.asarray(arrays["kind"]).astype(str) != "switch"
+    return {key: (np.asarray(v)[keep] if np.ndim(v) and len(v) == len(keep) else v) for key, v in arrays.items()}
+
+
+def _bootstrap_rows(rng, ids: np.ndarray, scene: np.ndarray) -> np.ndarray:
+    """The rows of a bootstrap of whole scenes (``ids`` drawn with replacement)."""
+    drawn = rng.choice(ids, size=len(ids), replace=True)
+    by_scene = {s: np.flatnonzero(scene == s) for s in np.unique(drawn)}
+    return np.concatenate([by_scene[s] for s in drawn]) if len(drawn) else np.zeros(0, np.int64)
+
+
+def plan_split(split: dict, plan_scene, fractions, seed: int) -> dict:
+    """The plan dataset's scenes in the outcome learners' split: a scene of both datasets (the
+    same seed and index) in its split, so that no test scene's chains are learned; the plan
+    dataset's other scenes split by ``fractions`` on their own."""
+    from qz_drake.capability.training import split_scenes
+
+    ids = np.unique(np.asarray(plan_scene, dtype=np.int64))
+    known = np.concatenate(list(split.values()))
+    extra = ids[~np.isin(ids, known)]
+    own = split_scenes(extra, fractions, seed) if len(extra) >= 3 else {"train": extra}
+    return {name: np.sort(np.concatenate([ids[np.isin(ids, split[name])], own.get(name, np.zeros(0, np.int64))]))
+            for name in split}
 
 
 def train_boosted(arrays: dict, *, fingerprint: str, fingerprints: dict | None = None,
-                  config: BoostedConfig | None = None, progress: bool = False) -> BoostedTrainingResult:
+                  config: BoostedConfig | None = None, progress: bool = False,
+                  plan_arrays: dict | None = None, plan_source: dict | None = None) -> BoostedTrainingResult:
     """Trains the boosted capability model on a dataset's arrays (one row per executed trial;
-    topology switches are left out, as for the networks) and scores it on the test scenes."""
+    topology switches are left out, as for the networks) and scores it on the test scenes.
+
+    ``plan_arrays`` (dataset.load_plan_arrays: missions labelled by the BLC alone, the plan
+    chains') adds a binary plan learner beside each outcome learner, trained on whether the BLC
+    planned, from the executed records and the chains' records: the model's no-plan is then
+    the plan learner's, and walked and failed share the rest as the outcome learner shares
+    them (``with_plan``). The outcome learners are those trained without it (the same
+    bootstraps and seeds). The chains' scenes follow the outcome learners' split
+    (``plan_split``); the card's ``test_plan`` scores no plan on the chains' test scenes with
+    and without the plan learners. ``plan_source``: what the card says of where the chains'
+    records came from (their dataset's path and fingerprint)."""
     from qz_drake.capability.dataset import check_arrays
     from qz_drake.capability.training import ENSEMBLE_SEED_STEP, split_scenes
     from qz_drake.progress import ProgressReport
@@ -667,29 +734,52 @@ def train_boosted(arrays: dict, *, fingerprint: str, fingerprints: dict | None =
     if not isinstance(fingerprint, str) or not fingerprint:
         raise bad_value("dataset.manifest.fingerprint", fingerprint, "expected a non-empty string")
     check_arrays(arrays)
-    keep = np.asarray(arrays["kind"]).astype(str) != "switch"
-    arrays = {key: (np.asarray(v)[keep] if np.ndim(v) and len(v) == len(keep) else v) for key, v in arrays.items()}
+    arrays = _without_switches(arrays)
     split = split_scenes(arrays["scene"], config.split, config.seed)
     scene = np.asarray(arrays["scene"], dtype=np.int64)
     rows = {name: np.flatnonzero(np.isin(scene, ids)) for name, ids in split.items()}
     Xv, yv = record_features(arrays, rows["validation"])
     rng = np.random.default_rng(config.seed)
-    members, info = [], []
+    planning = plan_arrays is not None
+    if planning:
+        plan_arrays = _without_switches(plan_arrays)
+        plan_scene = np.asarray(plan_arrays["scene"], dtype=np.int64)
+        psplit = plan_split(split, plan_scene, config.split, config.seed)
+        prows = {name: np.flatnonzero(np.isin(plan_scene, ids)) for name, ids in psplit.items()}
+        parts = [record_features(arrays, rows["validation"], labels="plan"),
+                 record_features(plan_arrays, prows["validation"], labels="plan")]
+        Xpv, ypv = np.concatenate([a for a, _ in parts]), np.concatenate([b for _, b in parts])
+        if len(ypv) == 0:
+            raise bad_value("plan_dataset", "no validation scenes", "the plan learner needs validation records")
+        plan_rng = np.random.default_rng(config.seed + PLAN_SEED_OFFSET)
+    members, info, plan_members, plan_info = [], [], [], []
     start = time.perf_counter()
-    with ProgressReport("training boosted learners", config.members, unit="learners", enabled=progress) as report:
+    with ProgressReport("training boosted learners", config.members * (2 if planning else 1), unit="learners",
+                        enabled=progress) as report:
         for m in range(config.members):
             if config.members == 1:
                 train_rows = rows["train"]
             else:  # a bootstrap of whole training scenes
-                drawn = rng.choice(split["train"], size=len(split["train"]), replace=True)
-                by_scene = {s: np.flatnonzero(scene == s) for s in np.unique(drawn)}
-                train_rows = np.concatenate([by_scene[s] for s in drawn])
+                train_rows = _bootstrap_rows(rng, split["train"], scene)
             X, y = record_features(arrays, train_rows, mirror=config.mirror)
             trees, best, loss = _fit_member(X, y, Xv, yv, config, config.seed + ENSEMBLE_SEED_STEP * m)
             members.append(trees)
             info.append({"iterations": best, "validation_log_loss": loss, "train_rows": int(len(y))})
             report.update(advance=1, status=f"learner {m + 1}: {best} iterations")
-    model = BoostedCapabilityModel(members, {"fingerprint": fingerprint})
+            if not planning:
+                continue
+            chain_rows = (prows["train"] if config.members == 1
+                          else _bootstrap_rows(plan_rng, psplit["train"], plan_scene))
+            parts = [record_features(arrays, train_rows, mirror=config.mirror, labels="plan"),
+                     record_features(plan_arrays, chain_rows, mirror=config.mirror, labels="plan")]
+            X, y = np.concatenate([a for a, _ in parts]), np.concatenate([b for _, b in parts])
+            trees, best, loss = _fit_member(X, y, Xpv, ypv, config,
+                                            config.seed + PLAN_SEED_OFFSET + ENSEMBLE_SEED_STEP * m, PLAN_OUTCOMES)
+            plan_members.append(trees)
+            plan_info.append({"iterations": best, "validation_log_loss": loss, "train_rows": int(len(y)),
+                              "chain_rows": int(len(parts[1][1]))})
+            report.update(advance=1, status=f"plan learner {m + 1}: {best} iterations")
+    model = BoostedCapabilityModel(members, {"fingerprint": fingerprint}, plan_members=plan_members)
     card = {"learner": LEARNER, "fingerprint": fingerprint, "fingerprints": dict(fingerprints or {}),
             "config": dataclasses.asdict(config), "split": {k: v.tolist() for k, v in split.items()},
             "features": list(FEATURE_NAMES), "outcomes": list(OUTCOMES), "members": info,
@@ -697,7 +787,28 @@ def train_boosted(arrays: dict, *, fingerprint: str, fingerprints: dict | None =
             "n": {name: int(len(r)) for name, r in rows.items()}}
     card["test"] = test_scores(model, arrays, rows)
     card["cards"] = network_cards(arrays, rows)
-    return BoostedTrainingResult(members, card)
+    if planning:
+        alone = BoostedCapabilityModel(members, {"fingerprint": fingerprint})
+        card["plan_learner"] = {"members": plan_info, "source": dict(plan_source or {}),
+                                "split": {k: v.tolist() for k, v in psplit.items()},
+                                "n": {name: int(len(r)) for name, r in prows.items()}}
+        card["test_plan"] = {"with_plan_learners": plan_test_scores(model, plan_arrays, prows["test"]),
+                             "outcome_learners_alone": plan_test_scores(alone, plan_arrays, prows["test"]),
+                             "executed_outcome_learners_alone": test_scores(alone, arrays, rows)}
+    return BoostedTrainingResult(members, card, plan_members)
+
+
+def plan_test_scores(model, plan_arrays: dict, test: np.ndarray, bins: int = 10) -> dict:
+    """How the model's no-plan ranks and is calibrated on the test rows of missions labelled by
+    the BLC alone (AUC, Brier, ECE of P(no plan) against the BLC's refusals)."""
+    from qz_drake.capability.evaluation import binary_metrics
+
+    if len(test) == 0:
+        return {}
+    X, planned = record_features(plan_arrays, test, labels="plan")
+    no_plan = model.outcomes_of_features(X)[:, 1]
+    return {"n": int(len(planned)), "refused": int(np.sum(planned == 0)),
+            "no_plan": binary_metrics(planned == 0, no_plan, bins=bins)}
 
 
 def network_cards(arrays: dict, rows: dict) -> dict:
@@ -762,10 +873,19 @@ class BoostedCapabilityModel(CapabilityModelBase):
     # Each query's answer is its own (no batch statistics): predict_map may take a map in bands.
     queries_independent = True
 
-    def __init__(self, members: list, card: dict, device: str | None = None):
+    def __init__(self, members: list, card: dict, device: str | None = None, plan_members: list | None = None):
         if not members:
             raise ConfigError("a boosted capability model needs at least one learner")
         self._members = list(members)
+        # Binary learners of whether the BLC plans, one beside each outcome learner (trained on
+        # the plan chains' labels too: train_boosted's plan_arrays); none: the outcome learners'
+        # own no-plan.
+        self._plan_members = list(plan_members or [])
+        if self._plan_members and len(self._plan_members) != len(self._members):
+            raise ConfigError(f"a boosted capability model needs a plan learner beside each of its "
+                              f"{len(self._members)} learners, not {len(self._plan_members)}")
+        if any(int(t.roots.shape[1]) != 1 for t in self._plan_members):
+            raise ConfigError("a boosted capability model's plan learners are binary (one score a tree)")
         self.card = dict(card)
         self.device = "cpu"
         covered = self.card.get("cards")
@@ -792,9 +912,13 @@ class BoostedCapabilityModel(CapabilityModelBase):
             if count < 1:
                 raise _error("model.members_count", top.get("members_count"), "expected a positive count")
             members = [Trees.from_arrays(data, f"m{m}_") for m in range(count)]
+            plans = int(top.get("plan_members_count", 0))
+            if plans not in (0, count):
+                raise _error("model.plan_members_count", plans, f"expected 0 or {count} (one beside each learner)")
+            plan_members = [Trees.from_arrays(data, f"p{m}_") for m in range(plans)]
         if list(top.get("features", [])) != list(FEATURE_NAMES):
             raise _error("model.features", top.get("features"), "this code computes other features")
-        return cls(members, top, device=device)
+        return cls(members, top, device=device, plan_members=plan_members)
 
     @property
     def identity(self) -> str:
@@ -806,12 +930,24 @@ class BoostedCapabilityModel(CapabilityModelBase):
         return list(self._members)
 
     @property
+    def plan_members(self) -> list:
+        """The plan learners beside the members (empty: the members' own no-plan)."""
+        return list(self._plan_members)
+
+    @property
     def scorer(self) -> "ForestScorer | None":
         """Every member's trees as one ForestScorer (built on first use), None where a tree
         has more leaves than it takes (then each member's trees are walked node by node)."""
         if not hasattr(self, "_scorer"):
             self._scorer = ForestScorer.of(self._members)
         return self._scorer
+
+    @property
+    def plan_scorer(self) -> "ForestScorer | None":
+        """The plan learners' ForestScorer (as ``scorer``); None without plan learners."""
+        if not hasattr(self, "_plan_scorer"):
+            self._plan_scorer = ForestScorer.of(self._plan_members) if self._plan_members else None
+        return self._plan_scorer
 
     def network(self, topology: str, kind: str):
         """(topology, kind) if the model covers it; the model's error naming it otherwise."""
@@ -827,12 +963,18 @@ class BoostedCapabilityModel(CapabilityModelBase):
         X = np.asarray(X, dtype=np.float64)
         first, inverse = distinct_rows(X)
         unique = np.ascontiguousarray(X[first])
-        scorer = self.scorer
+        scorer, plan_scorer = self.scorer, self.plan_scorer
 
         def rows(part):
             if scorer is not None:
-                return scorer.probabilities(part)
-            return np.stack([m.probabilities(part) for m in self._members])
+                outcomes = scorer.probabilities(part)
+            else:
+                outcomes = np.stack([m.probabilities(part) for m in self._members])
+            if not self._plan_members:
+                return outcomes
+            raw = (plan_scorer.raw(part) if plan_scorer is not None
+                   else np.stack([m.raw(part) for m in self._plan_members]))
+            return with_plan(outcomes, sigmoid(raw[..., 0]))
 
         return _over_free_cores(rows, unique, len(unique), axis=1)[:, inverse]
 
@@ -845,13 +987,23 @@ class BoostedCapabilityModel(CapabilityModelBase):
         wide = np.concatenate([rows[:, 0, :SHARED_FEATURES], rows[:, :, SHARED_FEATURES:].reshape(n, -1)], axis=1)
         first, inverse = distinct_rows(wide)
         unique = rows[first]
-        scorer = self.scorer
+        scorer, plan_scorer = self.scorer, self.plan_scorer
 
         def groups(part):
+            shared, variants = part[:, 0, :SHARED_FEATURES], part[:, :, SHARED_FEATURES:]
             if scorer is not None:
-                return softmax(scorer.raw_grouped(part[:, 0, :SHARED_FEATURES], part[:, :, SHARED_FEATURES:]))
-            flat = part.reshape(-1, width)
-            return np.stack([m.probabilities(flat) for m in self._members]).reshape(-1, len(part), V, 3)
+                outcomes = softmax(scorer.raw_grouped(shared, variants))
+            else:
+                flat = part.reshape(-1, width)
+                outcomes = np.stack([m.probabilities(flat) for m in self._members]).reshape(-1, len(part), V, 3)
+            if not self._plan_members:
+                return outcomes
+            if plan_scorer is not None:
+                raw = plan_scorer.raw_grouped(shared, variants)[..., 0]
+            else:
+                flat = part.reshape(-1, width)
+                raw = np.stack([m.raw(flat)[:, 0] for m in self._plan_members]).reshape(-1, len(part), V)
+            return with_plan(outcomes, sigmoid(raw))
 
         return _over_free_cores(groups, unique, len(unique) * V, axis=1), inverse
 
@@ -926,13 +1078,16 @@ def save_boosted(result: BoostedTrainingResult, out_dir) -> Path:
     arrays = {}
     for m, trees in enumerate(result.members):
         arrays.update(trees.arrays(f"m{m}_"))
+    for m, trees in enumerate(result.plan_members):
+        arrays.update(trees.arrays(f"p{m}_"))
     def write(path):
         with open(path, "wb") as f:  # a file object: numpy would add ".npz" to the aside name
             np.savez_compressed(f, **arrays)
 
     _replace(folder / WEIGHTS_FILE, write)
     card = dict(result.card, format=MODEL_FORMAT, version=FORMAT_VERSION, weights=WEIGHTS_FILE,
-                members_count=len(result.members), weights_sha256=_sha256(folder / WEIGHTS_FILE))
+                members_count=len(result.members), weights_sha256=_sha256(folder / WEIGHTS_FILE),
+                **({"plan_members_count": len(result.plan_members)} if result.plan_members else {}))
     text = json.dumps(card, indent=1, sort_keys=True, default=_plain) + "\n"
     _replace(folder / MODEL_CARD, lambda path: Path(path).write_text(text))
     return folder

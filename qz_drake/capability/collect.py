@@ -273,6 +273,21 @@ def _crashed_episode(spec, message: str, config: TrialConfig) -> list[dict]:
     return [episode_error_record(spec, message)]
 
 
+def execute_plan_chain(spec, config: TrialConfig) -> list[dict]:
+    """What a worker runs for a plan chain (protocol "plans"): its records, one per command."""
+    from qz_drake.capability.plan_chains import run_plan_chain
+
+    _start_work(spec)
+    return run_plan_chain(spec, config)
+
+
+def _crashed_plan_chain(spec, message: str, config: TrialConfig) -> list[dict]:
+    """The error record of a plan chain whose worker died every time."""
+    from qz_drake.capability.plan_chains import plan_chain_error_record
+
+    return [plan_chain_error_record(spec, message)]
+
+
 def _crashed(spec: TrialSpec, message: str, config: TrialConfig) -> dict:
     """The error record of a trial whose worker died every time."""
     from qz_drake.capability.trials import base_record
@@ -328,7 +343,15 @@ class RayPool:
         self._ray.shutdown()
 
 
-PROTOCOLS = ("moves", "episodes")
+PROTOCOLS = ("moves", "episodes", "plans")
+# Protocols of chained missions: a spec per scene and topology (episodes.EpisodeSpec), a record
+# per mission; and what a worker runs for each protocol, and for a spec whose worker died.
+CHAINED = ("episodes", "plans")
+
+
+def _protocol_functions(protocol: str):
+    return {"moves": (execute, _crashed), "episodes": (execute_episode, _crashed_episode),
+            "plans": (execute_plan_chain, _crashed_plan_chain)}[protocol]
 
 
 def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=None,
@@ -341,9 +364,11 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
     ``protocol`` "moves": one-move trials from a standing start (paper 000 III-B), every topology
     and kind per scene; "episodes": one episode of chained missions per scene and topology
     (capability/episodes.py, issue 37), a record per mission it set out on (its kinds are the
-    commands drawn, so ``kinds`` must be left out). ``limit`` stops after that many new trials
-    or episodes (the rest is left for a later resume); ``log_every`` > 0 prints a plain progress
-    line on stderr at most that often (seconds).
+    commands drawn, so ``kinds`` must be left out); "plans": one plan chain per scene and
+    topology, missions the BLC plans one after the other and nobody walks
+    (capability/plan_chains.py: labels of the BLC alone, status ``blc_only``). ``limit`` stops
+    after that many new trials, episodes or chains (the rest is left for a later resume);
+    ``log_every`` > 0 prints a plain progress line on stderr at most that often (seconds).
     """
     from qz_drake.capability.patches import KINDS
     from qz_drake.robot.topology import TOPOLOGY_NAMES
@@ -361,10 +386,10 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
     check_workers(workers)
     if protocol not in PROTOCOLS:
         raise bad_value("--protocol", protocol, f"expected one of {', '.join(PROTOCOLS)}")
-    episodes = protocol == "episodes"
+    episodes = protocol in CHAINED
     if episodes and kinds != tuple(KINDS):
         raise bad_value("--kinds", ",".join(kinds), "an episode's kinds are the commands it draws: leave "
-                                                    "--kinds out with --protocol episodes")
+                                                    f"--kinds out with --protocol {protocol}")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise bad_value("--seed", seed, "must be a whole number >= 0 (it seeds numpy's generators)")
     if isinstance(shard_size, bool) or not isinstance(shard_size, int) or shard_size < 1:
@@ -374,7 +399,7 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
     # An episode per scene and topology; a trial per scene, heading, topology and kind.
     per_scene = len(topologies) * (1 if episodes else config.headings_per_scene * len(kinds))
     if scenes * per_scene > MAX_TRIALS:
-        unit = "episodes" if episodes else "trials"
+        unit = _unit(protocol)
         field, value = ("--headings", config.headings_per_scene) if per_scene > MAX_TRIALS else ("--scenes", scenes)
         raise bad_value(field, value, f"{scenes} scenes x {per_scene:.3g} {unit} per scene = "
                                       f"{scenes * per_scene:.3g} {unit}; at most {MAX_TRIALS:.3g} in one collection")
@@ -401,7 +426,7 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
         buffer: list[dict] = []
         counts = {"ran": 0, "errors": 0, "invalid": 0}
         monitor = _Progress(len(todo), enabled=progress, log_every=log_every,
-                            unit="episodes" if episodes else "trials")
+                            unit=_unit(protocol))
 
         def on_record(result):
             # A trial's record, or an episode's records (its first tells how it started).
@@ -419,7 +444,7 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
 
         pool = None
         previous = _raise_on_sigterm()
-        function, crashed = (execute_episode, _crashed_episode) if episodes else (execute, _crashed)
+        function, crashed = _protocol_functions(protocol)
         try:
             if todo:
                 pool = RayPool(ray_address, config, max_retries, function=function, crashed=crashed) \
@@ -439,6 +464,10 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
                              errors=counts["errors"], invalid_starts=counts["invalid"],
                              retries=pool.retries if pool else 0,
                              wall_time_s=time.perf_counter() - clock)
+
+
+def _unit(protocol: str) -> str:
+    return {"moves": "trials", "episodes": "episodes", "plans": "chains"}[protocol]
 
 
 def _raise_on_sigterm():
@@ -464,6 +493,7 @@ class _Progress:
 
     def __init__(self, total: int, enabled: bool, log_every: float = 0.0, unit: str = "trials"):
         self.enabled = enabled and total > 0
+        self.unit = unit
         self.rates: dict[tuple[str, str], list[int]] = {}
         self.log = _ProgressLog(total, log_every, self.rates, unit) if log_every > 0 and total > 0 else None
         if not self.enabled:
@@ -488,7 +518,8 @@ class _Progress:
     def _render(self):
         from rich.table import Table
 
-        table = Table(title="success so far (executed trials)", show_edge=False)
+        table = Table(title="planned so far (plan chains)" if self.unit == "chains" else
+                      "success so far (executed trials)", show_edge=False)
         table.add_column("topology")
         kinds = sorted({k for _, k in self.rates})
         for kind in kinds:
@@ -502,10 +533,12 @@ class _Progress:
         return self._group(self._progress, table)
 
     def count(self, record: dict) -> None:
-        """Counts an executed record's outcome in the success rates (no step of the bar)."""
-        if record["status"] == "executed":
+        """Counts an executed record's outcome in the success rates, a plan chain's record's
+        plan (blc_success: a chain walks nothing), without a step of the bar."""
+        label = {"executed": "success", "blc_only": "blc_success"}.get(record["status"])
+        if label is not None:
             entry = self.rates.setdefault((record["topology"], record["kind"]), [0, 0])
-            entry[0] += bool(record["success"])
+            entry[0] += bool(record[label])
             entry[1] += 1
 
     def update(self, record: dict) -> None:
@@ -545,9 +578,10 @@ class _ProgressLog:
         ok = sum(v[0] for v in self.rates.values())
         executed = sum(v[1] for v in self.rates.values())
         eta = (self.total - self.done) / rate if rate > 0 else float("inf")
-        success = f"{100 * ok / executed:.0f} % of {executed} executed" if executed else "none executed"
+        what = ("planned", "labelled") if self.unit == "chains" else ("success", "executed")
+        success = f"{100 * ok / executed:.0f} % of {executed} {what[1]}" if executed else f"none {what[1]}"
         print(f"{self.unit} {self.done}/{self.total} ({100 * self.done / self.total:.1f} %), "
-              f"{3600 * rate:.0f}/h, ETA {eta / 3600:.1f} h, success {success}",
+              f"{3600 * rate:.0f}/h, ETA {eta / 3600:.1f} h, {what[0]} {success}",
               file=sys.stderr, flush=True)
 
 
@@ -569,7 +603,7 @@ class Recertification:
     # Mismatches that the certified code, re-run here (``reference_code``), reproduces exactly
     # as the new code does: the stored record is the processor that collected it, not the code.
     machine_differences: list = dataclasses.field(default_factory=list)
-    # What was re-run: "trials" (one record each) or "episodes" (a record per mission).
+    # What was re-run: "trials" (one record each), "episodes" or "chains" (a record per mission).
     unit: str = "trials"
 
 
@@ -668,7 +702,10 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
     from qz_drake.capability.trials import TIME_FIELDS
 
     settings = dict(manifest.get("settings", {}))
-    episodes = settings.pop("protocol", "moves") == "episodes"
+    protocol = settings.pop("protocol", "moves")
+    if protocol not in PROTOCOLS:
+        raise bad_value("dataset.settings.protocol", protocol, f"expected one of {', '.join(PROTOCOLS)}")
+    episodes = protocol in CHAINED
     try:
         config = TrialConfig(**settings)
     except TypeError as e:
@@ -692,7 +729,7 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
                            str(arrays["kind"][i])) for i in positions]
         stored = {int(arrays["index"][i]): [{k: v[i:i + 1] for k, v in arrays.items()}] for i in positions}
     rerun: dict[int, list] = {}
-    function, crashed = (execute_episode, _crashed_episode) if episodes else (execute, _crashed)
+    function, crashed = _protocol_functions(protocol)
     pool = LocalPool(min(workers, len(specs)), config, 0, function, crashed) if specs else None
     try:
         if pool is not None:
@@ -729,7 +766,7 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
     if mismatches and reference_code is not None:
         indices = [m["index"] for m in mismatches]
         reference = _run_with_code(reference_code, [s for s in specs if s.index in indices], settings, old,
-                                   episodes=episodes)
+                                   protocol=protocol)
         for m in list(mismatches):
             here = differing_fields(reference[m["index"]], records_to_arrays(rerun[m["index"]]),
                                     skip=TIME_FIELDS)
@@ -749,7 +786,7 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
         write_manifest(path, manifest)
     return Recertification(str(path), changed, len(stored), not mismatches, mismatches, before,
                            after if not mismatches else before, time.perf_counter() - clock,
-                           largest, machine, "episodes" if episodes else "trials")
+                           largest, machine, _unit(protocol))
 
 
 # Run by _run_with_code in a fresh interpreter whose qz_drake is the reference tree's.
@@ -766,22 +803,25 @@ if root not in Path(qz_drake.__file__).resolve().parents:
     sys.exit(f"--reference-code = {str(root)!r}: its qz_drake is not the one imported ({qz_drake.__file__})")
 config = TrialConfig(**job["settings"])
 parts = fingerprints(config)
-episodes = job.get("episodes", False)
+protocol = job.get("protocol", "episodes" if job.get("episodes") else "moves")
 for key in sorted(set(parts) | set(job["fingerprints"])):
     if parts.get(key) != job["fingerprints"].get(key):
         sys.exit(f"--reference-code = {str(root)!r}: its {key} fingerprint {parts.get(key)!r} is not the "
                  f"manifest's {job['fingerprints'].get(key)!r} (not the certified code)")
-if episodes:
-    from qz_drake.capability.collect import execute_episode
+if protocol in ("episodes", "plans"):
     from qz_drake.capability.episodes import EpisodeSpec
-    records = [r for spec in job["specs"] for r in execute_episode(EpisodeSpec(*spec), config)]
+    if protocol == "plans":
+        from qz_drake.capability.collect import execute_plan_chain as execute_chain
+    else:
+        from qz_drake.capability.collect import execute_episode as execute_chain
+    records = [r for spec in job["specs"] for r in execute_chain(EpisodeSpec(*spec), config)]
 else:
     records = [run_trial(TrialSpec(*spec), config) for spec in job["specs"]]
 np.savez(job["out"], **records_to_arrays(records))
 """
 
 
-def _run_with_code(root, specs, settings: dict, fingerprints_expected: dict, episodes: bool = False) -> dict:
+def _run_with_code(root, specs, settings: dict, fingerprints_expected: dict, protocol: str = "moves") -> dict:
     """index -> the record arrays of each spec run by the code in the source tree ``root`` (a
     fresh interpreter with ``root`` first on its path; an episode's records, one row per
     mission), after checking that the tree has the expected fingerprints. Raises a ConfigError
@@ -800,8 +840,8 @@ def _run_with_code(root, specs, settings: dict, fingerprints_expected: dict, epi
         raise bad_value("--reference-code", str(root), "not a source tree with a qz_drake package")
     with tempfile.TemporaryDirectory() as tmp:
         job = {"root": str(root), "settings": settings, "fingerprints": fingerprints_expected,
-               "episodes": episodes,
-               "specs": [[s.seed, s.index, s.scene, s.topology] if episodes else
+               "episodes": protocol == "episodes", "protocol": protocol,
+               "specs": [[s.seed, s.index, s.scene, s.topology] if protocol in CHAINED else
                          [s.seed, s.index, s.scene, s.heading_sample, s.topology, s.kind] for s in specs],
                "out": str(Path(tmp) / "reference.npz")}
         (Path(tmp) / "job.json").write_text(json.dumps(job))

@@ -43,7 +43,8 @@ MANIFEST = "manifest.json"
 # stack (the learned model and the planners that use it, reachable from qz_drake.simulation's
 # capplanner controller only). A new module is fingerprinted unless it falls under one of
 # these. Each module belongs to the first component whose prefix it matches.
-FINGERPRINT_ROOTS = ("qz_drake.capability.trials", "qz_drake.capability.episodes", "qz_drake.simulation",
+FINGERPRINT_ROOTS = ("qz_drake.capability.trials", "qz_drake.capability.episodes",
+                     "qz_drake.capability.plan_chains", "qz_drake.simulation",
                      "qz_drake.systems.blc", "qz_drake.systems.blc_plan")
 UNFINGERPRINTED = ("qz_drake.viz", "qz_drake.cli", "qz_drake.bench", "qz_drake.hardware",
                    "qz_drake.planning",
@@ -291,6 +292,7 @@ class TrialStore:
             "executed": int(np.count_nonzero(arrays["status"] == "executed")),
             "errors": int(np.count_nonzero(arrays["status"] == "error")),
             "invalid": int(np.count_nonzero(arrays["status"] == "invalid")),
+            **({"blc_only": n} if (n := int(np.count_nonzero(arrays["status"] == "blc_only"))) else {}),
         })
         self._write_manifest()
         return self.path / name
@@ -415,9 +417,9 @@ def load_records(path) -> tuple[dict[str, np.ndarray], dict]:
         empty.update({k: np.zeros(0) for k in TIME_FIELDS})
         return empty, manifest
     arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    # An episode (protocol "episodes") stores a record per mission: index, then the mission's
-    # place in the chain (heading_sample), identify a record.
-    episodes = manifest.get("settings", {}).get("protocol") == "episodes"
+    # An episode (protocol "episodes") or a plan chain ("plans") stores a record per mission:
+    # index, then the mission's place in the chain (heading_sample), identify a record.
+    episodes = manifest.get("settings", {}).get("protocol") in ("episodes", "plans")
     second = arrays["heading_sample"] if episodes else np.zeros_like(arrays["index"])
     order = np.lexsort((second, arrays["index"]))
     arrays = {k: v[order] for k, v in arrays.items()}
@@ -437,6 +439,25 @@ def load_training_arrays(path) -> tuple[dict[str, np.ndarray], dict]:
     scene_kind, topology, kind; and the manifest (with ``fingerprint`` and ``fingerprints``)."""
     arrays, manifest = load_records(path)
     keep = arrays["status"] == "executed"
+    chained = int(np.count_nonzero(arrays["status"] == "blc_only"))
+    if chained and not keep.any():
+        raise bad_value("dataset", str(path), f"has no executed missions, only {chained} labelled by the BLC "
+                                              "alone (a plan chain walks nothing: no execution label to learn)")
+    names = ("patch", "feet", "direction", "success", "blc_success", "scene", "scene_kind",
+             "topology", "kind", "index", "reason", "difficulty")
+    return {k: arrays[k][keep] for k in names}, manifest
+
+
+def load_plan_arrays(path) -> tuple[dict[str, np.ndarray], dict]:
+    """The missions of a dataset labelled by the BLC alone (status ``blc_only``: a plan chain
+    collection, ``--protocol plans``) as the learners' arrays, as load_training_arrays gives the
+    executed ones (``success`` there means nothing; ``blc_success`` is the label); and the
+    manifest. A dataset with none is refused."""
+    arrays, manifest = load_records(path)
+    keep = arrays["status"] == "blc_only"
+    if not keep.any():
+        raise bad_value("plan dataset", str(path), "has no missions labelled by the BLC alone (collect one with "
+                                                   "--protocol plans)")
     names = ("patch", "feet", "direction", "success", "blc_success", "scene", "scene_kind",
              "topology", "kind", "index", "reason", "difficulty")
     return {k: arrays[k][keep] for k in names}, manifest

@@ -163,8 +163,9 @@ DIFFICULTY_BINS = ((0.0, 1 / 3, "easy"), (1 / 3, 2 / 3, "medium"), (2 / 3, 1.01,
 
 
 def dataset_stats(path) -> dict:
-    """Per topology and kind: executed trials, successes, BLC-only successes, errors; per
-    scene kind too; and the manifest's fingerprints."""
+    """Per topology and kind: executed trials, successes, BLC-only successes, errors, and the
+    plan chains' missions labelled by the BLC alone (``blc_only``, of them ``blc_only_planned``);
+    per scene kind too; and the manifest's fingerprints."""
     from qz_drake.capability.dataset import load_records
 
     arrays, manifest = load_records(path)
@@ -178,10 +179,13 @@ def dataset_stats(path) -> dict:
                 continue
             ok = ex & arrays["success"]
             blc = ex & arrays["blc_success"]
+            chained = sel & (arrays["status"] == "blc_only")
             rows.append({"topology": topology, "kind": kind, "executed": int(ex.sum()),
                          "successes": int(ok.sum()), "blc_successes": int(blc.sum()),
                          "errors": int((sel & (arrays["status"] == "error")).sum()),
                          "invalid_starts": int((sel & (arrays["status"] == "invalid")).sum()),
+                         "blc_only": int(chained.sum()),
+                         "blc_only_planned": int((chained & arrays["blc_success"]).sum()),
                          "success_rate": float(ok.sum() / ex.sum()) if ex.any() else None,
                          "blc_disagreement": float(np.mean(arrays["blc_success"][ex] != arrays["success"][ex]))
                          if ex.any() else None})
@@ -204,7 +208,13 @@ def dataset_stats(path) -> dict:
     reasons = {}
     for r in arrays["reason"][executed & ~arrays["success"]].tolist():
         reasons[r] = reasons.get(r, 0) + 1
+    chained = arrays["status"] == "blc_only"
+    refusals = {}
+    for r in arrays["reason"][chained & ~arrays["blc_success"]].tolist():
+        refusals[r] = refusals.get(r, 0) + 1
     return {"dataset": str(path), "trials": int(len(arrays["index"])), "executed": int(executed.sum()),
+            "blc_only": int(chained.sum()), "blc_only_planned": int((chained & arrays["blc_success"]).sum()),
+            "blc_only_refusals": refusals,
             "errors": int((arrays["status"] == "error").sum()),
             "invalid_starts": int((arrays["status"] == "invalid").sum()),
             "successes": int(arrays["success"][executed].sum()),
@@ -285,6 +295,14 @@ def stats_markdown(stats: dict) -> str:
     for row in stats["kinds"]:
         lines.append(f"| {row['kind']} | {row['executed']} | {_percent(row['blc_solved_but_robot_failed'])} "
                      f"| {_percent(row['disagreement'])} |")
+    if stats.get("blc_only"):
+        lines += ["", f"{stats['blc_only']} missions labelled by the BLC alone (plan chains), "
+                      f"{stats['blc_only_planned']} planned.", "",
+                  "| topology | kind | labelled by the BLC alone | planned |", "| --- | --- | --- | --- |"]
+        for row in stats["rows"]:
+            if row["blc_only"]:
+                lines.append(f"| {row['topology']} | {row['kind']} | {row['blc_only']} "
+                             f"| {_percent(row['blc_only_planned'] / row['blc_only'])} |")
     total = sum(stats["failure_reasons"].values())
     lines += ["", "| failure reason | executed trials | share of failures |", "| --- | --- | --- |"]
     for reason, count in sorted(stats["failure_reasons"].items(), key=lambda item: -item[1]):

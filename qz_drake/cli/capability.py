@@ -35,7 +35,7 @@ from qz_drake.errors import bad_value
 
 # qz_drake.capability.collect.PROTOCOLS, here so that building the parser does not import the
 # trials (pydrake); tests/test_cli_imports.py keeps the two the same.
-PROTOCOLS = ("moves", "episodes")
+PROTOCOLS = ("moves", "episodes", "plans")
 LEARNERS = ("cnn", "boosted")
 # The finest plant step a collection may take. [s]
 MIN_TIME_STEP = 1e-4
@@ -91,11 +91,15 @@ def run_stats(args) -> int:
         print(stats.stats_markdown(summary))
         return 0
     print(f"{summary['dataset']}: {summary['executed']} executed, {summary['invalid_starts']} invalid starts, "
-          f"{summary['errors']} errors, {summary['successes']} successes")
+          f"{summary['errors']} errors, {summary['successes']} successes"
+          + (f"; {summary['blc_only']} labelled by the BLC alone, {summary['blc_only_planned']} planned"
+             if summary.get("blc_only") else ""))
     for row in summary["rows"]:
         rate = "-" if row["success_rate"] is None else f"{100 * row['success_rate']:.0f} %"
         print(f"  {row['topology']:>13} {row['kind']:>10}: {row['successes']}/{row['executed']} ({rate}), "
-              f"BLC alone {row['blc_successes']}, errors {row['errors']}")
+              f"BLC alone {row['blc_successes']}, errors {row['errors']}"
+              + (f", planned without walking {row['blc_only_planned']}/{row['blc_only']}"
+                 if row.get("blc_only") else ""))
     if summary["stairs_up"]:
         print("  up stairs (orthogonal and diagonal moves), per rise and topology:")
         for row in summary["stairs_up"]:
@@ -159,7 +163,9 @@ def register(subparsers) -> None:
     p.add_argument("--protocol", default="moves", choices=PROTOCOLS,
                    help="moves: one-move trials from a standing start (paper 000), every topology and "
                         "kind per scene; episodes: per scene and topology a chain of the planner's "
-                        "actions walked like a walk, a record per mission (issue 37)")
+                        "actions walked like a walk, a record per mission (issue 37); plans: per scene "
+                        "and topology a chain of such actions planned by the BLC one after the other and "
+                        "never walked, a record per mission labelled by the BLC alone (status blc_only)")
     p.add_argument("--control-mode", default="torque",
                    help="how the joints are driven: torque (Eq. 7 in the controller, at 2 ms steps) or position "
                         "(Eq. 7's PD in the drives: the plant's implicit PD on the tracker's q and v)")
@@ -232,7 +238,7 @@ def _figures(entries: list[dict], out: Path, what: str) -> list[str]:
 def run_train(args) -> int:
     if args.learner == "boosted":
         return run_train_boosted(args)
-    for name in ("members", "max_iter"):
+    for name in ("members", "max_iter", "plan_dataset"):
         if getattr(args, name) is not None:
             raise bad_value(f"--{name.replace('_', '-')}", getattr(args, name),
                             "only the boosted learner takes it (--learner boosted)")
@@ -299,13 +305,27 @@ def run_train_boosted(args) -> int:
     from qz_drake.capability.boosted import OUTCOMES, BoostedConfig, save_boosted, train_boosted
 
     arrays, manifest = model_commands.load_dataset(args.dataset)
+    plan_arrays = plan_source = None
+    if args.plan_dataset is not None:
+        from qz_drake.capability.dataset import load_plan_arrays
+
+        plan_arrays, plan_manifest = load_plan_arrays(args.plan_dataset)
+        # One BLC-robot system labels both: the chains' plans must be the executed records' BLC's.
+        theirs, ours = plan_manifest.get("fingerprints", {}), manifest.get("fingerprints", {})
+        differ = [k for k in ("robot", "blc") if theirs.get(k) != ours.get(k)]
+        if differ:
+            raise bad_value("--plan-dataset", args.plan_dataset,
+                            f"its {' and '.join(differ)} fingerprint is not --dataset's: labelled by another BLC-robot "
+                            "system (recertify it, or collect it again with this code)")
+        plan_source = {"dataset": str(args.plan_dataset), "fingerprint": plan_manifest.get("fingerprint"),
+                       "records": int(len(plan_arrays["kind"]))}
     config = BoostedConfig(seed=args.seed)
     if args.members is not None:
         config.members = args.members
     if args.max_iter is not None:
         config.max_iter = args.max_iter
     result = train_boosted(arrays, fingerprint=manifest.get("fingerprint"), fingerprints=manifest.get("fingerprints"),
-                           config=config, progress=not args.json)
+                           config=config, progress=not args.json, plan_arrays=plan_arrays, plan_source=plan_source)
     out = save_boosted(result, args.out)
     test = result.card["test"]
     rows = [{"network": name, "n": scores["n"], **{o: scores["counts"][o] for o in OUTCOMES},
@@ -315,6 +335,10 @@ def run_train_boosted(args) -> int:
     summary = {"model": str(out), "learner": "boosted", "fingerprint": result.card["fingerprint"],
                "members": result.card["members"], "split_scenes": {k: len(v) for k, v in result.card["split"].items()},
                "test": rows}
+    if "test_plan" in result.card:
+        summary["plan_learner"] = result.card["plan_learner"]
+        summary["test_plan"] = {k: v for k, v in result.card["test_plan"].items()
+                                if k != "executed_outcome_learners_alone"}
     (out / "report.json").write_text(json.dumps(summary, indent=2))
     if args.json:
         print(json.dumps(summary))
@@ -333,6 +357,13 @@ def run_train_boosted(args) -> int:
     Console(width=max(console.width, 120) if not console.is_terminal else None).print(table)
     print("Brier: the three outcomes' (multi-class) Brier score; rate: the training outcome frequencies as a "
           f"constant; learners: {', '.join(str(m['iterations']) for m in result.card['members'])} iterations")
+    if "test_plan" in summary:
+        scores = summary["test_plan"]
+        both = [scores[k].get("no_plan", {}) for k in ("with_plan_learners", "outcome_learners_alone")]
+        print(f"No plan on the plan chains' test scenes ({scores['with_plan_learners'].get('n', 0)} missions): AUC "
+              f"{_fmt(both[0].get('auc'))} with the plan learners, {_fmt(both[1].get('auc'))} without; Brier "
+              f"{_fmt(both[0].get('brier'))} / {_fmt(both[1].get('brier'))}; plan learners: "
+              f"{', '.join(str(m['iterations']) for m in summary['plan_learner']['members'])} iterations")
     return 0
 
 
@@ -400,6 +431,10 @@ def register_model_commands(subparsers) -> None:
     p.add_argument("--max-iter", type=int, default=None,
                    help="most boosting iterations of each learner (default 400; each stops sooner when its "
                         "validation loss stops improving); only with --learner boosted")
+    p.add_argument("--plan-dataset", default=None,
+                   help="a plan chain dataset (collect --protocol plans) of the same BLC-robot system: a plan "
+                        "learner beside each boosted learner learns whether the BLC plans from its missions too; "
+                        "only with --learner boosted")
     p.set_defaults(func=run_train)
 
     p = subparsers.add_parser("evaluate", help="score a capability model on a trial dataset")

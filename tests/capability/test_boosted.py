@@ -308,3 +308,124 @@ def test_cli_trains_a_boosted_model(tmp_path, monkeypatch, capsys):
     assert "--members" in capsys.readouterr().err
     assert main(["capability", "train", "--dataset", "unused", "--out", str(out), "--members", "2"]) == 2
     assert "only the boosted learner" in capsys.readouterr().err
+
+
+def _plan_chain_data():
+    """Missions labelled by the BLC alone on other scenes (ids 1000 on): a rule the executed
+    records never show, a nominal start with its fourth foot 0.1 m up, is not planned."""
+    arrays, _ = synthetic_arrays(scenes=60, headings=6, topologies=("nominal", "split_up"),
+                                 kinds=("orthogonal", "diagonal", "turn"), failure_band=0.06, label_noise=0.0, seed=7)
+    arrays["scene"] = arrays["scene"] + 1000
+    raised = np.arange(len(arrays["scene"])) % 3 == 1
+    arrays["feet"][raised, 3, 2] += 0.1
+    arrays["blc_success"][raised & (arrays["topology"] == "nominal")] = False
+    arrays["success"][:] = False  # not walked: means nothing
+    arrays["direction"] = np.asarray(arrays["direction"])
+    return arrays
+
+
+@pytest.fixture(scope="module")
+def planned(trained, tmp_path_factory):
+    arrays, manifest, _, _, _ = trained
+    chains = _plan_chain_data()
+    result = B.train_boosted(arrays, fingerprint=manifest["fingerprint"], fingerprints=manifest["fingerprints"],
+                             config=B.BoostedConfig(members=2, max_iter=40, learning_rate=0.25),
+                             plan_arrays=chains, plan_source={"dataset": "synthetic"})
+    folder = B.save_boosted(result, tmp_path_factory.mktemp("planned"))
+    return chains, result, folder
+
+
+def test_plan_learners_learn_a_refusal_only_the_plan_chains_show(trained, planned):
+    arrays, _, _, alone_result, _ = trained
+    chains, result, folder = planned
+    # The outcome learners are those trained without the chains (same bootstraps and seeds).
+    for a, b in zip(result.members, alone_result.members):
+        for name, value in a.arrays().items():
+            np.testing.assert_array_equal(value, b.arrays()[name], err_msg=name)
+    assert len(result.plan_members) == 2 and all(t.roots.shape[1] == 1 for t in result.plan_members)
+    model = CapabilityModel.load(folder)
+    assert isinstance(model, B.BoostedCapabilityModel) and len(model.plan_members) == 2
+    alone = B.BoostedCapabilityModel(alone_result.members, alone_result.card)
+    # Flat orthogonal starts of the chains' test scenes, the fourth foot raised 0.1 m.
+    test = np.isin(chains["scene"], result.card["plan_learner"]["split"]["test"])
+    height = chains["patch"].max(axis=(1, 2)) - chains["patch"].min(axis=(1, 2))
+    rows = np.flatnonzero(test & (height < SYNTHETIC_MAX_STEP - 0.02) & (chains["kind"] == "orthogonal")
+                          & (np.arange(len(test)) % 3 != 1))
+    assert len(rows) > 10
+    feet = chains["feet"][rows].copy()
+    feet[:, 3, 2] += 0.1
+    with_plan = model.outcomes(chains["patch"][rows], feet, "orthogonal", "nominal")
+    without = alone.outcomes(chains["patch"][rows], feet, "orthogonal", "nominal")
+    assert with_plan[:, 1].mean() > 0.7 and without[:, 1].mean() < 0.3
+    np.testing.assert_allclose(with_plan.sum(axis=1), 1.0, atol=1e-12)
+    # Walked and failed share the rest as the outcome learners share them.
+    ratio = lambda p: p[:, 0] / (p[:, 0] + p[:, 2])  # noqa: E731
+    member = model.member_outcomes(B.features(chains["patch"][rows], feet, "orthogonal", "nominal"))
+    member_alone = alone.member_outcomes(B.features(chains["patch"][rows], feet, "orthogonal", "nominal"))
+    for m in range(2):
+        np.testing.assert_allclose(ratio(member[m]), ratio(member_alone[m]), rtol=1e-12)
+    # The card scores no plan on the chains' test scenes with and without the plan learners.
+    scores = result.card["test_plan"]
+    with_plan, without = scores["with_plan_learners"]["no_plan"], scores["outcome_learners_alone"]["no_plan"]
+    assert with_plan["auc"] > 0.99 and without["auc"] < 0.95, (with_plan["auc"], without["auc"])
+    assert with_plan["brier"] < 0.5 * without["brier"]
+    assert result.card["plan_learner"]["source"] == {"dataset": "synthetic"}
+    assert not set(result.card["plan_learner"]["split"]["test"]) & set(result.card["plan_learner"]["split"]["train"])
+
+
+def test_a_map_with_plan_learners_answers_each_query_as_on_its_own(planned, monkeypatch):
+    chains, _, folder = planned
+    model = CapabilityModel.load(folder)
+    rows = np.arange(100)
+    patches, feet = chains["patch"][rows].reshape(4, 25, 20, 20), chains["feet"][rows].reshape(4, 25, 6, 3)
+    whole = model.success_all(patches, {"nominal": feet, "split_up": feet[::-1]}, "turn")
+    monkeypatch.setenv("QZ_TORCH_THREADS", "1")
+    monkeypatch.setattr(B, "MAP_CHUNK", 7)
+    chunked = model.success_all(patches, {"nominal": feet, "split_up": feet[::-1]}, "turn")
+    for topology, f in (("nominal", feet), ("split_up", feet[::-1])):
+        for one, other in zip(whole[topology], chunked[topology]):
+            np.testing.assert_array_equal(one, other)
+        for d in (0, 1):
+            X = B.features(patches.reshape(100, 20, 20), f.reshape(100, 6, 3), "turn", topology, d)
+            probs = model.member_outcomes(X)
+            np.testing.assert_array_equal(whole[topology][0][d].reshape(100), probs[..., 0].mean(axis=0))
+            np.testing.assert_array_equal(whole[topology][1][d].reshape(100), (1.0 - probs[..., 1]).mean(axis=0))
+    # Node by node (no scorer) the same numbers.
+    X = B.features(patches.reshape(100, 20, 20), feet.reshape(100, 6, 3), "turn", "nominal", 0)
+    walked = B.BoostedCapabilityModel(model.members, model.card, plan_members=model.plan_members)
+    walked._scorer, walked._plan_scorer = None, None
+    np.testing.assert_allclose(walked.member_outcomes(X), model.member_outcomes(X), rtol=0, atol=1e-12)
+
+
+def test_plan_learners_are_checked_on_load_and_on_the_command_line(trained, planned, tmp_path, monkeypatch, capsys):
+    from qz_drake.capability import dataset, model_commands
+    from qz_drake.cli import main
+
+    chains, result, folder = planned
+    card = json.loads((folder / "model.json").read_text())
+    assert card["plan_members_count"] == 2
+    card["plan_members_count"] = 1
+    (folder / "model.json").write_text(json.dumps(card))
+    with pytest.raises(CapabilityModelError, match="plan_members_count"):
+        CapabilityModel.load(folder)
+    card["plan_members_count"] = 2
+    (folder / "model.json").write_text(json.dumps(card))
+    with pytest.raises(QzError, match="plan learner beside each"):
+        B.BoostedCapabilityModel(result.members, result.card, plan_members=result.plan_members[:1])
+    arrays, manifest, _, _, _ = trained
+    monkeypatch.setattr(model_commands, "load_dataset", lambda path: (arrays, manifest))
+    monkeypatch.setattr(dataset, "load_plan_arrays", lambda path: (chains, dict(manifest)))
+    out = tmp_path / "model"
+    assert main(["capability", "train", "--dataset", "d", "--plan-dataset", "p", "--out", str(out),
+                 "--learner", "boosted", "--members", "1", "--max-iter", "30", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["test_plan"]["with_plan_learners"]["n"] > 0
+    assert len(CapabilityModel.load(out).plan_members) == 1
+    # Chains labelled by another BLC are refused; the networks take no chains.
+    other = dict(manifest, fingerprints=dict(manifest["fingerprints"], blc="another"))
+    monkeypatch.setattr(dataset, "load_plan_arrays", lambda path: (chains, other))
+    assert main(["capability", "train", "--dataset", "d", "--plan-dataset", "p", "--out", str(out),
+                 "--learner", "boosted"]) == 2
+    assert "another BLC-robot system" in capsys.readouterr().err
+    assert main(["capability", "train", "--dataset", "d", "--plan-dataset", "p", "--out", str(out)]) == 2
+    assert "only the boosted learner" in capsys.readouterr().err

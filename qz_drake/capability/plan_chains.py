@@ -1,0 +1,218 @@
+"""Labels of the BLC alone (issues 53 and 54): chains of missions planned and never walked.
+
+Whether the BLC finds a plan for a mission needs no simulation: it is decided by the mission's
+start (the pose and the feet it plans from), its target and the map. A plan chain is an
+episode (capability/episodes.py) that the BLC plans without the robot walking it: from the
+scene's start, standing in one topology with perturbed feet, commands drawn like the planner's
+actions (forward along the heading, 45 deg turns, and before each, with SWITCH_PROBABILITY, a
+switch to another topology) are planned one after the other, each from the end state the plan
+before it expects (the BLC system's plan-ahead start, ``blc_plan.expected_end``). A refused
+mission leaves the robot standing where it was, as in a walk, and the chain goes on from there
+with another command (the refused one closed there until the robot moves or switches, as
+CapPlanner closes a refused action; a stance from which all three are refused ends the chain);
+so a chain also labels the stances a refusal leaves behind, which walks meet and one-move
+trials never do.
+
+Every mission is a record of status ``blc_only`` with the trials' fields: its inputs (height
+patch, start feet) and ``blc_success``, ``blc_reason``, ``blc_iterations``, ``reason`` (the
+refusal's failure code, "" for a plan). Whether a planned mission would have been *walked* is
+not measured: ``success`` is False and means nothing in these records; the simulated episodes
+label execution. A chain costs the BLC's solves and the scene's setup only, so it labels many
+more starts an hour (BENCHMARKS "capability").
+
+The BLC is the trials' (trial_blc_parameters: the first solve, no ladder, no retry), the
+mission timing theirs, the switch the BLC system's (plan_topology_switch from the standing
+robot). Unlike a simulated episode, a start whose trunk or legs would touch the terrain once
+the robot settles is not found (nothing settles); the feet are where the plan put them, not
+where the robot's would be. That difference shows: a plan learner fed 6 190 chain labels told
+the chains' held-out refusals better and walks' refusals a little worse (BENCHMARKS
+"capability", session 46).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+import traceback
+
+import numpy as np
+
+from qz_drake.capability.episodes import (COMMAND_WEIGHTS, EPISODE_HALF_SIZE, SCENE_EDGE_MARGIN,
+                                          SWITCH_PROBABILITY, EpisodeSpec, _mission_inputs, _record,
+                                          padded_scene_map)
+from qz_drake.capability.patches import HEADING_STEP, move_distance
+from qz_drake.capability.trials import TrialConfig, trial_blc_parameters
+from qz_drake.errors import ConfigError, QzError
+from qz_drake.robot.params import DEFAULT_PARAMS
+from qz_drake.robot.topology import TOPOLOGY_NAMES
+from qz_drake.verdict import blc_failure_code
+
+# Commands in a chain (moves and turns; switches come on top of them).
+CHAIN_MISSIONS = 8
+# The status of a chain's records: labelled by the BLC alone.
+BLC_ONLY = "blc_only"
+
+
+@dataclasses.dataclass(frozen=True)
+class ChainCommand:
+    """One command of a chain: its kind (orthogonal, diagonal, turn or switch), the turn's
+    direction (0 left, 1 right; -1 for a move; for a switch the TOPOLOGY_NAMES index of the
+    topology it switches from), the pose it ends in if planned (x, y, yaw) and its topology."""
+
+    kind: str
+    direction: int
+    target: tuple[float, float, float]
+    topology: str
+
+
+class _Commands:
+    """The chain's commands, drawn one at a time from where the robot stands (a refused move
+    leaves it in place), like episodes.episode_commands draws an episode's."""
+
+    def __init__(self, spec: EpisodeSpec, half_size: float):
+        self.rng = np.random.default_rng([spec.seed, spec.scene, spec.index, 0xB1C0])
+        self.limit = half_size - SCENE_EDGE_MARGIN
+        self.names = list(COMMAND_WEIGHTS)
+        weights = np.array([COMMAND_WEIGHTS[n] for n in self.names])
+        self.p = weights / weights.sum()
+
+    def start(self) -> int:
+        return int(self.rng.integers(0, 8))
+
+    def switch(self, first: bool, x: float, y: float, h: int, topology: str) -> ChainCommand | None:
+        if first or self.rng.random() >= SWITCH_PROBABILITY:
+            return None
+        others = [t for t in TOPOLOGY_NAMES if t != topology]
+        new = others[int(self.rng.integers(0, len(others)))]
+        return ChainCommand("switch", TOPOLOGY_NAMES.index(topology), (x, y, h * HEADING_STEP), new)
+
+    def move(self, x: float, y: float, h: int, topology: str,
+             refused: frozenset = frozenset()) -> tuple[ChainCommand | None, int, str]:
+        """(the command, the heading index it ends in, its name: forward, left or right), drawn
+        among the commands not ``refused`` from this stance already (as CapPlanner closes a
+        refused action: the same mission from the same start is refused again); (None, h, "")
+        when every one is."""
+        open_ = [k for k, n in enumerate(self.names) if n not in refused]
+        if not open_:
+            return None, h, ""
+        p = self.p[open_] / self.p[open_].sum()
+        command = self.names[open_[int(self.rng.choice(len(open_), p=p))]]
+        yaw = h * HEADING_STEP
+        if command == "forward":
+            kind = "diagonal" if h % 2 else "orthogonal"
+            d = move_distance(kind)
+            nx, ny = x + d * math.cos(yaw), y + d * math.sin(yaw)
+            if max(abs(nx), abs(ny)) <= self.limit:
+                return ChainCommand(kind, -1, (nx, ny, yaw), topology), h, command
+            turns = [t for t in ("left", "right") if t not in refused]
+            if not turns:
+                return None, h, ""
+            command = turns[0] if len(turns) == 1 else ("left" if self.rng.random() < 0.5 else "right")
+        h = (h + (1 if command == "left" else -1)) % 8
+        return ChainCommand("turn", 0 if command == "left" else 1, (x, y, h * HEADING_STEP), topology), h, command
+
+
+def run_plan_chain(spec: EpisodeSpec, config: TrialConfig = TrialConfig()) -> list[dict]:
+    """Plans a chain (see the module docstring); returns one ``blc_only`` record per command,
+    a switch included (a refused switch leaves the robot in its topology, and the next command
+    is drawn for that). A start the topology cannot stand on gives one ``invalid`` record; a
+    crash adds one ``error`` record after the labels before it (never raised)."""
+    from qz_drake.capability.scenes import scene_for
+    from qz_drake.config import MissionTiming
+    from qz_drake.robot.topology import get_topology
+    from qz_drake.scene import standing_state
+    from qz_drake.systems.blc_plan import blc_mission_planner, expected_end
+    from qz_drake.systems.mission_sequencer import measured_start
+    from qz_drake.systems.topology_switch import plan_topology_switch
+
+    clock = time.perf_counter()
+    scene = scene_for(spec.seed, spec.scene)
+    hm = padded_scene_map(scene.heightmap, EPISODE_HALF_SIZE)
+    scene = dataclasses.replace(scene, heightmap=hm)
+    draw = _Commands(spec, EPISODE_HALF_SIZE)
+    h = draw.start()
+    offsets = np.random.default_rng([spec.seed, spec.scene, spec.index, 0xB1C1]).uniform(
+        -config.foot_offset, config.foot_offset, (6, 2))
+    records: list[dict] = []
+    first = _record(spec, scene, 0, ChainCommand("turn", 0, (0.0, 0.0, h * HEADING_STEP), spec.topology))
+    first.update(status=BLC_ONLY, heading=h * HEADING_STEP)
+    try:
+        try:
+            x0 = standing_state(hm, get_topology(spec.topology, DEFAULT_PARAMS), (0.0, 0.0), h * HEADING_STEP,
+                                DEFAULT_PARAMS, foot_offsets=offsets)
+        except QzError as e:
+            first.update(status="invalid", error=f"start not standable: {e}"[:400],
+                         time_total_s=time.perf_counter() - clock)
+            return [first]
+        planner = blc_mission_planner(hm, DEFAULT_PARAMS, MissionTiming(speed=config.speed,
+                                                                       phase_duration=config.phase_duration),
+                                      trial_blc_parameters(config))
+        start = measured_start(x0, 0.0, DEFAULT_PARAMS)
+        x = y = 0.0
+        topology = spec.topology
+        position = 0
+        refused: set[str] = set()  # commands refused from the stance the robot stands in
+        for k in range(CHAIN_MISSIONS):
+            switch = draw.switch(k == 0, x, y, h, topology)
+            if switch is not None:
+                record = _record(spec, scene, position, switch)
+                position += 1
+                _mission_inputs(record, hm, start.xy_yaw, start.feet_W)
+                solve = time.perf_counter()
+                try:
+                    plan = plan_topology_switch(heightmap=hm, start=start,
+                                                from_topology=get_topology(topology, DEFAULT_PARAMS),
+                                                to_topology=get_topology(switch.topology, DEFAULT_PARAMS),
+                                                start_time=start.time, params=DEFAULT_PARAMS)
+                except ConfigError as e:
+                    reason = f"topology switch {topology} -> {switch.topology}: {e}"
+                    record.update(status=BLC_ONLY, reason=blc_failure_code(reason), message=reason[:200],
+                                  blc_success=False, blc_reason=reason[:200],
+                                  time_solve_s=time.perf_counter() - solve)
+                    records.append(record)  # the robot keeps its topology
+                else:
+                    record.update(status=BLC_ONLY, blc_success=True, time_solve_s=time.perf_counter() - solve)
+                    records.append(record)
+                    start, topology = expected_end(plan), switch.topology
+                    refused.clear()
+            command, heading, name = draw.move(x, y, h, topology, frozenset(refused))
+            if command is None:  # a dead end: every command from here refused
+                break
+            record = _record(spec, scene, position, command)
+            position += 1
+            _mission_inputs(record, hm, start.xy_yaw, start.feet_W)
+            solve = time.perf_counter()
+            plan, reason = planner(start, command.target, topology, start.time)
+            record.update(status=BLC_ONLY, blc_success=plan is not None, blc_iterations=int(planner.last_iterations),
+                          time_solve_s=time.perf_counter() - solve)
+            if plan is None:  # the robot stands where it was; the next command from there
+                record.update(reason=blc_failure_code(reason), message=reason[:200], blc_reason=reason[:200])
+                refused.add(name)
+            else:
+                start = expected_end(plan)
+                x, y, h = command.target[0], command.target[1], heading
+                refused.clear()
+            records.append(record)
+    except Exception as e:  # a crash of the chain, not a label
+        # The labels before it stand; the crash is a record of its own (excluded from training).
+        first.update(status="error", error=f"{type(e).__name__}: {e}\n{traceback.format_exc(limit=3)}"[:400],
+                     heading_sample=len(records))
+        records.append(first)
+    total = time.perf_counter() - clock
+    for r in records:
+        r["time_total_s"] = total / len(records)
+    return records
+
+
+def plan_chain_error_record(spec: EpisodeSpec, message: str) -> dict:
+    """The record of a chain whose worker died every time (status "error")."""
+    from qz_drake.capability.scenes import scene_for
+
+    record = _record(spec, scene_for(spec.seed, spec.scene), 0,
+                     ChainCommand("turn", 0, (0.0, 0.0, 0.0), spec.topology))
+    record.update(status="error", error=message[:400])
+    return record
+
+
+__all__ = ["BLC_ONLY", "CHAIN_MISSIONS", "ChainCommand", "plan_chain_error_record", "run_plan_chain"]
