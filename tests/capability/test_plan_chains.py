@@ -20,26 +20,14 @@ def _flat_chain(seed: int = 0, topology: str = "nominal") -> EpisodeSpec:
     return EpisodeSpec(seed, scene * 6 + TOPOLOGY_NAMES.index(topology), scene, topology)
 
 
-@pytest.fixture(scope="module")
-def chain_dataset(tmp_path_factory):
-    """Seed 35's first scene (flat: quick to plan) collected as one split_up plan chain."""
-    from qz_drake.capability.collect import collect
-
+def _split_up_chain() -> EpisodeSpec:
+    """Seed 35's first scene (flat: quick to plan) as a split_up plan chain."""
     assert scene_recipe(35, 0)[0] == "flat"
-    out = tmp_path_factory.mktemp("plans") / "chain"
-    summary = collect(out, seed=35, scenes=1, topologies=["split_up"], protocol="plans",
-                      progress=False, shard_size=5)
-    assert summary.ran == 1
-    return out
+    return EpisodeSpec(35, TOPOLOGY_NAMES.index("split_up"), 0, "split_up")
 
 
-def test_a_chain_on_flat_ground_plans_every_command_from_where_the_last_plan_ended(chain_dataset):
-    from qz_drake.capability.dataset import load_records
-
-    records = run_plan_chain(EpisodeSpec(35, TOPOLOGY_NAMES.index("split_up"), 0, "split_up"))
-    stored, _ = load_records(chain_dataset)  # the collection's worker ran the same chain
-    assert len(stored["index"]) == len(records)
-    assert stored["feet"].tolist() == [r["feet"].tolist() for r in records]  # deterministic
+def test_a_chain_on_flat_ground_plans_every_command_from_where_the_last_plan_ended():
+    records = run_plan_chain(_split_up_chain())
     moves = [r for r in records if r["kind"] != "switch"]
     assert len(moves) == CHAIN_MISSIONS
     assert [r["status"] for r in records] == [BLC_ONLY] * len(records)
@@ -100,17 +88,25 @@ def test_a_refused_mission_leaves_the_robot_where_it_stood_and_the_chain_goes_on
     assert len(stances[-1]) == 3 and len(moves) < CHAIN_MISSIONS
 
 
-def test_a_plan_chain_collection_is_stored_beside_the_executed_labels_and_recertified(chain_dataset, tmp_path):
-    import shutil
-
-    from qz_drake.capability.collect import recertify
+# Two worker processes (the collection's and the recertification's): about 15 s. The chain
+# itself is the fast tests' (test_a_chain_on_flat_ground...), the protocols' shared storage and
+# recertification the episodes' (tests/capability/test_episodes.py).
+@pytest.mark.slow
+def test_a_plan_chain_collection_is_stored_beside_the_executed_labels_and_recertified(tmp_path):
+    from qz_drake.capability.collect import collect, recertify
     from qz_drake.capability.dataset import load_records, load_training_arrays
     from qz_drake.capability.stats import dataset_stats
 
     out = tmp_path / "plans"
-    shutil.copytree(chain_dataset, out)
+    summary = collect(out, seed=35, scenes=1, topologies=["split_up"], protocol="plans",
+                      progress=False, shard_size=5)
+    assert summary.ran == 1
     arrays, manifest = load_records(out)
     assert manifest["settings"]["protocol"] == "plans" and set(arrays["status"]) == {BLC_ONLY}
+    # The worker ran the chain this process runs: the same records (deterministic).
+    again = run_plan_chain(_split_up_chain())
+    assert arrays["feet"].tolist() == [r["feet"].tolist() for r in again]
+    assert list(arrays["blc_success"]) == [r["blc_success"] for r in again]
     assert list(arrays["heading_sample"]) == list(range(len(arrays["index"])))
     assert sum(s.get("blc_only", 0) for s in manifest["shards"]) == len(arrays["index"])
     stats = dataset_stats(out)
