@@ -3,7 +3,8 @@
 Someone who clones the repository alone has nothing beside it, so a scenario, test, notebook,
 script, README line or package module that reads the shared folder beside the repository, a
 folder of this machine's checkout by its absolute path, or climbs above the repository's root
-from its own folder fails for them (or, in a test, skips and hides it). The data no one here made live in ``data/external/`` and ``qz_drake/data/``.
+from its own folder fails for them (or, in a test, skips and hides it). The data no one here
+made live in ``data/external/`` and ``qz_drake/data/``.
 """
 
 from __future__ import annotations

@@ -620,29 +620,41 @@ class BoostedConfig:
         return self
 
 
-def record_features(arrays: dict, rows: np.ndarray, mirror: bool = False,
-                    labels: str = "outcomes") -> tuple[np.ndarray, np.ndarray]:
-    """(X, label) of dataset rows; with ``mirror``, followed by their mirror images. The label
-    is the outcome index (``labels`` "outcomes") or whether the BLC planned (1) or not ("plan")."""
-    from qz_drake.capability.training import outcome_classes
-
+def record_inputs(arrays: dict, rows: np.ndarray, mirror: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(X, source) of dataset rows: their features and, for each row of X, the dataset row it
+    came from; with ``mirror``, the rows followed by their mirror images (the same source)."""
     rows = np.asarray(rows, dtype=np.int64)
     kind = np.asarray(arrays["kind"]).astype(str)[rows]
     topology = np.asarray(arrays["topology"]).astype(str)[rows]
     direction = np.asarray(arrays["direction"])[rows]
     patch, feet = np.asarray(arrays["patch"])[rows], np.asarray(arrays["feet"])[rows]
-    planned = np.asarray(arrays["blc_success"])[rows]
-    y = outcome_classes(np.asarray(arrays["success"])[rows], planned) if labels == "outcomes" else \
-        planned.astype(np.int64)
     X = [features(patch, feet, kind, topology, direction)]
-    labels = [y]
+    source = [rows]
     if mirror:
         for k in np.unique(kind):
             m = kind == k
             mp, mf, md = P.mirror_inputs(patch[m], feet[m], direction[m], k)
             X.append(features(mp, mf, k, topology[m], md))
-            labels.append(y[m])
-    return np.concatenate(X), np.concatenate(labels)
+            source.append(rows[m])
+    return np.concatenate(X), np.concatenate(source)
+
+
+def record_labels(arrays: dict, source: np.ndarray, labels: str = "outcomes") -> np.ndarray:
+    """The labels of dataset rows ``source``: the outcome index (``labels`` "outcomes") or
+    whether the BLC planned (1) or not ("plan")."""
+    from qz_drake.capability.training import outcome_classes
+
+    planned = np.asarray(arrays["blc_success"])[source]
+    if labels == "outcomes":
+        return outcome_classes(np.asarray(arrays["success"])[source], planned)
+    return planned.astype(np.int64)
+
+
+def record_features(arrays: dict, rows: np.ndarray, mirror: bool = False,
+                    labels: str = "outcomes") -> tuple[np.ndarray, np.ndarray]:
+    """(X, label) of dataset rows (record_inputs, record_labels)."""
+    X, source = record_inputs(arrays, rows, mirror)
+    return X, record_labels(arrays, source, labels)
 
 
 def _fit_member(X, y, Xv, yv, config: BoostedConfig, seed: int, outcomes=OUTCOMES):
@@ -738,7 +750,8 @@ def train_boosted(arrays: dict, *, fingerprint: str, fingerprints: dict | None =
     split = split_scenes(arrays["scene"], config.split, config.seed)
     scene = np.asarray(arrays["scene"], dtype=np.int64)
     rows = {name: np.flatnonzero(np.isin(scene, ids)) for name, ids in split.items()}
-    Xv, yv = record_features(arrays, rows["validation"])
+    Xv, validation_source = record_inputs(arrays, rows["validation"])
+    yv = record_labels(arrays, validation_source)
     rng = np.random.default_rng(config.seed)
     planning = plan_arrays is not None
     if planning:
@@ -746,9 +759,9 @@ def train_boosted(arrays: dict, *, fingerprint: str, fingerprints: dict | None =
         plan_scene = np.asarray(plan_arrays["scene"], dtype=np.int64)
         psplit = plan_split(split, plan_scene, config.split, config.seed)
         prows = {name: np.flatnonzero(np.isin(plan_scene, ids)) for name, ids in psplit.items()}
-        parts = [record_features(arrays, rows["validation"], labels="plan"),
-                 record_features(plan_arrays, prows["validation"], labels="plan")]
-        Xpv, ypv = np.concatenate([a for a, _ in parts]), np.concatenate([b for _, b in parts])
+        chains = record_features(plan_arrays, prows["validation"], labels="plan")
+        Xpv = np.concatenate([Xv, chains[0]])
+        ypv = np.concatenate([record_labels(arrays, validation_source, "plan"), chains[1]])
         if len(ypv) == 0:
             raise bad_value("plan_dataset", "no validation scenes", "the plan learner needs validation records")
         plan_rng = np.random.default_rng(config.seed + PLAN_SEED_OFFSET)
@@ -761,7 +774,8 @@ def train_boosted(arrays: dict, *, fingerprint: str, fingerprints: dict | None =
                 train_rows = rows["train"]
             else:  # a bootstrap of whole training scenes
                 train_rows = _bootstrap_rows(rng, split["train"], scene)
-            X, y = record_features(arrays, train_rows, mirror=config.mirror)
+            X, source = record_inputs(arrays, train_rows, mirror=config.mirror)
+            y = record_labels(arrays, source)
             trees, best, loss = _fit_member(X, y, Xv, yv, config, config.seed + ENSEMBLE_SEED_STEP * m)
             members.append(trees)
             info.append({"iterations": best, "validation_log_loss": loss, "train_rows": int(len(y))})
@@ -770,14 +784,15 @@ def train_boosted(arrays: dict, *, fingerprint: str, fingerprints: dict | None =
                 continue
             chain_rows = (prows["train"] if config.members == 1
                           else _bootstrap_rows(plan_rng, psplit["train"], plan_scene))
-            parts = [record_features(arrays, train_rows, mirror=config.mirror, labels="plan"),
-                     record_features(plan_arrays, chain_rows, mirror=config.mirror, labels="plan")]
-            X, y = np.concatenate([a for a, _ in parts]), np.concatenate([b for _, b in parts])
+            # The executed rows' features as the outcome learner had them, with the plan label.
+            chains = record_features(plan_arrays, chain_rows, mirror=config.mirror, labels="plan")
+            X = np.concatenate([X, chains[0]])
+            y = np.concatenate([record_labels(arrays, source, "plan"), chains[1]])
             trees, best, loss = _fit_member(X, y, Xpv, ypv, config,
                                             config.seed + PLAN_SEED_OFFSET + ENSEMBLE_SEED_STEP * m, PLAN_OUTCOMES)
             plan_members.append(trees)
             plan_info.append({"iterations": best, "validation_log_loss": loss, "train_rows": int(len(y)),
-                              "chain_rows": int(len(parts[1][1]))})
+                              "chain_rows": int(len(chains[1]))})
             report.update(advance=1, status=f"plan learner {m + 1}: {best} iterations")
     model = BoostedCapabilityModel(members, {"fingerprint": fingerprint}, plan_members=plan_members)
     card = {"learner": LEARNER, "fingerprint": fingerprint, "fingerprints": dict(fingerprints or {}),

@@ -21,7 +21,7 @@ import threading
 import time
 from multiprocessing.connection import wait
 
-from qz_drake.capability.dataset import TrialStore, fingerprints, settings_dict
+from qz_drake.capability.dataset import CHAINED_PROTOCOLS, TrialStore, fingerprints, settings_dict
 from qz_drake.capability.trials import TrialConfig, TrialSpec, run_trial, trial_specs
 from qz_drake.errors import bad_value
 
@@ -345,11 +345,12 @@ class RayPool:
 
 PROTOCOLS = ("moves", "episodes", "plans")
 # Protocols of chained missions: a spec per scene and topology (episodes.EpisodeSpec), a record
-# per mission; and what a worker runs for each protocol, and for a spec whose worker died.
-CHAINED = ("episodes", "plans")
+# per mission.
+CHAINED = CHAINED_PROTOCOLS
 
 
 def _protocol_functions(protocol: str):
+    """What a worker runs for a protocol's spec, and the record of a spec whose worker died."""
     return {"moves": (execute, _crashed), "episodes": (execute_episode, _crashed_episode),
             "plans": (execute_plan_chain, _crashed_plan_chain)}[protocol]
 

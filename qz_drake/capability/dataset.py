@@ -32,6 +32,11 @@ from qz_drake.errors import ConfigError, bad_value
 
 # The arrays of the dataset contract (load_training_arrays) that the networks learn from.
 REQUIRED_KEYS = ("patch", "feet", "direction", "success", "blc_success", "scene", "topology", "kind")
+# The fields of the learners' arrays (load_training_arrays, load_plan_arrays).
+LEARNER_FIELDS = ("patch", "feet", "direction", "success", "blc_success", "scene", "scene_kind",
+                  "topology", "kind", "index", "reason", "difficulty")
+# Protocols whose specs are chains of missions, a record per mission (collect.PROTOCOLS).
+CHAINED_PROTOCOLS = ("episodes", "plans")
 FORMAT = "qz_drake.capability.dataset/1"
 MANIFEST = "manifest.json"
 
@@ -419,7 +424,7 @@ def load_records(path) -> tuple[dict[str, np.ndarray], dict]:
     arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     # An episode (protocol "episodes") or a plan chain ("plans") stores a record per mission:
     # index, then the mission's place in the chain (heading_sample), identify a record.
-    episodes = manifest.get("settings", {}).get("protocol") in ("episodes", "plans")
+    episodes = manifest.get("settings", {}).get("protocol") in CHAINED_PROTOCOLS
     second = arrays["heading_sample"] if episodes else np.zeros_like(arrays["index"])
     order = np.lexsort((second, arrays["index"]))
     arrays = {k: v[order] for k, v in arrays.items()}
@@ -443,9 +448,7 @@ def load_training_arrays(path) -> tuple[dict[str, np.ndarray], dict]:
     if chained and not keep.any():
         raise bad_value("dataset", str(path), f"has no executed missions, only {chained} labelled by the BLC "
                                               "alone (a plan chain walks nothing: no execution label to learn)")
-    names = ("patch", "feet", "direction", "success", "blc_success", "scene", "scene_kind",
-             "topology", "kind", "index", "reason", "difficulty")
-    return {k: arrays[k][keep] for k in names}, manifest
+    return {k: arrays[k][keep] for k in LEARNER_FIELDS}, manifest
 
 
 def load_plan_arrays(path) -> tuple[dict[str, np.ndarray], dict]:
@@ -458,9 +461,7 @@ def load_plan_arrays(path) -> tuple[dict[str, np.ndarray], dict]:
     if not keep.any():
         raise bad_value("plan dataset", str(path), "has no missions labelled by the BLC alone (collect one with "
                                                    "--protocol plans)")
-    names = ("patch", "feet", "direction", "success", "blc_success", "scene", "scene_kind",
-             "topology", "kind", "index", "reason", "difficulty")
-    return {k: arrays[k][keep] for k in names}, manifest
+    return {k: arrays[k][keep] for k in LEARNER_FIELDS}, manifest
 
 
 def settings_dict(trial_config) -> dict:

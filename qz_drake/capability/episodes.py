@@ -97,6 +97,54 @@ class Mission:
     topology: str
 
 
+class CommandDraw:
+    """Draws the planner's actions one at a time from where the robot stands (x, y, heading
+    index h, topology), from ``rng``: before each but the first, with SWITCH_PROBABILITY, a
+    switch to another topology drawn uniformly (``switch``); then forward, left or right with
+    COMMAND_WEIGHTS, a forward move that would end beyond ``half_size - SCENE_EDGE_MARGIN``
+    drawn again as a turn (``move``). An episode draws its whole chain ahead
+    (episode_commands); a plan chain draws as it goes, closing the commands refused at a stance
+    (plan_chains)."""
+
+    def __init__(self, rng, half_size: float):
+        self.rng = rng
+        self.limit = half_size - SCENE_EDGE_MARGIN
+        self.names = list(COMMAND_WEIGHTS)
+        weights = np.array([COMMAND_WEIGHTS[n] for n in self.names])
+        self.p = weights / weights.sum()
+
+    def switch(self, first: bool, x: float, y: float, h: int, topology: str) -> Mission | None:
+        """The switch before the next action, or None (never before the first)."""
+        if first or self.rng.random() >= SWITCH_PROBABILITY:
+            return None
+        others = [t for t in TOPOLOGY_NAMES if t != topology]
+        new = others[int(self.rng.integers(0, len(others)))]
+        return Mission("switch", TOPOLOGY_NAMES.index(topology), (x, y, h * HEADING_STEP), new)
+
+    def move(self, x: float, y: float, h: int, topology: str,
+             refused: frozenset = frozenset()) -> tuple[Mission | None, int, str]:
+        """(the action, the heading index it ends in, its name: forward, left or right), drawn
+        among the commands not ``refused`` at this stance; (None, h, "") when every one is."""
+        open_ = [k for k, n in enumerate(self.names) if n not in refused]
+        if not open_:
+            return None, h, ""
+        p = self.p if len(open_) == len(self.names) else self.p[open_] / self.p[open_].sum()
+        command = self.names[open_[int(self.rng.choice(len(open_), p=p))]]
+        yaw = h * HEADING_STEP
+        if command == "forward":
+            kind = "diagonal" if h % 2 else "orthogonal"
+            d = move_distance(kind)
+            nx, ny = x + d * math.cos(yaw), y + d * math.sin(yaw)
+            if max(abs(nx), abs(ny)) <= self.limit:
+                return Mission(kind, -1, (nx, ny, yaw), topology), h, command
+            turns = [t for t in ("left", "right") if t not in refused]
+            if not turns:
+                return None, h, ""
+            command = turns[0] if len(turns) == 1 else ("left" if self.rng.random() < 0.5 else "right")
+        h = (h + (1 if command == "left" else -1)) % 8
+        return Mission("turn", 0 if command == "left" else 1, (x, y, h * HEADING_STEP), topology), h, command
+
+
 def episode_commands(spec: EpisodeSpec, half_size: float, config: TrialConfig = TrialConfig()
                      ) -> tuple[float, np.ndarray, list[Mission]]:
     """(start heading [rad], start foot offsets (6, 2) [m], missions) of an episode: the
@@ -106,9 +154,7 @@ def episode_commands(spec: EpisodeSpec, half_size: float, config: TrialConfig = 
     rng = np.random.default_rng([spec.seed, spec.scene, spec.index, 0xE915])
     heading_index = int(rng.integers(0, 8))
     offsets = rng.uniform(-config.foot_offset, config.foot_offset, (6, 2))
-    names = list(COMMAND_WEIGHTS)
-    weights = np.array([COMMAND_WEIGHTS[n] for n in names])
-    limit = half_size - SCENE_EDGE_MARGIN
+    draw = CommandDraw(rng, half_size)
     x = y = 0.0
     h = heading_index
     topology = spec.topology
@@ -116,24 +162,13 @@ def episode_commands(spec: EpisodeSpec, half_size: float, config: TrialConfig = 
     for _ in range(EPISODE_MISSIONS):
         # Never before the first mission: the episode's topology is drawn already (and a walk
         # whose first mission is not planned is not simulated, so the switch would not run).
-        if missions and rng.random() < SWITCH_PROBABILITY:
-            others = [t for t in TOPOLOGY_NAMES if t != topology]
-            new = others[int(rng.integers(0, len(others)))]
-            missions.append(Mission("switch", TOPOLOGY_NAMES.index(topology), (x, y, h * HEADING_STEP), new))
-            topology = new
-        command = names[int(rng.choice(len(names), p=weights / weights.sum()))]
-        kind = "diagonal" if h % 2 else "orthogonal"
-        yaw = h * HEADING_STEP
-        if command == "forward":
-            d = move_distance(kind)
-            nx, ny = x + d * math.cos(yaw), y + d * math.sin(yaw)
-            if max(abs(nx), abs(ny)) <= limit:
-                x, y = nx, ny
-                missions.append(Mission(kind, -1, (x, y, yaw), topology))
-                continue
-            command = "left" if rng.random() < 0.5 else "right"
-        h = (h + (1 if command == "left" else -1)) % 8
-        missions.append(Mission("turn", 0 if command == "left" else 1, (x, y, h * HEADING_STEP), topology))
+        switch = draw.switch(not missions, x, y, h, topology)
+        if switch is not None:
+            missions.append(switch)
+            topology = switch.topology
+        mission, h, _ = draw.move(x, y, h, topology)
+        missions.append(mission)
+        x, y = mission.target[0], mission.target[1]
     return heading_index * HEADING_STEP, offsets, missions
 
 

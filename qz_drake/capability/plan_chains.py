@@ -32,85 +32,23 @@ the chains' held-out refusals better and walks' refusals a little worse (BENCHMA
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 import traceback
 
 import numpy as np
 
-from qz_drake.capability.episodes import (COMMAND_WEIGHTS, EPISODE_HALF_SIZE, SCENE_EDGE_MARGIN,
-                                          SWITCH_PROBABILITY, EpisodeSpec, _mission_inputs, _record,
-                                          padded_scene_map)
-from qz_drake.capability.patches import HEADING_STEP, move_distance
+from qz_drake.capability.episodes import (EPISODE_HALF_SIZE, CommandDraw, EpisodeSpec, Mission, _mission_inputs,
+                                          _record, padded_scene_map)
+from qz_drake.capability.patches import HEADING_STEP
 from qz_drake.capability.trials import TrialConfig, trial_blc_parameters
 from qz_drake.errors import ConfigError, QzError
 from qz_drake.robot.params import DEFAULT_PARAMS
-from qz_drake.robot.topology import TOPOLOGY_NAMES
 from qz_drake.verdict import blc_failure_code
 
 # Commands in a chain (moves and turns; switches come on top of them).
 CHAIN_MISSIONS = 8
 # The status of a chain's records: labelled by the BLC alone.
 BLC_ONLY = "blc_only"
-
-
-@dataclasses.dataclass(frozen=True)
-class ChainCommand:
-    """One command of a chain: its kind (orthogonal, diagonal, turn or switch), the turn's
-    direction (0 left, 1 right; -1 for a move; for a switch the TOPOLOGY_NAMES index of the
-    topology it switches from), the pose it ends in if planned (x, y, yaw) and its topology."""
-
-    kind: str
-    direction: int
-    target: tuple[float, float, float]
-    topology: str
-
-
-class _Commands:
-    """The chain's commands, drawn one at a time from where the robot stands (a refused move
-    leaves it in place), like episodes.episode_commands draws an episode's."""
-
-    def __init__(self, spec: EpisodeSpec, half_size: float):
-        self.rng = np.random.default_rng([spec.seed, spec.scene, spec.index, 0xB1C0])
-        self.limit = half_size - SCENE_EDGE_MARGIN
-        self.names = list(COMMAND_WEIGHTS)
-        weights = np.array([COMMAND_WEIGHTS[n] for n in self.names])
-        self.p = weights / weights.sum()
-
-    def start(self) -> int:
-        return int(self.rng.integers(0, 8))
-
-    def switch(self, first: bool, x: float, y: float, h: int, topology: str) -> ChainCommand | None:
-        if first or self.rng.random() >= SWITCH_PROBABILITY:
-            return None
-        others = [t for t in TOPOLOGY_NAMES if t != topology]
-        new = others[int(self.rng.integers(0, len(others)))]
-        return ChainCommand("switch", TOPOLOGY_NAMES.index(topology), (x, y, h * HEADING_STEP), new)
-
-    def move(self, x: float, y: float, h: int, topology: str,
-             refused: frozenset = frozenset()) -> tuple[ChainCommand | None, int, str]:
-        """(the command, the heading index it ends in, its name: forward, left or right), drawn
-        among the commands not ``refused`` from this stance already (as CapPlanner closes a
-        refused action: the same mission from the same start is refused again); (None, h, "")
-        when every one is."""
-        open_ = [k for k, n in enumerate(self.names) if n not in refused]
-        if not open_:
-            return None, h, ""
-        p = self.p[open_] / self.p[open_].sum()
-        command = self.names[open_[int(self.rng.choice(len(open_), p=p))]]
-        yaw = h * HEADING_STEP
-        if command == "forward":
-            kind = "diagonal" if h % 2 else "orthogonal"
-            d = move_distance(kind)
-            nx, ny = x + d * math.cos(yaw), y + d * math.sin(yaw)
-            if max(abs(nx), abs(ny)) <= self.limit:
-                return ChainCommand(kind, -1, (nx, ny, yaw), topology), h, command
-            turns = [t for t in ("left", "right") if t not in refused]
-            if not turns:
-                return None, h, ""
-            command = turns[0] if len(turns) == 1 else ("left" if self.rng.random() < 0.5 else "right")
-        h = (h + (1 if command == "left" else -1)) % 8
-        return ChainCommand("turn", 0 if command == "left" else 1, (x, y, h * HEADING_STEP), topology), h, command
 
 
 def run_plan_chain(spec: EpisodeSpec, config: TrialConfig = TrialConfig()) -> list[dict]:
@@ -130,12 +68,14 @@ def run_plan_chain(spec: EpisodeSpec, config: TrialConfig = TrialConfig()) -> li
     scene = scene_for(spec.seed, spec.scene)
     hm = padded_scene_map(scene.heightmap, EPISODE_HALF_SIZE)
     scene = dataclasses.replace(scene, heightmap=hm)
-    draw = _Commands(spec, EPISODE_HALF_SIZE)
-    h = draw.start()
+    # The chain's own draws (an episode of the same spec draws its commands apart).
+    rng = np.random.default_rng([spec.seed, spec.scene, spec.index, 0xB1C0])
+    h = int(rng.integers(0, 8))
+    draw = CommandDraw(rng, EPISODE_HALF_SIZE)
     offsets = np.random.default_rng([spec.seed, spec.scene, spec.index, 0xB1C1]).uniform(
         -config.foot_offset, config.foot_offset, (6, 2))
     records: list[dict] = []
-    first = _record(spec, scene, 0, ChainCommand("turn", 0, (0.0, 0.0, h * HEADING_STEP), spec.topology))
+    first = _record(spec, scene, 0, Mission("turn", 0, (0.0, 0.0, h * HEADING_STEP), spec.topology))
     first.update(status=BLC_ONLY, heading=h * HEADING_STEP)
     try:
         try:
@@ -210,9 +150,9 @@ def plan_chain_error_record(spec: EpisodeSpec, message: str) -> dict:
     from qz_drake.capability.scenes import scene_for
 
     record = _record(spec, scene_for(spec.seed, spec.scene), 0,
-                     ChainCommand("turn", 0, (0.0, 0.0, 0.0), spec.topology))
+                     Mission("turn", 0, (0.0, 0.0, 0.0), spec.topology))
     record.update(status="error", error=message[:400])
     return record
 
 
-__all__ = ["BLC_ONLY", "CHAIN_MISSIONS", "ChainCommand", "plan_chain_error_record", "run_plan_chain"]
+__all__ = ["BLC_ONLY", "CHAIN_MISSIONS", "plan_chain_error_record", "run_plan_chain"]
