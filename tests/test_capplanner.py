@@ -282,7 +282,8 @@ def test_an_astar_walk_is_known_by_its_world_and_waypoints_before_it_is_walked()
     """The tuning walks each distinct A* walk once: without the recovery two settings share a
     walk exactly when their routes (and every setting but A*'s) are the same; with it (the
     default) a refused mission is gone round on A*'s own cost map, so every A* setting counts."""
-    from qz_drake.experiments.fig9 import ExperimentConfig, TaskSpec, _astar_walk
+    from qz_drake.experiments.fig9 import ExperimentConfig, TaskSpec
+    from qz_drake.experiments.fig9.tune import _astar_walk
 
     def walk(terrain, recoveries=0, **settings):
         return _astar_walk(TaskSpec(terrain, "simple", 1000, "astar"),
@@ -456,7 +457,7 @@ def test_one_planners_half_is_walked_before_the_other_is_tuned(briefly_trained_m
     then holds them; an A*-only resume keeps them whatever its own CapPlanner settings are."""
     from qz_drake.capability.model import CapabilityModel
     from qz_drake.errors import QzError
-    from qz_drake.experiments.fig9 import MODEL_IDENTITY, ExperimentConfig, TaskSpec, run_experiment
+    from qz_drake.experiments.fig9 import MODEL_IDENTITY, ExperimentConfig, run_experiment
 
     def record(spec):
         return {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,

@@ -86,14 +86,14 @@ def run_score_missions(args) -> int:
 
     from qz_drake.capability.model import CapabilityModel
     from qz_drake.errors import bad_value
-    from qz_drake.experiments.fig9 import RESULTS, _settings, read_results
+    from qz_drake.experiments.fig9 import RESULTS, read_results, read_settings
     from qz_drake.experiments.walk_scores import score_missions
 
     folders = [Path(out) for out in args.out]
     for out in folders:
         if not (out / RESULTS).is_file():
             raise bad_value("results", str(out), f"no {RESULTS} there (run qz experiment capplanner-vs-astar)")
-    settings = [_settings(out) for out in folders]
+    settings = [read_settings(out) for out in folders]
     scales = {float(s.get("scale", 1.0)) for s in settings}
     if len(scales) > 1:
         raise bad_value("results", [str(out) for out in folders], f"worlds of other scales ({sorted(scales)})")

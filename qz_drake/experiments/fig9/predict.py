@@ -1,0 +1,107 @@
+"""What CapPlanner's model expected of each task before walking it (``qz experiment report
+--predict``): the plan from the start and its predicted chance of arriving, kept in
+``predictions.jsonl``, and the route-level calibration of those predictions against the walks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+
+from qz_drake.errors import bad_value
+from qz_drake.progress import ProgressReport
+from qz_drake.experiments.fig9.results import MODEL_IDENTITY, PREDICTIONS, RESULTS, read_results, read_settings
+from qz_drake.experiments.fig9.tasks import ExperimentConfig, TaskSpec, _mdp_overrides
+from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS, make_task
+
+
+def predict_route(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig(), model=None) -> dict:
+    """What CapPlanner's model expected of a task before walking it: the plan from the start
+    (the walk's first plan: same model, MDP settings, start cell and heading), its predicted
+    chance that no action ends the walk (fall_free), the product of the actions' success
+    (success), the actions and topology changes; reaches False where it found no path."""
+    from qz_drake.capability.model import CapabilityModel
+    from qz_drake.capability.patches import KINDS
+    from qz_drake.planning.capability_mdp import plan
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+    from qz_drake.planning.capplanner_route import mdp_config
+
+    model = model or CapabilityModel.load(config.capability_model or None)
+    task = make_task(spec.terrain, spec.difficulty, spec.seed, scale=config.scale)
+    topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
+    mdp = mdp_config(_mdp_overrides(config), topologies)
+    heading = int(round(task.start_yaw / (np.pi / 4))) % 8
+    result = plan(model, task.heightmap, task.start, heading, task.goal, config=mdp)
+    return {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,
+            "reaches": bool(result.reaches_goal),
+            "fall_free": result.fall_free_probability if result.reaches_goal else 0.0,
+            "success": result.success_probability if result.reaches_goal else 0.0,
+            "actions": len(result.steps), "topology_changes": result.topology_changes}
+
+
+def predict_routes(out, config: ExperimentConfig | None = None, model=None, progress: bool = False) -> list[dict]:
+    """:func:`predict_route` for every CapPlanner task of a results folder, appended to
+    ``predictions.jsonl`` (resumable: a task already predicted is skipped); returns them all.
+    The config is the run's (settings.json) unless given."""
+    from qz_drake.capability.model import CapabilityModel
+
+    out = Path(out)
+    if not (out / RESULTS).is_file():
+        raise bad_value("results", str(out), f"no {RESULTS} there (run qz experiment capplanner-vs-astar)")
+    records = [r for r in read_results(out) if r["planner"] == "capplanner" and r["reason"] != "error"]
+    if config is None:
+        settings = read_settings(out)
+        names = {f.name for f in dataclasses.fields(ExperimentConfig)}
+        config = ExperimentConfig(**{k: v for k, v in settings.items() if k in names})
+        identity = settings.get(MODEL_IDENTITY)
+    else:
+        identity = None
+    model = model or CapabilityModel.load(config.capability_model or None)
+    if identity and model.identity != identity:
+        raise bad_value("capability model", model.identity,
+                        f"the run at {out} walked with model {identity}; predict with that one")
+    path = out / PREDICTIONS
+    done = {p["key"]: p for p in (json.loads(line) for line in path.read_text().splitlines() if line.strip())} \
+        if path.is_file() else {}
+    todo = [r for r in records if r["key"] not in done]
+    with path.open("a") as f, ProgressReport("predicting routes", len(records), unit="routes",
+                                             completed=len(records) - len(todo), enabled=progress) as report:
+        for r in todo:
+            p = predict_route(TaskSpec(r["terrain"], r["difficulty"], r["seed"], "capplanner"), config, model)
+            done[p["key"]] = p
+            f.write(json.dumps(p) + "\n")
+            f.flush()
+            report.update(advance=1)
+    return [done[r["key"]] for r in records if r["key"] in done]
+
+
+def route_calibration(records: list[dict], predictions: list[dict]) -> list[dict]:
+    """CapPlanner's route-level calibration per (terrain, difficulty), then per difficulty and
+    over all: of the tasks it set out on (a path found), the mean predicted chance of no fall
+    along the first plan (and the mean product of its actions' success, counting a planning
+    failure as a failure too) against the share walked to the goal, and the share of tasks it
+    declined (no path: the goal predicted unreachable) with how many of those A* walked."""
+    walked = {r["key"]: bool(r["success"]) for r in records if r["reason"] != "error"}
+    astar = {(r["terrain"], r["difficulty"], r["seed"]): bool(r["success"])
+             for r in records if r["planner"] == "astar" and r["reason"] != "error"}
+    usable = [p for p in predictions if p["key"] in walked]
+
+    def row(terrain, difficulty, cell):
+        started = [p for p in cell if p["reaches"]]
+        declined = [p for p in cell if not p["reaches"]]
+        return {"terrain": terrain, "difficulty": difficulty, "tasks": len(cell), "started": len(started),
+                "predicted_fall_free": float(np.mean([p["fall_free"] for p in started])) if started else None,
+                "predicted_success": float(np.mean([p["success"] for p in started])) if started else None,
+                "walked_rate": float(np.mean([walked[p["key"]] for p in started])) if started else None,
+                "declined": len(declined),
+                "declined_walked_by_astar": sum(astar.get((p["terrain"], p["difficulty"], p["seed"]), False)
+                                                for p in declined)}
+
+    rows = [row(t, d, [p for p in usable if (p["terrain"], p["difficulty"]) == (t, d)])
+            for t in TERRAINS for d in DIFFICULTIES]
+    rows += [row("all", d, [p for p in usable if p["difficulty"] == d]) for d in DIFFICULTIES]
+    rows.append(row("all", "all", usable))
+    return [r for r in rows if r["tasks"]]

@@ -1,0 +1,228 @@
+"""The report of a Fig. 9 results folder (``qz experiment report``), a run in progress too: both
+planners' success per cell, the paired comparison and the aim, the route calibration where
+predictions exist, the failure reasons, what differs between the planners' walks besides their
+plans, each planner against another run, and pictures of the discordant tasks; as a dict or as
+Markdown tables.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+from qz_drake.errors import bad_value
+from qz_drake.experiments.fig9.comparison import (CLAIM_ALPHA, CLAIM_DIFFERENCE, CLAIM_POWER, CLAIM_RATES,
+                                                  claim_check, compare_planners, compare_runs, summarise)
+from qz_drake.experiments.fig9.predict import route_calibration
+from qz_drake.experiments.fig9.results import (PREDICTIONS, RESULTS, SETTINGS_BEFORE_THEY_EXISTED, read_results,
+                                               read_settings)
+from qz_drake.experiments.fig9.tasks import ExperimentConfig
+from qz_drake.experiments.worlds import DIFFICULTIES, PLANNER_NAMES, TERRAINS, make_task
+
+
+def planner_differences(settings: dict) -> list[str]:
+    """What still differs between the two planners' walks of a run with these settings
+    (``settings.json``; {} for defaults), beyond the top-level controller itself: the issue
+    asks the report to state every difference, and the settings say which hold."""
+    from qz_drake.experiments.astar_recovery import MAX_RECOVERIES
+
+    c = {**dataclasses.asdict(ExperimentConfig()), **SETTINGS_BEFORE_THEY_EXISTED, **settings} if settings else \
+        dataclasses.asdict(ExperimentConfig())
+    retries = int(c["blc_retries"])
+    retry = ("no retry" if not retries else
+             f"a refused mission solved again up to {retries} time{'s' if retries > 1 else ''}, one tripod cycle "
+             "longer each time")
+    if c.get("blc_ladder"):
+        retry = f"a refused mission solved again on the ladder {c['blc_ladder']}"
+    out = [f"Shared: the BLC ({c['blc_max_iterations']} Ipopt iterations a mission, {retry}), the IK tracker "
+           f"and joint PD, the strict verdict, the time budget ({c['time_factor']:g} x the straight-line walking "
+           f"time + {c['time_margin']:g} s), the speed and tripod phase."]
+    if c["astar_max_recoveries"] == MAX_RECOVERIES:
+        out.append(f"Both go round up to {MAX_RECOVERIES} missions the BLC refuses (split, then forbid / block and "
+                   "plan again)" + (" and back out of a dead end." if c["recovery_back_out"] else
+                                    "; neither backs out of a dead end."))
+    else:
+        out.append(f"Refusals gone round: CapPlanner {MAX_RECOVERIES}, A* {c['astar_max_recoveries']}.")
+    out.append(f"Missions: A* walks its route in missions of at most {c['mission_length']:g} m and plans again "
+               f"only after a refusal; CapPlanner merges its path's actions into missions of at most "
+               f"{c['capplanner_mission_length']:g} m while their predicted success stays above "
+               f"{c['capplanner_merge_min_success']:g}, and plans again at every mission start.")
+    out.append("Topology: A* walks in the nominal topology; CapPlanner may change topology"
+               + (" where the gain exceeds its ensemble's doubt about it." if c["capplanner_topology_doubt"] else "."))
+    if c["capplanner_measured_stance"]:
+        out.append("CapPlanner judges its next moves from the stance the robot stands in and backs out of a "
+                   "stance its model foretells as a dead end; A* has no model of the BLC to do so.")
+    if c["capplanner_refused_in_every_topology"]:
+        out.append("A move the BLC refused is closed for CapPlanner in every topology from that cell and heading "
+                   "(as A*, which has one, blocks it).")
+    else:
+        out.append("CapPlanner may try a move the BLC refused again in another topology.")
+    if c["capplanner_min_route_success"] > 0:
+        out.append(f"CapPlanner declines a task whose best path's predicted chance of no fall is below "
+                   f"{c['capplanner_min_route_success']:g} (a failure here); A* declines only without a route.")
+    return out
+
+
+def report(out, against=None) -> dict:
+    """The summary of a results folder as it stands (a run in progress included): rows,
+    comparisons, failure reasons per planner, and how many tasks are done; with ``against``
+    (another results folder of the same worlds) also each planner paired with its own walks
+    there, and the settings that differ."""
+    out = Path(out)
+    if not (out / RESULTS).is_file():
+        raise bad_value("results", str(out), f"no {RESULTS} there (run qz experiment capplanner-vs-astar)")
+    records = read_results(out)
+    reasons: dict[str, dict[str, int]] = {}
+    errors: dict[str, int] = {}
+    for r in records:
+        if r["reason"] == "error":  # a crashed task: rerun on resume, not a failure of the planner
+            errors[r["planner"]] = errors.get(r["planner"], 0) + 1
+        elif not r["success"]:
+            bucket = reasons.setdefault(r["planner"], {})
+            bucket[r["reason"]] = bucket.get(r["reason"], 0) + 1
+    summary = {"rows": summarise(records), "comparisons": compare_planners(records), "failure_reasons": reasons,
+               "claim": claim_check(records), "errors": errors, "tasks_done": len(records),
+               "wall_time_s": float(sum(r.get("wall_time_s", 0.0) for r in records)),
+               "differences": planner_differences(read_settings(out))}
+    if (out / PREDICTIONS).is_file():  # written by qz experiment report --predict
+        predictions = [json.loads(line) for line in (out / PREDICTIONS).read_text().splitlines() if line.strip()]
+        summary["route_calibration"] = route_calibration(records, predictions)
+    if against is not None:
+        summary["against"] = _against(out, records, against)
+    return summary
+
+
+def _against(out: Path, records: list[dict], against) -> dict:
+    """The comparison of a results folder with another one (``report(..., against=)``)."""
+    against = Path(against)
+    if not (against / RESULTS).is_file():
+        raise bad_value("against", str(against), f"no {RESULTS} there (run qz experiment capplanner-vs-astar)")
+    mine, theirs = read_settings(out), read_settings(against)
+    scales = (float(mine.get("scale", 1.0)), float(theirs.get("scale", 1.0)))
+    if scales[0] != scales[1]:
+        raise bad_value("against", str(against), f"its worlds are at scale {scales[1]:g} and this run's at "
+                        f"{scales[0]:g}: not the same tasks")
+    changed = {k: [mine.get(k), theirs.get(k)] for k in sorted(set(mine) | set(theirs)) if mine.get(k) != theirs.get(k)}
+    return {"folder": str(against), "changed_settings": changed,
+            "comparisons": compare_runs(records, read_results(against))}
+
+
+def report_markdown(summary: dict) -> str:
+    """The report as Markdown tables: per cell both planners' success and displacement ratio,
+    the paired comparison, and the failure reasons."""
+    def rate(row):
+        return "-" if row is None or row["success_rate"] is None else \
+            f"{row['successes']}/{row['tasks']} ({100 * row['success_rate']:.0f} %)"
+
+    def ratio(row):
+        return "-" if row is None or row["displacement_ratio"] is None else f"{row['displacement_ratio']:.3f}"
+
+    by_cell = {(r["terrain"], r["difficulty"], r["planner"]): r for r in summary["rows"]}
+    lines = ["| terrain | difficulty | CapPlanner success | A* success | CapPlanner displacement ratio "
+             "| A* displacement ratio |", "| --- | --- | --- | --- | --- | --- |"]
+    for terrain in TERRAINS:
+        for difficulty in DIFFICULTIES:
+            cap, astar = by_cell.get((terrain, difficulty, "capplanner")), by_cell.get((terrain, difficulty, "astar"))
+            if cap or astar:
+                lines.append(f"| {terrain} | {difficulty} | {rate(cap)} | {rate(astar)} | {ratio(cap)} | {ratio(astar)} |")
+    if summary["comparisons"]:
+        lines += ["", "| terrain | difficulty | paired tasks | both | only CapPlanner | only A* | neither "
+                      "| McNemar exact p |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for c in summary["comparisons"]:
+            lines.append(f"| {c['terrain']} | {c['difficulty']} | {c['tasks']} | {c['both']} | {c['only_capplanner']} "
+                         f"| {c['only_astar']} | {c['neither']} | {c['p_value']:.2g} |")
+    claim = summary.get("claim")
+    if claim:
+        lo, hi = claim["difference_ci95"]
+        rates = ", ".join(f"{d} {100 * r:.0f} % (aim {100 * CLAIM_RATES[d]:.0f} %: "
+                          f"{'met' if claim['rates_hold'][d] else 'missed'})"
+                          for d, r in claim["capplanner_rates"].items() if r is not None)
+        power = "-" if claim["power"] is None else f"{100 * claim['power']:.0f} %"
+        lines += ["", f"The aim on medium + hard ({claim['tasks']} paired tasks): CapPlanner "
+                      f"{100 * claim['capplanner_rate']:.1f} %, A* {100 * claim['astar_rate']:.1f} %, difference "
+                      f"{100 * claim['difference']:+.1f} points (95 % interval {100 * lo:+.1f} to {100 * hi:+.1f}), "
+                      f"McNemar exact p = {claim['p_value']:.2g}: "
+                      f"{'met' if claim['difference_holds'] else 'missed'} (at least "
+                      f"{100 * CLAIM_DIFFERENCE:.0f} points with p < {CLAIM_ALPHA:g}). CapPlanner's success: {rates}. "
+                      f"Design: {100 * claim['discordant_share']:.0f} % of the tasks discordant; power to find "
+                      f"{100 * CLAIM_DIFFERENCE:.0f} points at p < {CLAIM_ALPHA:g}: {power}; "
+                      + ("" if claim["tasks_per_cell_for_power"] is None else
+                         f"{claim['tasks_per_cell_for_power']} tasks per cell would give "
+                         f"{100 * CLAIM_POWER:.0f} %.")]
+    if summary.get("route_calibration"):
+        lines += ["", "| terrain | difficulty | CapPlanner set out | predicted no-fall | predicted success "
+                      "| walked | declined (no path) | of those, A* walked |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+
+        def num(v):
+            return "-" if v is None else f"{v:.2f}"
+
+        for c in summary["route_calibration"]:
+            lines.append(f"| {c['terrain']} | {c['difficulty']} | {c['started']}/{c['tasks']} "
+                         f"| {num(c['predicted_fall_free'])} | {num(c.get('predicted_success'))} "
+                         f"| {num(c['walked_rate'])} | {c['declined']} | {c['declined_walked_by_astar']} |")
+    if summary.get("against"):
+        other = summary["against"]
+        changed = ", ".join(f"{k} {v[0]} (there {v[1]})" for k, v in other["changed_settings"].items())
+        lines += ["", f"Against {other['folder']} (settings that differ: {changed or 'none'}):", "",
+                  "| planner | terrain | difficulty | paired tasks | this run | that run | both | only this "
+                  "| only that | neither | McNemar exact p |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for c in other["comparisons"]:
+            lines.append(f"| {c['planner']} | {c['terrain']} | {c['difficulty']} | {c['tasks']} "
+                         f"| {c['this_successes']} | {c['other_successes']} | {c['both']} | {c['only_this']} "
+                         f"| {c['only_other']} | {c['neither']} | {c['p_value']:.2g} |")
+    if summary.get("discordant") is not None:
+        names = PLANNER_NAMES
+        lines += ["", f"Where each planner fails: {len(summary['discordant'])} discordant tasks", "",
+                  "| task | walked | failed | reason | picture |", "| --- | --- | --- | --- | --- |"]
+        for t in summary["discordant"]:
+            lines.append(f"| {t['task']} | {names.get(t['walked'], t['walked'])} | "
+                         f"{names.get(t['failed'], t['failed'])} | {t['reason']} | {t['picture']} |")
+    if summary.get("differences"):
+        lines += ["", "What differs between the planners' walks besides their plans:", ""]
+        lines += [f"- {d}" for d in summary["differences"]]
+    if summary["failure_reasons"]:
+        lines += ["", "| planner | failures by reason |", "| --- | --- |"]
+        for planner, reasons in sorted(summary["failure_reasons"].items()):
+            text = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
+            lines.append(f"| {planner} | {text} |")
+    return "\n".join(lines)
+
+
+def discordant_tasks(records: list[dict], planner: str = "capplanner", baseline: str = "astar") -> list[dict]:
+    """The tasks one planner walked and the other did not (errors left out): per task its key
+    (without the planner), terrain, difficulty, seed, who walked it, and both records."""
+    by_task: dict[tuple, dict] = {}
+    for r in records:
+        if r.get("reason") != "error" and r["planner"] in (planner, baseline):
+            by_task.setdefault((r["terrain"], r["difficulty"], r["seed"]), {})[r["planner"]] = r
+    out = []
+    for (terrain, difficulty, seed), pair in sorted(by_task.items(), key=lambda kv: (
+            TERRAINS.index(kv[0][0]) if kv[0][0] in TERRAINS else 99,
+            DIFFICULTIES.index(kv[0][1]) if kv[0][1] in DIFFICULTIES else 99, kv[0][2])):
+        if len(pair) == 2 and pair[planner]["success"] != pair[baseline]["success"]:
+            winner = planner if pair[planner]["success"] else baseline
+            out.append({"task": f"{terrain}-{difficulty}-{seed}", "terrain": terrain, "difficulty": difficulty,
+                        "seed": seed, "walked": winner, "failed": baseline if winner == planner else planner,
+                        "records": pair})
+    return out
+
+
+def discordant_pictures(out, folder=None, scale: float | None = None) -> list[dict]:
+    """For every discordant task of a results folder, a PNG of its world with both walked
+    paths, the start, the goal and where the failed walk stopped with its reason
+    (``folder``, default ``out/discordant``). Returns the tasks (discordant_tasks) with the
+    picture's path in ``picture``. Walks recorded before paths were kept draw without one."""
+    from qz_drake.experiments.plots import plot_task_pair
+
+    out = Path(out)
+    records = read_results(out)
+    folder = Path(folder) if folder is not None else out / "discordant"
+    scale = float(read_settings(out).get("scale", 1.0)) if scale is None else float(scale)
+    tasks = discordant_tasks(records)
+    for t in tasks:
+        task = make_task(t["terrain"], t["difficulty"], t["seed"], scale=scale)
+        t["picture"] = str(plot_task_pair(task, t["records"], folder / f"{t['task']}.png", title=t["task"]))
+    return tasks

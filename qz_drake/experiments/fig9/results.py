@@ -1,0 +1,43 @@
+"""A results folder of the Fig. 9 experiment: its file names, its records and the settings its
+walks had.
+
+``results.jsonl`` holds one record per task (run.py appends them as tasks finish),
+``settings.json`` the ExperimentConfig they were walked with (and the capability model's
+identity), ``predictions.jsonl`` the routes CapPlanner's model expected (predict.py).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+# One record per task, appended as tasks finish.
+RESULTS = "results.jsonl"
+# One predicted route per CapPlanner task (predict.predict_routes).
+PREDICTIONS = "predictions.jsonl"
+# settings.json's record of the capability model CapPlanner's walks used (CapabilityModel.identity).
+MODEL_IDENTITY = "capability_model_identity"
+
+
+# Settings whose coming changed what the walks do, with the value that results written before
+# them were walked with: a folder without the setting holds those walks, not today's default's.
+# A* had no recovery before issue 38; CapPlanner declined paths whose predicted chance of no
+# fall was below 0.05 (CapabilityVIPlanner's default).
+SETTINGS_BEFORE_THEY_EXISTED = {"astar_max_recoveries": 0, "capplanner_min_route_success": 0.05,
+                                "recovery_back_out": False, "capplanner_topology_doubt": False,
+                                "capplanner_measured_stance": False, "capplanner_refused_in_every_topology": False,
+                                "blc_ladder": ""}
+
+
+def read_results(out) -> list[dict]:
+    """The records of a results folder, in the order they were written ([] before the first)."""
+    path = Path(out) / RESULTS
+    if not path.is_file():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def read_settings(out: Path) -> dict:
+    """The settings a results folder's walks had ({} without settings.json)."""
+    path = out / "settings.json"
+    return {**SETTINGS_BEFORE_THEY_EXISTED, **json.loads(path.read_text())} if path.is_file() else {}
