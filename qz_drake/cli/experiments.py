@@ -45,6 +45,7 @@ def run_fig9(args) -> int:
                               recovery_back_out=not args.no_back_out,
                               capplanner_measured_stance=not args.no_measured_stance,
                               capplanner_refused_in_every_topology=not args.retry_other_topologies,
+                              capplanner_hold_margin=_hold_margin(args),
                               blc_retries=args.blc_retries, blc_ladder=args.blc_ladder,
                               record_missions=args.record_missions, **tuned)
     summary = run_experiment(args.out, planners=_names(args.planners, "--planners", tuple(PLANNERS)),
@@ -211,6 +212,7 @@ def run_tune_capplanner(args) -> int:
                                 recovery_back_out=not args.no_back_out,
                                 capplanner_measured_stance=not args.no_measured_stance,
                                 capplanner_refused_in_every_topology=not args.retry_other_topologies,
+                                capplanner_hold_margin=_hold_margin(args),
                                 blc_retries=args.blc_retries, blc_ladder=args.blc_ladder,
                                 record_missions=args.record_missions),
         progress=not args.json)
@@ -255,6 +257,20 @@ def _stance_argument(p) -> None:
     p.add_argument("--retry-other-topologies", action="store_true",
                    help="after the BLC refuses a move, CapPlanner may try it again in another topology (walks "
                         "as before session 39)")
+    p.add_argument("--hold-margin", type=float, default=None,
+                   help="a replan at a mission's end keeps CapPlanner's route unless the new one is worth more "
+                        "than this (value units: the goal 100, an action 1); default: every replan takes the "
+                        "policy's path")
+
+
+def _hold_margin(args) -> float | None:
+    import math
+
+    from qz_drake.errors import bad_value
+
+    if args.hold_margin is not None and not (math.isfinite(args.hold_margin) and args.hold_margin >= 0):
+        raise bad_value("--hold-margin", args.hold_margin, "must be a finite number >= 0")
+    return args.hold_margin
 
 
 def register(subparsers) -> None:

@@ -698,6 +698,31 @@ def most_likely_path(mdp: CapabilityMdp, solution: ValueIterationResult, start_s
     return steps, s == mdp.goal_state, probability
 
 
+def path_value(mdp: CapabilityMdp, solution: ValueIterationResult, steps) -> float:
+    """The value of walking ``steps`` (PathSteps, each starting where the one before ends), as
+    solve_capability_mdp values a policy: each action's reward, with its success the next
+    step's value, its planning failure the best other action's Q there (the TLC goes round),
+    its fall nothing; after the last step the state's value (0 at the goal). A path of the
+    greedy policy is worth V(start) (within the solve's epsilon); another path less, by how
+    much the policy prefers its own."""
+    if not steps:
+        raise bad_value("steps", steps, "expected at least one PathStep")
+    gamma = float(mdp.config.discount)
+    pairs = [step_state_action(mdp, s) for s in steps]
+    for (s, a), (n, _) in zip(pairs[:-1], pairs[1:]):
+        if int(mdp.next_state[a, s]) not in (n, mdp.failure_state):
+            raise bad_value("steps", f"state {s} action {a}", f"does not lead to the next step's state {n}")
+    s, a = pairs[-1]
+    end = int(mdp.next_state[a, s])
+    value = 0.0 if end >= mdp.goal_state else float(solution.V[end])
+    for s, a in reversed(pairs):
+        p = float(mdp.success[a, s])
+        q = 0.0 if mdp.stand is None else float(mdp.stand[a, s])
+        others = np.delete(solution.Q[s], a)
+        value = float(mdp.R[s, a]) + gamma * (p * value + q * (float(others.max()) if others.size else 0.0))
+    return value
+
+
 def most_probable_path(mdp: CapabilityMdp, start_state: int) -> tuple[list[PathStep], bool, float]:
     """The path from ``start_state`` to the goal whose actions all walk with the highest
     probability (the largest product of their success: Dijkstra on -log p, the best action

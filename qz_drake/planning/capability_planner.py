@@ -20,17 +20,24 @@ below ``min_route_success``, it says so (``unreachable``) instead of walking int
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 
 from pydrake.common.value import AbstractValue
 
 from qz_drake.capability.patches import HEADING_STEP
 from qz_drake.planning.back_out import BackOut
-from qz_drake.planning.guidance import GuidedMission, MissionSplitConfig, split_missions
+from qz_drake.planning.guidance import GuidedMission, MissionSplitConfig, route_ahead, split_missions
 from qz_drake.robot.params import DEFAULT_PARAMS
 from qz_drake.systems.mission_sequencer import RecoveringSequencer, RecoveryLog, measured_start, unwrapped_yaws
 from qz_drake.state_layout import BASE_XY, base_rpy
 
+
+# What a replan at a mission's end did with the current route (CapabilityPlannerLog.route_decisions).
+ROUTE_DECISIONS = ("same", "held", "changed", "off route", "new")
+# The part of a route two replans are compared on (issue 54: replans that change the next 2 m
+# of route without a refusal or a lost route). [m]
+ROUTE_AHEAD = 2.0
 
 # A stance from which no move of the robot's topology is predicted to walk (doubted) at least
 # this often is a dead end (measured_stance, back_out).
@@ -54,6 +61,11 @@ class CapabilityPlannerLog(RecoveryLog):
     # dead ends the model foretold from the robot's stance (no move refused first).
     back_outs: int = 0
     predicted_dead_ends: int = 0
+    # (time, what a replan at a mission's end did with the route it had): its next ROUTE_AHEAD
+    # the "same" as the replan's; "held" against a replan worth at most hold_margin more;
+    # "changed" to the replan's; the robot "off route" (its expected end not where the route
+    # goes on from); or "new" (no route left to hold, a way back out, no path).
+    route_decisions: list = dataclasses.field(default_factory=list)
 
 
 class CapabilityVIPlanner(RecoveringSequencer):
@@ -120,6 +132,14 @@ class CapabilityVIPlanner(RecoveringSequencer):
             topology are judged from the stance it stands in (the plan's end feet, or the
             measured ones after a refusal) instead of the nominal footholds the map assumes,
             a predicted refusal counted as a failure (capability_mdp.set_stance).
+        hold_margin: a replan at a mission's end keeps the rest of the current route unless
+            the new route is worth more than this (value units: the goal is worth
+            ``goal_reward``, an action ``action_cost``), both valued by the MDP as it stands
+            after the replan (the stance the robot stands in, the moves closed so far): near
+            ties between routes (two ways round a box, two diagonals) no longer flip with
+            each mission's stance, and the robot does not dither. A route that goes on from
+            elsewhere than the robot's expected end (cell, heading and topology) is replaced.
+            None: every replan takes the policy's path (the paper's TLC).
         refused_in_every_topology: a move the BLC refused (or the model foretold refused, in a
             dead end) is closed from that cell and heading in every topology, not only in the
             one it was refused in: on the validation probes (data/walk_probes) 9 of 9 retries of
@@ -131,7 +151,8 @@ class CapabilityVIPlanner(RecoveringSequencer):
     def __init__(self, *, model, heightmap, goal, start, initial_topology: str = "nominal", mdp_config=None,
                  split_config: MissionSplitConfig = MissionSplitConfig(), min_route_success: float = 0.05,
                  plan_ahead: float = 0.0, check_period: float = 0.05, max_recoveries: int = 4,
-                 back_out: bool = True, measured_stance: bool = True, refused_in_every_topology: bool = True):
+                 back_out: bool = True, measured_stance: bool = True, refused_in_every_topology: bool = True,
+                 hold_margin: float | None = None):
         super().__init__(log=CapabilityPlannerLog(), max_recoveries=max_recoveries, plan_ahead=plan_ahead)
         from qz_drake.capability.model import predict_map
         from qz_drake.planning.capability_mdp import (CapabilityMdpConfig, build_capability_mdp, cells_on_map,
@@ -142,6 +163,12 @@ class CapabilityVIPlanner(RecoveringSequencer):
         self._split = split_config
         self._back_out = BackOut() if back_out else None
         self._every_topology = bool(refused_in_every_topology)
+        if hold_margin is not None and not (isinstance(hold_margin, (int, float)) and not isinstance(hold_margin, bool)
+                                            and math.isfinite(hold_margin) and hold_margin >= 0):
+            from qz_drake.errors import bad_value
+
+            raise bad_value("hold_margin", hold_margin, "must be a finite number >= 0 (value units) or None")
+        self._hold_margin = None if hold_margin is None else float(hold_margin)
         # The model and the map for the stance at each replan (measured_stance), and what the
         # last replan's stance replaced in the MDP (capability_mdp.set_stance).
         self._model = model if measured_stance else None
@@ -231,13 +258,46 @@ class CapabilityVIPlanner(RecoveringSequencer):
         if index + 1 >= len(missions) and not missions[index].back_out:
             return None
         p = plan.base_position(plan.end_time)
-        yaw = float(plan.base_rpy(plan.end_time)[2])
-        topology = missions[index].topology
-        ix, iy = self.mdp.cell_of(float(p[0]), float(p[1]), field="expected end", margin=self.mdp.config.cell_size)
+        return self.next_missions(context.get_time(), float(p[0]), float(p[1]), float(plan.base_rpy(plan.end_time)[2]),
+                                  missions[index].topology, plan.foot_positions(plan.end_time),
+                                  list(missions[index + 1:])) or None
+
+    def next_missions(self, t: float, x: float, y: float, yaw: float, topology: str, feet_W, held: list) -> list:
+        """The missions from a mission's expected end (x, y, yaw in ``topology``, standing on
+        ``feet_W`` (6, 3)), ``held`` the rest of the current route: the replan's, or ``held``
+        where hold_margin keeps it (see the class docstring); [] at the goal or where no path
+        is left."""
+        ix, iy = self.mdp.cell_of(x, y, field="expected end", margin=self.mdp.config.cell_size)
         if (ix, iy) == self.mdp.goal_cell:
-            return None
-        return self._replan(context.get_time(), float(p[0]), float(p[1]), yaw, topology,
-                            plan.foot_positions(plan.end_time)) or None
+            return []
+        missions = self._replan(t, x, y, yaw, topology, feet_W)
+        decision = self._route_decision(x, y, yaw, topology, held, missions)
+        self.log.route_decisions.append((t, decision))
+        if decision != "held":
+            return missions
+        # The replan's record names the route walked on: the held one.
+        t_, start, _, _ = self.log.replans[-1]
+        self.log.replans[-1] = (t_, start, len(held), float(math.prod(s.success for m in held for s in m.steps)))
+        return unwrapped_yaws(held, yaw)
+
+    def _route_decision(self, x: float, y: float, yaw: float, topology: str, held: list, missions: list) -> str:
+        """What the replan at a mission's end does with ``held`` (the rest of the route) against
+        its own ``missions``: one of ROUTE_DECISIONS (CapabilityPlannerLog.route_decisions)."""
+        from qz_drake.planning.capability_mdp import path_value, step_state_action
+
+        steps = [s for m in held for s in m.steps]
+        if not steps or not missions or missions[0].back_out or any(m.back_out for m in held):
+            return "new"
+        ix, iy = self.mdp.cell_of(x, y, field="expected end", margin=self.mdp.config.cell_size)
+        here = self.mdp.state(ix, iy, int(round(yaw / HEADING_STEP)) % 8, topology)
+        if step_state_action(self.mdp, steps[0])[0] != here:
+            return "off route"
+        if route_ahead(missions, ROUTE_AHEAD) == route_ahead(held, ROUTE_AHEAD):
+            return "same"
+        if self._hold_margin is None:
+            return "changed"
+        gain = float(self.solution.V[here]) - path_value(self.mdp, self.solution, steps)
+        return "held" if gain <= self._hold_margin else "changed"
 
     def _go_round(self, context, state, failed, missions, index):
         """The BLC could not plan ``failed``: go round it (see the class docstring)."""
@@ -325,7 +385,9 @@ class CapabilityVIPlanner(RecoveringSequencer):
         return {"planning_time_s": self.log.planning_time_s, "value_iterations": self.log.value_iterations,
                 "replans": max(len(self.log.replans) - 1, 0), "unreachable": self.log.unreachable,
                 "tlc_recoveries": len(self.log.recoveries), "tlc_most_probable": self.log.most_probable,
-                "tlc_back_outs": self.log.back_outs, "tlc_predicted_dead_ends": self.log.predicted_dead_ends}
+                "tlc_back_outs": self.log.back_outs, "tlc_predicted_dead_ends": self.log.predicted_dead_ends,
+                **{f"tlc_routes_{d.replace(' ', '_')}": sum(1 for _, x in self.log.route_decisions if x == d)
+                   for d in ROUTE_DECISIONS}}
 
     # -- outputs -----------------------------------------------------------------------------
     def _calc_guidance(self, context, output):

@@ -9,6 +9,7 @@ the fixed route (``FixedRoute``) and nothing above it. Callers that walk CapPlan
 from __future__ import annotations
 
 import dataclasses
+import math
 
 from qz_drake.capability.model import CapabilityModel
 from qz_drake.capability.patches import KINDS
@@ -63,7 +64,8 @@ class CapPlannerRoute(FixedRoute):
     predicted chance of arriving without a fall for which it sets out (CapabilityVIPlanner);
     ``back_out`` whether it backs out of a dead end (qz_drake.planning.back_out);
     ``measured_stance`` whether each replan judges the first moves from the robot's stance,
-    ``refused_in_every_topology`` whether a refused move is closed in every topology
+    ``refused_in_every_topology`` whether a refused move is closed in every topology,
+    ``hold_margin`` how much more a replan's route must be worth to replace the current one
     (CapabilityVIPlanner)."""
 
     mission_retries = CAPPLANNER_MISSION_RETRIES
@@ -71,7 +73,8 @@ class CapPlannerRoute(FixedRoute):
     name = "CapPlanner"
 
     def __init__(self, split_config: MissionSplitConfig | None = None, min_route_success: float = 0.05,
-                 back_out: bool = True, measured_stance: bool = True, refused_in_every_topology: bool = True):
+                 back_out: bool = True, measured_stance: bool = True, refused_in_every_topology: bool = True,
+                 hold_margin: float | None = None):
         from qz_drake.errors import bad_value
 
         self._split = (split_config or MissionSplitConfig()).check()
@@ -81,6 +84,10 @@ class CapPlannerRoute(FixedRoute):
         self.back_out = bool(back_out)
         self.measured_stance = bool(measured_stance)
         self.refused_in_every_topology = bool(refused_in_every_topology)
+        if hold_margin is not None and not (isinstance(hold_margin, (int, float)) and not isinstance(hold_margin, bool)
+                                            and math.isfinite(hold_margin) and hold_margin >= 0):
+            raise bad_value("hold_margin", hold_margin, "must be a finite number >= 0 (value units) or None")
+        self.hold_margin = None if hold_margin is None else float(hold_margin)
 
     def blc_parameters(self):
         # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt
@@ -107,7 +114,8 @@ class CapPlannerRoute(FixedRoute):
                                    mdp_config=mdp_config(control.capability_mdp, topologies),
                                    split_config=self._split, min_route_success=self.min_route_success,
                                    back_out=self.back_out, measured_stance=self.measured_stance,
-                                   refused_in_every_topology=self.refused_in_every_topology)
+                                   refused_in_every_topology=self.refused_in_every_topology,
+                                   hold_margin=self.hold_margin)
 
     def unreachable(self, source) -> str:
         return source.log.unreachable

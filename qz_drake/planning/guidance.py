@@ -124,3 +124,21 @@ def split_missions(steps, config: MissionSplitConfig = MissionSplitConfig(),
         m.target = (x, y, yaw)
         previous = yaw
     return missions
+
+
+def route_ahead(missions, distance: float) -> list[tuple[float, float]]:
+    """The cell centres (x, y) a route of GuidedMissions crosses within its first ``distance``
+    of travel, in order (a turn in place adds none): what two routes from one state are
+    compared on. [m]"""
+    cells, travelled = [], 0.0
+    for m in missions:
+        for x, y in m.polyline():
+            point = (round(float(x), 6), round(float(y), 6))
+            if cells and point == cells[-1]:
+                continue
+            if cells:
+                travelled += math.dist(cells[-1], point)
+                if travelled > distance + 1e-9:
+                    return cells
+            cells.append(point)
+    return cells

@@ -10,6 +10,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
 
+from qz_drake.errors import QzError
 from qz_drake.planning.capability_mdp import CapabilityMdpConfig
 from qz_drake.planning.capability_planner import CapabilityVIPlanner
 from qz_drake.state_layout import make_state
@@ -378,3 +379,107 @@ def test_a_dead_end_the_model_foretells_is_backed_out_of_without_a_refusal(strai
     missions = _walk_one_mission(planner, simulator, context, here, START, straight_plan)
     assert missions and not missions[0].back_out and not planner.done
     np.testing.assert_allclose(missions[-1].target[:2], GOAL)
+
+
+class LeaningModel(WallModel):
+    """WallModel, and from a stance with a foot 0.1 m or more below the ground under the body
+    every forward move walks ``factor`` times as often (turns as before)."""
+
+    def __init__(self, factor: float = 1.0):
+        self.factor = factor
+
+    def success(self, patches, feet, kind, topology, direction=None):
+        p = super().success(patches, feet, kind, topology, direction)
+        if kind == "turn":
+            return p
+        return np.where((np.asarray(feet)[..., 2] < -0.1).any(axis=-1), p * self.factor, p)
+
+
+def _wall_ahead() -> HeightMap:
+    """10 m x 8 m of 0.05 m cells (x -4..6, y -4..4), a 0.4 m wall across x 1.75-2.25 m for
+    |y| < 1.5 m: the way from (-3, 0) to (5, 0) goes round it, north or south."""
+    res = 0.05
+    c = -4.0 + res / 2 + res * np.arange(200)
+    r = -4.0 + res / 2 + res * np.arange(160)
+    gx, gy = np.meshgrid(c, r)
+    heights = np.where((gx >= 1.75) & (gx < 2.25) & (np.abs(gy) < 1.5), 0.4, 0.0)
+    return HeightMap(heights, res, (float(c[0]), float(r[0])))
+
+
+def _first_mission_end(factor, hold_margin, foot_drop=0.0, shift=(0.0, 0.0)):
+    """CapPlanner from (-3, 0) to (5, 0) round _wall_ahead; the first mission walked to its
+    target (moved by ``shift``) with the nominal stance, one foot ``foot_drop`` lower. Returns
+    (planner, the route held before the replan, the replan's missions)."""
+    from qz_drake.capability import patches as P
+    from qz_drake.robot.params import DEFAULT_PARAMS
+    from qz_drake.robot.topology import get_topology
+
+    heightmap = _wall_ahead()
+    planner = CapabilityVIPlanner(model=LeaningModel(factor), heightmap=heightmap, goal=(5.0, 0.0),
+                                  start=(-3.0, 0.0, 0.0), mdp_config=CapabilityMdpConfig(topologies=["nominal"]),
+                                  hold_margin=hold_margin)
+    route = list(planner.GetOutputPort("guidance").Eval(planner.CreateDefaultContext()))
+    x, y, yaw = route[0].target
+    x, y = x + shift[0], y + shift[1]
+    feet = P.nominal_feet_W(heightmap, x, y, yaw, get_topology("nominal"), DEFAULT_PARAMS.foot_radius)
+    feet[0, 2] -= foot_drop
+    return planner, route[1:], planner.next_missions(1.0, x, y, yaw, "nominal", feet, route[1:])
+
+
+def _targets(missions):
+    return [tuple(np.round(m.target, 6)) for m in missions]
+
+
+def test_path_value_is_the_policys_value_along_its_own_path_and_less_along_another():
+    from qz_drake.planning.capability_mdp import most_likely_path, path_value
+
+    planner, held, _ = _first_mission_end(1.0, None)
+    mdp, solution = planner.mdp, planner.solution
+    start = mdp.state(*mdp.cell_of(-3.0, 0.0), 0, "nominal")
+    steps, reaches, _ = most_likely_path(mdp, solution, start)
+    assert reaches
+    epsilon = mdp.config.epsilon
+    assert path_value(mdp, solution, steps) == pytest.approx(solution.V[start], abs=epsilon)
+    # The held route from the first mission's end is the policy's there too.
+    here = [s for m in held for s in m.steps]
+    assert path_value(mdp, solution, here) == pytest.approx(solution.V[mdp.state(*mdp.cell_of(-2.0, 1.0), 1,
+                                                                                  "nominal")], abs=epsilon)
+    # Forbid the path's second action: walking it anyway is worth less than the policy's way round.
+    from qz_drake.planning.capability_mdp import forbid_action, solve_capability_mdp, step_state_action
+
+    forbid_action(mdp, *step_state_action(mdp, steps[1]))
+    solution = solve_capability_mdp(mdp)
+    assert path_value(mdp, solution, steps) < solution.V[start] - 10.0
+    with pytest.raises(QzError, match="steps"):
+        path_value(mdp, solution, [steps[0], steps[2]])
+
+
+def test_a_replan_keeps_the_route_unless_the_new_one_is_worth_more_than_the_hold_margin():
+    """At the first mission's end the robot stands with a foot 0.1 m low, from which forward
+    moves walk 0.9 times as often: the policy would now turn and step east first (a gain of
+    about 8 against a goal of 100). With ``hold_margin`` 20 the robot keeps its route; with
+    0.5, or without holding (the paper's TLC), it changes; a stance from which forward moves
+    walk 0.6 times as often is worth changing for even with 20. Without new information (the
+    nominal stance) every setting keeps the route; an end off the route (another cell) is
+    planned from anew."""
+    planner, held, none = _first_mission_end(0.9, None, foot_drop=0.15)
+    assert _targets(none) != _targets(held) and planner.log.route_decisions == [(1.0, "changed")]
+    planner, held, kept = _first_mission_end(0.9, 20.0, foot_drop=0.15)
+    assert _targets(kept) == _targets(held) and planner.log.route_decisions == [(1.0, "held")]
+    assert planner.counts()["tlc_routes_held"] == 1 and planner.counts()["tlc_routes_changed"] == 0
+    assert planner.log.replans[-1][2] == len(held)
+    planner, held, changed = _first_mission_end(0.9, 0.5, foot_drop=0.15)
+    assert _targets(changed) == _targets(none) and planner.log.route_decisions == [(1.0, "changed")]
+    planner, held, changed = _first_mission_end(0.6, 20.0, foot_drop=0.15)
+    assert _targets(changed) != _targets(held) and planner.log.route_decisions == [(1.0, "changed")]
+    for margin in (None, 0.5, 20.0):
+        planner, held, same = _first_mission_end(0.6, margin)
+        assert _targets(same) == _targets(held) and planner.log.route_decisions == [(1.0, "same")]
+    planner, held, moved = _first_mission_end(1.0, 20.0, shift=(1.0, 0.0))
+    assert planner.log.route_decisions == [(1.0, "off route")] and moved and _targets(moved) != _targets(held)
+
+
+def test_a_hold_margin_must_be_a_finite_number_at_least_zero():
+    for bad in (-1.0, float("nan"), True, "2"):
+        with pytest.raises(QzError, match="hold_margin"):
+            _first_mission_end(1.0, bad)

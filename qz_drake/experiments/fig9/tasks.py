@@ -87,6 +87,10 @@ class ExperimentConfig:
     # (CapabilityVIPlanner's min_route_success). 0: it never declines a task it has a path for,
     # as A* never declines one it has a route for; a declined task is a failed one here.
     capplanner_min_route_success: float = 0.0
+    # A replan at a mission's end keeps CapPlanner's route unless the new one is worth more
+    # than this (CapabilityVIPlanner's hold_margin, value units); None: every replan takes the
+    # policy's path, as the paper's TLC (and every run before issue 54).
+    capplanner_hold_margin: float | None = None
     # Keep every mission of every walk in its record (``missions``: where it started, its
     # target, its outcome; capability.walk_missions), for scoring a capability model on whole
     # walks (issue 37). Off for the experiment itself (the records stay small).
@@ -138,7 +142,8 @@ def _capplanner(task, config):
     return (Route(True, "", [], 0.0, np.zeros((0, 2))), "capplanner", [(*task.goal, 0.0, "nominal")],
             CapPlannerRoute(split, min_route_success=config.capplanner_min_route_success,
                             back_out=config.recovery_back_out, measured_stance=config.capplanner_measured_stance,
-                            refused_in_every_topology=config.capplanner_refused_in_every_topology))
+                            refused_in_every_topology=config.capplanner_refused_in_every_topology,
+                            hold_margin=config.capplanner_hold_margin))
 
 
 def _mdp_overrides(config: ExperimentConfig) -> dict:
@@ -158,6 +163,7 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
     """Plans and walks one task; returns its record (never raises for a failed walk)."""
     from qz_drake.config import (ControllerConfig, RobotConfig, Scenario, SimulationConfig,
                                  TerrainConfig, Waypoint)
+    from qz_drake.planning.capability_planner import ROUTE_DECISIONS
     from qz_drake.planning.capplanner_route import route_source_for
     from qz_drake.simulation import walk
     from qz_drake.trajopt.parameters import BlcParameters
@@ -222,6 +228,9 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
             record["planning_time_s"] = float(m.get("planning_time_s", 0.0))
             # Replans that walked the most probable path (the MDP's policy did not reach the goal).
             record["most_probable"] = int(m.get("tlc_most_probable", 0))
+            # What each replan at a mission's end did with the route (CapabilityPlannerLog.route_decisions).
+            record["route_decisions"] = {d: int(m.get(f"tlc_routes_{d.replace(' ', '_')}", 0))
+                                         for d in ROUTE_DECISIONS}
     except Exception as e:  # a crash of the run, not an outcome: recorded as an error
         import traceback
 
