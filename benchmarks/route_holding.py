@@ -52,7 +52,8 @@ def dry_walk(task, model, settings: dict, margin: float | None, mdp: dict | None
     overrides = dict(failure_reward=settings["capplanner_failure_reward"],
                      topology_change_cost=settings["capplanner_topology_change_cost"],
                      plan_failure_risk=settings["capplanner_plan_failure_risk"],
-                     topology_doubt=float(settings["capplanner_topology_doubt"]), **(mdp or {}))
+                     topology_doubt=float(settings["capplanner_topology_doubt"]))
+    overrides.update(mdp or {})
     split = MissionSplitConfig(max_length=settings["capplanner_mission_length"],
                                min_success=settings["capplanner_merge_min_success"])
     clock = time.perf_counter()
@@ -63,7 +64,9 @@ def dry_walk(task, model, settings: dict, margin: float | None, mdp: dict | None
     route = list(planner.GetOutputPort("guidance").Eval(planner.CreateDefaultContext()))
     first = sum(m.length for m in route)
     plan = planner.first_plan
-    predicted = plan.success_probability if plan is not None and plan.reaches_goal else 0.0
+    reaches = plan is not None and plan.reaches_goal
+    predicted = plan.success_probability if reaches else 0.0
+    fall_free = plan.fall_free_probability if reaches else 0.0
     walked, missions, actions, replans, reached = 0.0, 0, 0, 0, False
     x, y = task.start
     while route and missions < MAX_MISSIONS:
@@ -83,7 +86,7 @@ def dry_walk(task, model, settings: dict, margin: float | None, mdp: dict | None
         route = new
     decisions = {d: sum(1 for _, x in planner.log.route_decisions if x == d) for d in ROUTE_DECISIONS}
     return {"reached": reached, "missions": missions, "actions": actions, "walked_m": walked, "first_plan_m": first,
-            "first_plan_success": predicted,
+            "first_plan_success": predicted, "first_plan_fall_free": fall_free,
             "replans": replans, "route_changes": decisions["changed"], "decisions": decisions,
             "back_outs": planner.log.back_outs, "wall_s": time.perf_counter() - clock}
 
@@ -120,7 +123,7 @@ def run(out: Path, seeds, margins, terrains, difficulties, settings: dict, mdp: 
 def summary(paths) -> str:
     rows = [r for p in paths for r in map(json.loads, Path(p).read_text().splitlines())]
     lines = ["| MDP settings | margin | difficulty | tasks | reached | walked / straight (reached) "
-             "| walked / first plan (reached) | first plan's predicted success | replans changing the next 2 m "
+             "| walked / first plan (reached) | first plan's predicted success / no fall | replans changing the next 2 m "
              "| same / held / changed / off route / new | back-outs |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     arms = sorted({(json.dumps(r.get("mdp", {}), sort_keys=True), r["margin"]) for r in rows},
@@ -139,7 +142,8 @@ def summary(paths) -> str:
                 f"| {names} | {'none' if margin is None else margin} | {difficulty} | {len(group)} | {len(ok)} "
                 f"| {np.mean([r['walked_m'] / r['straight_m'] for r in ok]):.3f} "
                 f"| {np.mean([r['walked_m'] / max(r['first_plan_m'], 1e-9) for r in ok]):.3f} "
-                f"| {np.mean([r.get('first_plan_success', np.nan) for r in group]):.3f} "
+                f"| {np.mean([r.get('first_plan_success', np.nan) for r in group]):.3f} / "
+                f"{np.mean([r.get('first_plan_fall_free', np.nan) for r in group]):.3f} "
                 f"| {sum(r['route_changes'] for r in group)} of {replans} "
                 f"({sum(r['route_changes'] for r in group) / max(replans, 1):.0%}) "
                 f"| {' / '.join(str(d[k]) for k in d)} | {sum(r['back_outs'] for r in group)} |")

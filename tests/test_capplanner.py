@@ -609,14 +609,15 @@ def test_experiment_takes_a_tuning_and_refuses_a_missing_or_foreign_one(tmp_path
 
     (tmp_path / "capplanner.json").write_text(json.dumps(
         {"planner": "capplanner", "chosen": {"failure_reward": -200.0, "topology_change_cost": 6.0}}))
-    # A tuning from before plan_failure_risk, the mission length and the merge threshold were
-    # settings: their defaults.
+    # A tuning from before plan_failure_risk, the mission length, the merge threshold and the
+    # pessimism were settings: the values it was walked with.
     assert capplanner_settings(tmp_path / "capplanner.json") == {"capplanner_failure_reward": -200.0,
                                                                  "capplanner_topology_change_cost": 6.0,
                                                                  "capplanner_plan_failure_risk": 0.0,
                                                                  "capplanner_mission_length": 2.0,
                                                                  "capplanner_merge_min_success": 0.8,
-                                                                 "capplanner_topology_doubt": False}
+                                                                 "capplanner_topology_doubt": False,
+                                                                 "capplanner_pessimism": 1.0}
     with pytest.raises(QzError, match="--astar-tuning"):
         astar_settings(tmp_path / "capplanner.json")
     with pytest.raises(QzError, match="--capplanner-tuning"):

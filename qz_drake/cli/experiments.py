@@ -193,7 +193,7 @@ def run_tune_astar(args) -> int:
 def run_tune_capplanner(args) -> int:
     from qz_drake.experiments.fig9 import (TUNING_FAILURE_REWARDS, TUNING_MERGE_MIN_SUCCESS, TUNING_MISSION_LENGTHS,
                                            TUNING_PLAN_FAILURE_RISKS, TUNING_TOPOLOGY_CHANGE_COSTS,
-                                           TUNING_TOPOLOGY_DOUBTS, ExperimentConfig,
+                                           TUNING_PESSIMISMS, TUNING_TOPOLOGY_DOUBTS, ExperimentConfig,
                                            TUNING_DIFFICULTIES, tune_capplanner)
     from qz_drake.experiments.worlds import TERRAINS
 
@@ -205,6 +205,7 @@ def run_tune_capplanner(args) -> int:
         mission_lengths=_numbers(args.mission_lengths, "--mission-lengths") or TUNING_MISSION_LENGTHS,
         merge_min_success=_numbers(args.merge_thresholds, "--merge-thresholds") or TUNING_MERGE_MIN_SUCCESS,
         topology_doubts=_switches(args.topology_doubts, "--topology-doubts") or TUNING_TOPOLOGY_DOUBTS,
+        pessimisms=_numbers(args.pessimisms, "--pessimisms") or TUNING_PESSIMISMS,
         terrains=_names(args.terrains, "--terrains", TERRAINS),
         difficulties=_names(args.difficulties, "--difficulties", TUNING_DIFFICULTIES),
         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
@@ -352,6 +353,9 @@ def register(subparsers) -> None:
     p.add_argument("--topology-doubts", default=None,
                    help="comma-separated on/off: doubt a topology change by the ensemble's disagreement about the "
                         "difference (default on)")
+    p.add_argument("--pessimisms", default=None,
+                   help="comma-separated doubts of an action's success by the ensemble's spread, p - pessimism x "
+                        "spread (default 1)")
     p.add_argument("--model", default=None, help="CapPlanner's capability model folder (default: shipped)")
     _stance_argument(p)
     p.set_defaults(func=run_tune_capplanner)

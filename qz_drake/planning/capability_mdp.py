@@ -555,13 +555,18 @@ def stance_outcomes(model, heightmap, x: float, y: float, heading: int, topology
 
 def set_stance(mdp: CapabilityMdp, state: int, outcomes: np.ndarray) -> dict:
     """Replaces, in place, the moves of ``state``'s own topology from that state with what the
-    robot's stance gives them (``outcomes``: stance_outcomes), a refusal counted as a failure:
-    the BLC is deterministic, and from a stance it refuses an action it refuses it again, so a
-    refusal predicted from the stance the robot stands in is a dead end, not a stand and a retry.
-    Actions already forbidden (forbid_action) stay forbidden. The success is doubted by the
-    spread as the map's is (``pessimism``); ``topology_doubt``'s comparison with nominal is
-    not made here (the robot's own topology's moves, nominal's nearly always). Returns what it
-    replaced, for :func:`restore_actions`."""
+    robot's stance gives them (``outcomes``: stance_outcomes). A refusal predicted from the
+    stance is weighed as the map weighs refusals: the share ``1 - plan_failure_risk`` of it
+    leaves the robot standing, valued by the best other action (the BLC is deterministic, and
+    the TLC goes round a refused action instead of retrying it), the rest counts as a failure;
+    at the tuned risk 1 every predicted refusal is a failure, as it was before the risk applied
+    here. (Counted as a failure at a lower risk, the robot's own moves looked worse than the
+    same moves from every other state, and the policy turned back and forth: in TLC-only walks of
+    the 24 tuning tasks at risk 0, 11 never reached the goal in 80 missions.) Actions already
+    forbidden (forbid_action) stay forbidden. The success is doubted by the spread as the map's
+    is (``pessimism``); ``topology_doubt``'s comparison with nominal is not made here (the
+    robot's own topology's moves, nominal's nearly always). Returns what it replaced, for
+    :func:`restore_actions`."""
     if not (0 <= state < mdp.goal_state):
         raise bad_value("state", state, f"expected a grid state 0..{mdp.goal_state - 1}")
     ix, iy, _, topology = mdp.unravel(state)
@@ -578,10 +583,12 @@ def set_stance(mdp: CapabilityMdp, state: int, outcomes: np.ndarray) -> dict:
         saved[a] = (float(mdp.success[a, state]), None if mdp.stand is None else float(mdp.stand[a, state]),
                     float(mdp.R[state, a]))
         p = float(np.clip(outcomes[m, 0] - config.pessimism * outcomes[m, 2], 0.0, 1.0))
-        mdp.success[a, state] = p
+        q = 0.0
         if mdp.stand is not None:
-            mdp.stand[a, state] = 0.0
-        mdp.R[state, a] = action_reward(config, p, 0.0, nxt == mdp.goal_state, False)
+            q = float(np.clip(1.0 - outcomes[m, 1], 0.0, 1.0 - p)) * (1.0 - config.plan_failure_risk)
+            mdp.stand[a, state] = q
+        mdp.success[a, state] = p
+        mdp.R[state, a] = action_reward(config, p, q, nxt == mdp.goal_state, False)
     return {state: saved}
 
 

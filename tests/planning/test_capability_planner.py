@@ -483,3 +483,25 @@ def test_a_hold_margin_must_be_a_finite_number_at_least_zero():
     for bad in (-1.0, float("nan"), True, "2"):
         with pytest.raises(QzError, match="hold_margin"):
             _first_mission_end(1.0, bad)
+
+
+@pytest.mark.parametrize("risk", [0.0, 0.5, 1.0])
+def test_a_refusal_foretold_from_the_stance_is_weighed_as_the_map_weighs_refusals(risk):
+    """From the robot's stance the model says the forward move walks 0.6 of the time and is
+    planned 0.7: the 0.3 refused leaves the robot standing (the TLC goes round) but for the
+    share plan_failure_risk counted as a fall, as on the rest of the map; restore_actions puts
+    the map's values back."""
+    from qz_drake.planning.capability_mdp import action_reward, restore_actions, set_stance
+
+    planner = CapabilityVIPlanner(model=WallModel(), heightmap=_world(), goal=GOAL, start=(*START, 0.0),
+                                  mdp_config=CapabilityMdpConfig(topologies=["nominal"], plan_failure_risk=risk))
+    mdp = planner.mdp
+    s = mdp.state(*mdp.cell_of(*START), 0, "nominal")
+    before = (mdp.success[:, s].copy(), mdp.stand[:, s].copy(), mdp.R[s].copy())
+    saved = set_stance(mdp, s, np.array([[0.6, 0.7, 0.0], [0.99, 1.0, 0.0], [0.95, 0.97, 0.0]]))
+    assert mdp.success[0, s] == pytest.approx(0.6) and mdp.stand[0, s] == pytest.approx(0.3 * (1.0 - risk))
+    assert mdp.stand[2, s] == pytest.approx(0.03 * (1.0 - risk))
+    assert mdp.R[s, 0] == pytest.approx(action_reward(mdp.config, 0.6, 0.3 * (1.0 - risk), False, False))
+    restore_actions(mdp, saved)
+    for was, now in zip(before, (mdp.success[:, s], mdp.stand[:, s], mdp.R[s])):
+        np.testing.assert_array_equal(was, now)

@@ -22,7 +22,8 @@ from qz_drake.experiments.fig9.run import run_experiment
 from qz_drake.experiments.fig9.tasks import PLANNERS, ExperimentConfig, TaskSpec, path_samples, run_task
 from qz_drake.experiments.fig9.tune import (TUNING_BODY_RADII, TUNING_DIFFICULTIES, TUNING_FAILURE_REWARDS,
                                             TUNING_MERGE_MIN_SUCCESS, TUNING_MISSION_LENGTHS,
-                                            TUNING_PLAN_FAILURE_RISKS, TUNING_SLOPES_DEG, TUNING_STEP_HEIGHTS,
+                                            TUNING_PESSIMISMS, TUNING_PLAN_FAILURE_RISKS, TUNING_SLOPES_DEG,
+                                            TUNING_STEP_HEIGHTS,
                                             TUNING_TASKS_PER_CELL, TUNING_TOPOLOGY_CHANGE_COSTS,
                                             TUNING_TOPOLOGY_DOUBTS, astar_settings, capplanner_settings,
                                             tune_astar, tune_capplanner)
@@ -35,5 +36,5 @@ __all__ = [
     "tune_capplanner", "astar_settings", "capplanner_settings", "TUNING_TASKS_PER_CELL", "TUNING_DIFFICULTIES",
     "TUNING_STEP_HEIGHTS", "TUNING_SLOPES_DEG", "TUNING_BODY_RADII", "TUNING_FAILURE_REWARDS",
     "TUNING_TOPOLOGY_CHANGE_COSTS", "TUNING_PLAN_FAILURE_RISKS", "TUNING_MISSION_LENGTHS",
-    "TUNING_MERGE_MIN_SUCCESS", "TUNING_TOPOLOGY_DOUBTS",
+    "TUNING_MERGE_MIN_SUCCESS", "TUNING_TOPOLOGY_DOUBTS", "TUNING_PESSIMISMS",
 ]

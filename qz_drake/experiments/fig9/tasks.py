@@ -72,6 +72,9 @@ class ExperimentConfig:
     # Whether CapPlanner doubts a topology change by the ensemble's disagreement about the
     # difference between the topologies (capability_mdp.CapabilityMdpConfig.topology_doubt).
     capplanner_topology_doubt: bool = True
+    # How far CapPlanner doubts an action's success by the ensemble's spread
+    # (capability_mdp.CapabilityMdpConfig.pessimism: p - pessimism * spread).
+    capplanner_pessimism: float = 1.0
     # Whether CapPlanner judges the first moves of each replan from the stance the robot stands
     # in, and backs out of a dead end the model foretells (CapabilityVIPlanner's measured_stance).
     capplanner_measured_stance: bool = True
@@ -151,7 +154,7 @@ def _mdp_overrides(config: ExperimentConfig) -> dict:
     return dict(failure_reward=config.capplanner_failure_reward,
                 topology_change_cost=config.capplanner_topology_change_cost,
                 plan_failure_risk=config.capplanner_plan_failure_risk,
-                topology_doubt=float(config.capplanner_topology_doubt))
+                topology_doubt=float(config.capplanner_topology_doubt), pessimism=config.capplanner_pessimism)
 
 
 # Top-level controllers: name -> (task, config) -> (Route, walking planner, waypoints, route

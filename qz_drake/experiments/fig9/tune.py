@@ -36,7 +36,8 @@ CAPPLANNER_TUNED = {"failure_reward": "capplanner_failure_reward",
                     "plan_failure_risk": "capplanner_plan_failure_risk",
                     "mission_length": "capplanner_mission_length",
                     "merge_min_success": "capplanner_merge_min_success",
-                    "topology_doubt": "capplanner_topology_doubt"}
+                    "topology_doubt": "capplanner_topology_doubt",
+                    "pessimism": "capplanner_pessimism"}
 # Tuning tasks per terrain and difficulty for either planner (issue 38: with two, every A*
 # setting scored 9-11 of 18 and the choice was noise).
 TUNING_TASKS_PER_CELL = 4
@@ -242,13 +243,16 @@ TUNING_PLAN_FAILURE_RISKS = (0.0, 1.0)
 TUNING_MISSION_LENGTHS = (1.5, 2.0)
 TUNING_MERGE_MIN_SUCCESS = (0.8, 0.95)
 TUNING_TOPOLOGY_DOUBTS = (True,)
+# How far an action's success is doubted by the ensemble's spread (CapabilityMdpConfig.pessimism):
+# one value unless searched (--pessimisms).
+TUNING_PESSIMISMS = (1.0,)
 
 
 def tune_capplanner(out, *, failure_rewards=TUNING_FAILURE_REWARDS,
                     topology_change_costs=TUNING_TOPOLOGY_CHANGE_COSTS,
                     plan_failure_risks=TUNING_PLAN_FAILURE_RISKS, mission_lengths=TUNING_MISSION_LENGTHS,
                     merge_min_success=TUNING_MERGE_MIN_SUCCESS, topology_doubts=TUNING_TOPOLOGY_DOUBTS,
-                    terrains=TERRAINS,
+                    pessimisms=TUNING_PESSIMISMS, terrains=TERRAINS,
                     difficulties=TUNING_DIFFICULTIES, tasks: int = TUNING_TASKS_PER_CELL, workers: int = 1,
                     ray_address: str | None = None, config: ExperimentConfig = ExperimentConfig(),
                     progress: bool = True) -> dict:
@@ -263,12 +267,14 @@ def tune_capplanner(out, *, failure_rewards=TUNING_FAILURE_REWARDS,
     _check_numbers("--mission-lengths", mission_lengths, lambda v: v >= 1.42, "expected lengths >= 1.42 m "
                                                                                 "(a diagonal move)")
     _check_numbers("--merge-thresholds", merge_min_success, lambda v: 0 <= v <= 1, "expected numbers in [0, 1]")
+    _check_numbers("--pessimisms", pessimisms, lambda v: v >= 0, "expected numbers >= 0")
     if not topology_doubts or not all(isinstance(d, (bool, np.bool_)) for d in topology_doubts):
         raise bad_value("--topology-doubts", list(topology_doubts), "expected true/false values")
     grid = [{"failure_reward": float(f), "topology_change_cost": float(c), "plan_failure_risk": float(r),
-             "mission_length": float(m), "merge_min_success": float(s), "topology_doubt": bool(d)}
+             "mission_length": float(m), "merge_min_success": float(s), "topology_doubt": bool(d),
+             "pessimism": float(e)}
             for d in topology_doubts for r in plan_failure_risks for f in failure_rewards
-            for c in topology_change_costs for m in mission_lengths for s in merge_min_success]
+            for c in topology_change_costs for m in mission_lengths for s in merge_min_success for e in pessimisms]
     split = MissionSplitConfig()
     # Folders of the settings at the defaults keep the names they had before these were settings.
     return _tune(out, "capplanner", grid, CAPPLANNER_TUNED,
@@ -277,6 +283,7 @@ def tune_capplanner(out, *, failure_rewards=TUNING_FAILURE_REWARDS,
                            + (f"_missions{g['mission_length']:g}" if g["mission_length"] != split.max_length else "")
                            + (f"_merge{g['merge_min_success']:g}" if g["merge_min_success"] != split.min_success
                               else "")
-                           + ("" if g["topology_doubt"] else "_nodoubt"),
+                           + ("" if g["topology_doubt"] else "_nodoubt")
+                           + ("" if g["pessimism"] == 1.0 else f"_pessimism{g['pessimism']:g}"),
                  terrains=terrains, difficulties=difficulties, tasks=tasks, workers=workers,
                  ray_address=ray_address, config=config, progress=progress)
