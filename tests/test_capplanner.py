@@ -365,7 +365,7 @@ def test_capplanner_is_tuned_on_the_same_tuning_worlds_as_astar(synthetic_model_
 
     report = tune_capplanner(tmp_path, failure_rewards=(-100.0, -300.0), topology_change_costs=(2.0,),
                              mission_lengths=(1.5,), merge_min_success=(0.95,), topology_doubts=(False,),
-                             plan_failure_risks=(0.0,),
+                             plan_failure_risks=(0.0,), pessimisms=(0.5,),
                              terrains=("obstacles",), difficulties=("simple",), tasks=1,
                              config=ExperimentConfig(capability_model=str(synthetic_model_dir), scale=0.3),
                              progress=False)
@@ -378,16 +378,19 @@ def test_capplanner_is_tuned_on_the_same_tuning_worlds_as_astar(synthetic_model_
         assert settings["capplanner_failure_reward"] == g["failure_reward"]
         assert (settings["capplanner_mission_length"], settings["capplanner_merge_min_success"]) == (1.5, 0.95)
         assert settings["capplanner_topology_doubt"] is False and g["topology_doubt"] is False
-        assert Path(g["folder"]).name.endswith("_missions1.5_merge0.95_nodoubt")
+        assert settings["capplanner_pessimism"] == 0.5 == g["pessimism"]
+        assert Path(g["folder"]).name.endswith("_missions1.5_merge0.95_nodoubt_pessimism0.5")
     assert report["chosen"]["failure_reward"] in (-100.0, -300.0)
     assert capplanner_settings(tmp_path) == {"capplanner_failure_reward": report["chosen"]["failure_reward"],
                                              "capplanner_topology_change_cost": 2.0,
                                              "capplanner_plan_failure_risk": 0.0,
                                              "capplanner_mission_length": 1.5,
                                              "capplanner_merge_min_success": 0.95,
-                                             "capplanner_topology_doubt": False}
+                                             "capplanner_topology_doubt": False, "capplanner_pessimism": 0.5}
     with pytest.raises(QzError, match="--topology-doubts"):
         tune_capplanner(tmp_path, topology_doubts=(1.0,), progress=False)
+    with pytest.raises(QzError, match="--pessimisms"):
+        tune_capplanner(tmp_path, pessimisms=(-1.0,), progress=False)
 
 
 def test_capplanner_results_are_not_resumed_with_another_model(briefly_trained_model_dir, tmp_path):

@@ -54,3 +54,23 @@ def test_a_help_page_lists_the_names_of_the_modules_it_did_not_import():
     for kind in TERRAIN_KINDS:
         assert f"  {kind}: " in terrain.stdout, kind
     assert "LazyText" not in collect.stdout + terrain.stdout
+
+
+_PLAN_WITHOUT_OUT = """
+import json, sys
+from qz_drake.cli import main
+code = main(["plan", "--terrain", "flat", "--start", "0,0", "--goal", "1,0", "--json"])
+print(json.dumps({"code": code, "modules": sorted(sys.modules)}))
+"""
+
+
+def test_qz_plan_without_out_draws_nothing_and_imports_no_matplotlib(tmp_path):
+    # Issue 53: matplotlib (a third of a second) is imported where a picture is asked for only.
+    done = subprocess.run([sys.executable, "-c", _PLAN_WITHOUT_OUT], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.strip().splitlines()
+    plan, after = json.loads(lines[0]), json.loads(lines[-1])
+    assert after["code"] == 0 and plan["success"] and plan["png"] is None
+    assert not [m for m in after["modules"] if m == "matplotlib" or m.startswith("matplotlib.")]
+    assert not list(tmp_path.iterdir())  # no out/plan folder either

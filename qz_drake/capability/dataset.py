@@ -23,6 +23,8 @@ import functools
 import hashlib
 import json
 import os
+import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -190,7 +192,42 @@ def _robot_config() -> tuple:
 def robot_fingerprint() -> str:
     """The running code's robot fingerprint (fingerprints()["robot"]: no trial setting enters it);
     the code does not change while a process runs, so it is computed once."""
-    return _digest(*_robot_config(), *(f"{m}:{_code_hash(m)}" for m in fingerprinted_modules()["robot"]))
+    return _digest(*_robot_config(), *_robot_code_hashes())
+
+
+# Where _robot_code_hashes keeps its answer between processes, as Python keeps bytecode.
+_ROBOT_HASHES_CACHE = Path(__file__).parent / "__pycache__" / "robot_code_hashes.json"
+
+
+def _robot_code_hashes() -> list[str]:
+    """``module:code hash`` of each module of the robot component. Finding them parses every
+    fingerprinted module (56 files, a fifth of a second each time a model loads), so the answer
+    is kept in _ROBOT_HASHES_CACHE under the hash of every qz_drake source file and the Python
+    version (ast.dump's format): the same sources give the same answer, and any edit anywhere in
+    the package recomputes it. A cache that cannot be read or written is passed by."""
+    digest = hashlib.sha256(sys.version.encode())
+    for file in sorted(_PACKAGE_ROOT.rglob("*.py")):
+        digest.update(f"{file.relative_to(_PACKAGE_ROOT)}\n".encode())
+        digest.update(hashlib.sha256(file.read_bytes()).digest())
+    sources = digest.hexdigest()
+    try:
+        kept = json.loads(_ROBOT_HASHES_CACHE.read_text())
+        if kept["sources"] == sources:
+            return list(kept["hashes"])
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    hashes = [f"{m}:{_code_hash(m)}" for m in fingerprinted_modules()["robot"]]
+    tmp = None
+    try:
+        _ROBOT_HASHES_CACHE.parent.mkdir(exist_ok=True)
+        # A name of its own: processes loading models at once each write a whole file.
+        with tempfile.NamedTemporaryFile("w", dir=_ROBOT_HASHES_CACHE.parent, suffix=".tmp", delete=False) as tmp:
+            json.dump({"sources": sources, "hashes": hashes}, tmp)
+        os.replace(tmp.name, _ROBOT_HASHES_CACHE)
+    except OSError:
+        if tmp is not None:
+            Path(tmp.name).unlink(missing_ok=True)
+    return hashes
 
 
 def combined_fingerprint(parts: dict[str, str]) -> str:

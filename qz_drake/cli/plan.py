@@ -1,10 +1,11 @@
 """``qz plan``: CapPlanner's top-level controller alone (paper 000 II-E.2, Fig. 6a).
 
 The learned capability of every move and turn over the map in one batch, value iteration over
-the capability MDP, the most likely path from the start to the goal and its BLC missions;
-writes the utility map with the path (``plan.png``) and ``plan.json``. A goal no path reaches
-is a reported outcome (exit 1); a goal off the map or where the robot cannot stand, a start
-where it cannot stand, or a model of another robot is bad input (exit 2).
+the capability MDP, the most likely path from the start to the goal and its BLC missions; with
+``--out``, writes the utility map with the path (``plan.png``, the one use of matplotlib) and
+``plan.json`` there, and without it draws and writes nothing. A goal no path reaches is a
+reported outcome (exit 1); a goal off the map or where the robot cannot stand, a start where it
+cannot stand, or a model of another robot is bad input (exit 2).
 """
 
 from __future__ import annotations
@@ -22,7 +23,6 @@ def run_plan(args) -> int:
     from qz_drake.capability.model import CapabilityModel
     from qz_drake.capability.model_commands import load_terrain
     from qz_drake.capability.patches import KINDS
-    from qz_drake.capability.plots import plot_plan
     from qz_drake.planning.capability_mdp import CapabilityMdpConfig, plan
     from qz_drake.planning.guidance import split_missions
     from qz_drake.config import check_feet_on_map, feet_on_ground
@@ -36,8 +36,8 @@ def run_plan(args) -> int:
         raise bad_value("--topology", args.topology, f"expected one of {', '.join(TOPOLOGY_NAMES)}")
     if not 0.0 <= args.min_success <= 1.0:  # NaN too
         raise bad_value("--min-success", args.min_success, "must be a probability in [0, 1]")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
+    out = None if args.out is None else Path(args.out)
+    if out is not None and out.exists() and not out.is_dir():
         raise bad_value("--out", str(out), "is a file, not a folder")
     heightmap = load_terrain(args.terrain, args.terrain_param, args.seed)
     # Checked before the model loads (seconds): heights off the map are the border's, so a map
@@ -61,8 +61,12 @@ def run_plan(args) -> int:
     reason = "" if reachable else (
         "no path reaches the goal" if not result.reaches_goal else
         f"the best path's predicted chance of no fall {result.fall_free_probability:.3f} < {args.min_success:g}")
-    out.mkdir(parents=True, exist_ok=True)
-    png = plot_plan(heightmap, result, out / "plan.png", title=f"{args.terrain}: CapPlanner's TLC")
+    png = None
+    if out is not None:
+        from qz_drake.capability.plots import plot_plan  # matplotlib: a third of a second to import
+
+        out.mkdir(parents=True, exist_ok=True)
+        png = plot_plan(heightmap, result, out / "plan.png", title=f"{args.terrain}: CapPlanner's TLC")
     cells = result.cells
     length = float(sum(math.hypot(*(cells[i + 1] - cells[i])) for i in range(len(cells) - 1))) if len(cells) > 1 else 0.0
     summary = {
@@ -78,20 +82,22 @@ def run_plan(args) -> int:
         "plan_failures_from": result.mdp.plan_failure_source,
         "plan_failure_share": {t: [round(float(v), 4) for v in row]
                                for t, row in zip(result.mdp.topologies, result.mdp.plan_failure_share)},
-        "start": list(start), "goal": list(goal), "png": str(png),
+        "start": list(start), "goal": list(goal), "png": None if png is None else str(png),
         "path": [{"x": s.x, "y": s.y, "heading": s.heading, "topology": s.action_topology, "motion": s.motion,
                   "success": s.success, "no_plan": s.stand} for s in result.steps],
         "mission_targets": [{"x": m.target[0], "y": m.target[1], "yaw": m.target[2], "topology": m.topology,
                              "success": m.success} for m in missions],
     }
-    (out / "plan.json").write_text(json.dumps(summary, indent=1))
+    if out is not None:
+        (out / "plan.json").write_text(json.dumps(summary, indent=1))
     if args.json:
         print(json.dumps({k: v for k, v in summary.items() if k not in ("path", "mission_targets")}))
     else:
         print(f"{'reachable' if reachable else 'UNREACHABLE'}: {len(missions)} missions, "
               f"{length:.1f} m, P(success) {result.success_probability:.2f}, P(no fall) "
               f"{result.fall_free_probability:.2f}, {result.topology_changes} topology "
-              f"changes, VI {result.solution.iterations} iterations, {planning_time:.2f} s -> {png}")
+              f"changes, VI {result.solution.iterations} iterations, {planning_time:.2f} s"
+              + ("" if png is None else f" -> {png}"))
     return 0 if reachable else 1
 
 
@@ -119,6 +125,8 @@ def register(subparsers) -> None:
                    help="where the networks run: cpu, cuda, cuda:N or auto (default: QZ_TORCH_DEVICE, else cpu)")
     p.add_argument("--min-success", type=float, default=0.05,
                    help="least predicted chance of the path arriving without a fall to call the goal reachable")
-    p.add_argument("--out", default="out/plan", help="output folder")
+    p.add_argument("--out", default=None,
+                   help="folder for plan.png (the utility map and path) and plan.json (default: none, nothing is "
+                        "drawn or written)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.set_defaults(func=run_plan)

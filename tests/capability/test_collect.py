@@ -206,6 +206,29 @@ def test_the_fingerprint_covers_the_code_a_trial_runs():
     assert not any(m.startswith(("qz_drake.viz", "qz_drake.cli", "qz_drake.planning")) for m in everything)
 
 
+def test_the_robot_code_hashes_kept_between_processes_are_those_of_the_sources(tmp_path, monkeypatch):
+    """A model's load checks the robot fingerprint; the modules' hashes it takes are kept in a
+    file under the hash of the sources and used only for the same sources."""
+    from qz_drake.capability import dataset
+
+    computed = [f"{m}:{dataset._code_hash(m)}" for m in dataset.fingerprinted_modules()["robot"]]
+    cache = tmp_path / "__pycache__" / "robot_code_hashes.json"
+    monkeypatch.setattr(dataset, "_ROBOT_HASHES_CACHE", cache)
+    assert dataset._robot_code_hashes() == computed
+    kept = json.loads(cache.read_text())
+    assert kept["hashes"] == computed and [p.name for p in cache.parent.iterdir()] == [cache.name]
+    cache.write_text(json.dumps({"sources": kept["sources"], "hashes": ["kept"]}))
+    assert dataset._robot_code_hashes() == ["kept"]
+    for stale in (json.dumps({"sources": "other sources", "hashes": ["kept"]}), "not json", "[]"):
+        cache.write_text(stale)
+        assert dataset._robot_code_hashes() == computed
+    # A folder that cannot be written (here a file stands where it would be): computed each time.
+    blocked = tmp_path / "a_file"
+    blocked.write_text("")
+    monkeypatch.setattr(dataset, "_ROBOT_HASHES_CACHE", blocked / "robot_code_hashes.json")
+    assert dataset._robot_code_hashes() == computed
+
+
 def test_a_folder_being_collected_into_is_locked_against_a_second_writer(reference, tmp_path):
     from qz_drake.capability.dataset import DatasetLock
 
