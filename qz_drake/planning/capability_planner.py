@@ -94,12 +94,13 @@ class CapabilityVIPlanner(RecoveringSequencer):
     from that state (its transition leads to failure), value iteration is solved again, and
     the planner replans from the measured state. Each replan after the first judges the moves
     from the robot's cell by the stance it stands in (``measured_stance``; the map assumed the
-    nominal footholds), a refusal predicted from it a failure; where no move is left from there
-    (all refused or forbidden, or all foretold to fail) the robot backs out to where its last
-    walked move started (``back_out``). After ``max_recoveries`` refusals (or when no path
-    remains) the goal is unreachable, with the reason; ``target`` (x, y, yaw) and ``topology``
-    feed TrajectoryOptimizationBLC; ``guidance`` is the current list of GuidedMissions and
-    ``utility`` the (ny, nx) utility map with its cell centres (xs, ys), for drawing.
+    nominal footholds), a refusal predicted from it weighed as the map weighs refusals; where no
+    move is left from there (all refused or forbidden, or all foretold to fail) the robot backs
+    out to where its last walked move started (``back_out``). After ``max_recoveries`` refusals
+    (or when no path remains) the goal is unreachable, with the reason; ``target`` (x, y, yaw) and
+    ``topology`` feed TrajectoryOptimizationBLC; ``guidance`` is the current list of
+    GuidedMissions and ``utility`` the (ny, nx) utility map with its cell centres (xs, ys), for
+    drawing.
 
     State: the missions of the latest plan with the index of the current one, and the mission
     held after the last failure, are Context state. What the updates also read back stays on
@@ -131,7 +132,8 @@ class CapabilityVIPlanner(RecoveringSequencer):
         measured_stance: at each replan after the first, the moves from the robot's cell in its
             topology are judged from the stance it stands in (the plan's end feet, or the
             measured ones after a refusal) instead of the nominal footholds the map assumes,
-            a predicted refusal counted as a failure (capability_mdp.set_stance).
+            a predicted refusal weighed as the map weighs refusals (the MDP's
+            plan_failure_risk; capability_mdp.set_stance).
         hold_margin: a replan at a mission's end keeps the rest of the current route unless
             the new route is worth more than this (value units: the goal is worth
             ``goal_reward``, an action ``action_cost``), both valued by the MDP as it stands
