@@ -8,11 +8,13 @@ detours, apart from the BLC's refusals and the robot's deviations:
     python benchmarks/route_holding.py OUT.jsonl [--seeds 1000-1003] [--margins none,0,2,5] [--mdp pessimism=0]
     python benchmarks/route_holding.py --summary OUT.jsonl
 
-One JSON line per task and margin: whether the dry walk reached the goal cell, its missions and
-actions, the path length walked against the straight line and against the first plan's path,
-and the planner's decisions at each replan (the next 2 m the same, held, changed, off route, new). Worlds of seeds 50-99 are refused (kept for checks
-outside the project); the tuning seeds (1000+) are the default. CapPlanner's settings are the
-tuned ones of the Fig. 9 tuning (``--settings``, a results folder's settings.json).
+One JSON line per task, margin and MDP setting: whether the dry walk reached the goal cell, its
+missions and actions, the path length walked against the straight line and against the first
+plan's path, the first plan's predicted success and chance of no fall, and the planner's
+decisions at each replan (the next 2 m the same, held, changed, off route, new). Worlds of seeds
+50-99 are refused (kept for checks outside the project); the tuning seeds (1000+) are the
+default. CapPlanner's settings are the tuned ones of the Fig. 9 tuning (``--settings``, a
+results folder's settings.json), ``--mdp`` sets others over them.
 """
 
 from __future__ import annotations
@@ -123,7 +125,8 @@ def run(out: Path, seeds, margins, terrains, difficulties, settings: dict, mdp: 
 def summary(paths) -> str:
     rows = [r for p in paths for r in map(json.loads, Path(p).read_text().splitlines())]
     lines = ["| MDP settings | margin | difficulty | tasks | reached | walked / straight (reached) "
-             "| walked / first plan (reached) | first plan's predicted success / no fall | replans changing the next 2 m "
+             "| walked / first plan (reached) | first plan's predicted success / no fall "
+             "| replans changing the next 2 m "
              "| same / held / changed / off route / new | back-outs |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     arms = sorted({(json.dumps(r.get("mdp", {}), sort_keys=True), r["margin"]) for r in rows},

@@ -107,7 +107,8 @@ def summary(out: Path, refusals: int) -> str:
     largest = [max(abs(np.mean(np.asarray(v)[:, i]) - np.mean(np.asarray(v)[:, 0])) for v in cells.values())
                for i in range(1, len(PREDICTIONS) + 1)]
     lines.append("| all | Brier | " + str(len(every)) + " | | "
-                 + " | ".join(f"{np.mean((every[:, i] - every[:, 0]) ** 2):.3f}" for i in range(1, len(PREDICTIONS) + 1))
+                 + " | ".join(f"{np.mean((every[:, i] - every[:, 0]) ** 2):.3f}"
+                              for i in range(1, len(PREDICTIONS) + 1))
                  + " |")
     lines.append("| all | largest cell error | | | " + " | ".join(f"{v:.2f}" for v in largest) + " |")
     return "\n".join(lines)

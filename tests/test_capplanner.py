@@ -714,3 +714,36 @@ def test_a_capplanner_walk_without_its_route_source_names_the_field():
                                                                       route=[Waypoint(x=1.0, y=0.0)]))
     with pytest.raises(QzError, match="scenario.controller.planner = 'capplanner'.*route source"):
         walk(scenario)
+
+
+def test_the_report_says_how_each_planners_routes_held(tmp_path, capsys):
+    """Issue 54's route aims in `qz experiment report`: per planner and difficulty the
+    displacement ratio of the walked tasks, back-outs, refusals and replans per walk, and the
+    share of replans that changed the next 2 m of route unasked, where the walks logged it."""
+    import json
+
+    from qz_drake.cli import main
+    from qz_drake.experiments.fig9 import RESULTS, report
+
+    def record(seed, planner, difficulty, success, **counts):
+        return {"key": f"stairs-{difficulty}-{seed}-{planner}", "terrain": "stairs", "difficulty": difficulty,
+                "seed": seed, "planner": planner, "success": success, "reason": "" if success else "slip",
+                "displacement_ratio": 1.1 + 0.1 * seed if success else None, "wall_time_s": 1.0, **counts}
+
+    decisions = {"same": 8, "held": 0, "changed": 1, "off route": 0, "new": 1}
+    records = [record(0, "capplanner", "hard", True, replans=10, back_outs=1, recoveries=2, route_decisions=decisions),
+               record(1, "capplanner", "hard", False, replans=30, back_outs=2, recoveries=4,
+                      route_decisions={**decisions, "changed": 2}),
+               record(2, "capplanner", "hard", False, reason="error"),
+               record(0, "astar", "hard", True, replans=0, back_outs=0, recoveries=0)]
+    (tmp_path / RESULTS).write_text("".join(json.dumps(r) + "\n" for r in records))
+    rows = {r["planner"]: r for r in report(tmp_path)["routes"]}
+    cap, astar = rows["capplanner"], rows["astar"]
+    assert (cap["walks"], cap["displacement_ratio"], cap["back_outs_per_walk"]) == (2, pytest.approx(1.1), 1.5)
+    assert (cap["recoveries_per_walk"], cap["replans_per_walk"], cap["changed_replans"]) == (3.0, 20.0, 3)
+    assert cap["changed_share"] == pytest.approx(3 / 40)
+    assert astar["changed_share"] is None and astar["logged_walks"] == 0
+    assert main(["experiment", "report", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert "| CapPlanner | hard | 2 | 1.100 | 1.50 | 3.00 | 20.0 | 3 (7.5 %) |" in text
+    assert "| A* | hard | 1 | 1.100 | 0.00 | 0.00 | 0.0 | - |" in text

@@ -11,6 +11,8 @@ import dataclasses
 import json
 from pathlib import Path
 
+import numpy as np
+
 from qz_drake.errors import bad_value
 from qz_drake.experiments.fig9.comparison import (CLAIM_ALPHA, CLAIM_DIFFERENCE, CLAIM_POWER, CLAIM_RATES,
                                                   claim_check, compare_planners, compare_runs, summarise)
@@ -66,6 +68,34 @@ def planner_differences(settings: dict) -> list[str]:
     return out
 
 
+def route_rows(records: list[dict]) -> list[dict]:
+    """Per planner and difficulty, how the walks' routes held (issue 54's aims: the displacement
+    ratio, back-outs per walk, and the replans that changed the next 2 m of route without a
+    refusal or a lost route): walks (errors left out), mean displacement ratio of the
+    successful ones, back-outs and refusals gone round per walk, replans per walk, and, for
+    walks that logged their replans' decisions (CapPlanner since session 47), the changed
+    replans and their share of those walks' replans (None without any)."""
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for r in records:
+        if r.get("reason") != "error":
+            groups.setdefault((r["planner"], r["difficulty"]), []).append(r)
+    rows = []
+    for (planner, difficulty), walks in sorted(groups.items(), key=lambda kv: (
+            kv[0][0], DIFFICULTIES.index(kv[0][1]) if kv[0][1] in DIFFICULTIES else 99)):
+        ratios = [r["displacement_ratio"] for r in walks if r.get("displacement_ratio") is not None]
+        logged = [r for r in walks if r.get("route_decisions")]
+        replans = sum(int(r.get("replans", 0)) for r in logged)
+        changed = sum(int(r["route_decisions"].get("changed", 0)) for r in logged)
+        rows.append({"planner": planner, "difficulty": difficulty, "walks": len(walks),
+                     "displacement_ratio": float(np.mean(ratios)) if ratios else None,
+                     "back_outs_per_walk": float(np.mean([int(r.get("back_outs", 0)) for r in walks])),
+                     "recoveries_per_walk": float(np.mean([int(r.get("recoveries", 0)) for r in walks])),
+                     "replans_per_walk": float(np.mean([int(r.get("replans", 0)) for r in walks])),
+                     "logged_walks": len(logged), "changed_replans": changed,
+                     "changed_share": changed / replans if replans else None})
+    return rows
+
+
 def report(out, against=None) -> dict:
     """The summary of a results folder as it stands (a run in progress included): rows,
     comparisons, failure reasons per planner, and how many tasks are done; with ``against``
@@ -86,7 +116,7 @@ def report(out, against=None) -> dict:
     summary = {"rows": summarise(records), "comparisons": compare_planners(records), "failure_reasons": reasons,
                "claim": claim_check(records), "errors": errors, "tasks_done": len(records),
                "wall_time_s": float(sum(r.get("wall_time_s", 0.0) for r in records)),
-               "differences": planner_differences(read_settings(out))}
+               "differences": planner_differences(read_settings(out)), "routes": route_rows(records)}
     if (out / PREDICTIONS).is_file():  # written by qz experiment report --predict
         predictions = [json.loads(line) for line in (out / PREDICTIONS).read_text().splitlines() if line.strip()]
         summary["route_calibration"] = route_calibration(records, predictions)
@@ -152,6 +182,18 @@ def report_markdown(summary: dict) -> str:
                       + ("" if claim["tasks_per_cell_for_power"] is None else
                          f"{claim['tasks_per_cell_for_power']} tasks per cell would give "
                          f"{100 * CLAIM_POWER:.0f} %.")]
+    if summary.get("routes"):
+        lines += ["", "| planner | difficulty | walks | displacement ratio (walked) | back-outs per walk "
+                      "| refusals gone round per walk | replans per walk "
+                      "| replans changing the next 2 m without a refusal |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for row in summary["routes"]:
+            changed = ("-" if row["changed_share"] is None else
+                       f"{row['changed_replans']} ({100 * row['changed_share']:.1f} %)")
+            shown = "-" if row["displacement_ratio"] is None else f"{row['displacement_ratio']:.3f}"
+            name = PLANNER_NAMES.get(row["planner"], row["planner"])
+            lines.append(f"| {name} | {row['difficulty']} | {row['walks']} | {shown} | {row['back_outs_per_walk']:.2f} "
+                         f"| {row['recoveries_per_walk']:.2f} | {row['replans_per_walk']:.1f} | {changed} |")
     if summary.get("route_calibration"):
         lines += ["", "| terrain | difficulty | CapPlanner set out | predicted no-fall | predicted success "
                       "| walked | declined (no path) | of those, A* walked |",
