@@ -13,8 +13,8 @@ missions and actions, the path length walked against the straight line and again
 plan's path, the first plan's predicted success and chance of no fall, and the planner's
 decisions at each replan (the next 2 m the same, held, changed, off route, new). Worlds of seeds
 50-99 are refused (kept for checks outside the project); the tuning seeds (1000+) are the
-default. CapPlanner's settings are the tuned ones of the Fig. 9 tuning (``--settings``, a
-results folder's settings.json), ``--mdp`` sets others over them.
+default. CapPlanner's settings are those a results folder's walks had (``--run``, by default
+the tuned ones of session 45's ladder walks), ``--mdp`` sets others over them.
 """
 
 from __future__ import annotations
@@ -42,8 +42,9 @@ def _seeds(text: str) -> list[int]:
     return out
 
 
-def dry_walk(task, model, settings: dict, margin: float | None, mdp: dict | None = None) -> dict:
+def dry_walk(task, model, config, margin: float | None, mdp: dict | None = None) -> dict:
     from qz_drake.capability.patches import KINDS, nominal_feet_W
+    from qz_drake.experiments.fig9.tasks import _mdp_overrides
     from qz_drake.planning.capability_planner import ROUTE_DECISIONS, CapabilityVIPlanner
     from qz_drake.planning.capplanner_route import mdp_config
     from qz_drake.planning.guidance import MissionSplitConfig
@@ -51,17 +52,13 @@ def dry_walk(task, model, settings: dict, margin: float | None, mdp: dict | None
     from qz_drake.robot.topology import TOPOLOGY_NAMES, get_topology
 
     topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
-    overrides = dict(failure_reward=settings["capplanner_failure_reward"],
-                     topology_change_cost=settings["capplanner_topology_change_cost"],
-                     plan_failure_risk=settings["capplanner_plan_failure_risk"],
-                     topology_doubt=float(settings["capplanner_topology_doubt"]))
-    overrides.update(mdp or {})
-    split = MissionSplitConfig(max_length=settings["capplanner_mission_length"],
-                               min_success=settings["capplanner_merge_min_success"])
+    overrides = {**_mdp_overrides(config), **(mdp or {})}
+    split = MissionSplitConfig(max_length=config.capplanner_mission_length,
+                               min_success=config.capplanner_merge_min_success)
     clock = time.perf_counter()
     planner = CapabilityVIPlanner(model=model, heightmap=task.heightmap, goal=task.goal,
                                   start=(*task.start, task.start_yaw), mdp_config=mdp_config(overrides, topologies),
-                                  split_config=split, min_route_success=settings["capplanner_min_route_success"],
+                                  split_config=split, min_route_success=config.capplanner_min_route_success,
                                   hold_margin=margin)
     route = list(planner.GetOutputPort("guidance").Eval(planner.CreateDefaultContext()))
     first = sum(m.length for m in route)
@@ -93,7 +90,7 @@ def dry_walk(task, model, settings: dict, margin: float | None, mdp: dict | None
             "back_outs": planner.log.back_outs, "wall_s": time.perf_counter() - clock}
 
 
-def run(out: Path, seeds, margins, terrains, difficulties, settings: dict, mdp: dict) -> None:
+def run(out: Path, seeds, margins, terrains, difficulties, config, mdp: dict) -> None:
     from qz_drake.capability.model import CapabilityModel
     from qz_drake.experiments.worlds import make_task
 
@@ -101,7 +98,7 @@ def run(out: Path, seeds, margins, terrains, difficulties, settings: dict, mdp: 
     if out.exists():
         done = {(r["key"], r["margin"], json.dumps(r.get("mdp", {}), sort_keys=True))
                 for r in map(json.loads, out.read_text().splitlines())}
-    model = CapabilityModel.load(settings.get("capability_model") or None)
+    model = CapabilityModel.load(config.capability_model or None)
     with out.open("a") as f:
         for seed in seeds:
             for terrain in terrains:
@@ -113,7 +110,7 @@ def run(out: Path, seeds, margins, terrains, difficulties, settings: dict, mdp: 
                             continue
                         row = {"key": key, "terrain": terrain, "difficulty": difficulty, "seed": seed,
                                "margin": margin, "mdp": mdp, "straight_m": task.distance,
-                               **dry_walk(task, model, settings, margin, mdp)}
+                               **dry_walk(task, model, config, margin, mdp)}
                         f.write(json.dumps(row) + "\n")
                         f.flush()
                         print(f"{key} margin {margin}: reached {row['reached']}, "
@@ -160,7 +157,8 @@ def main(argv=None) -> int:
     parser.add_argument("--margins", default="none,0,2,5")
     parser.add_argument("--terrains", default="stairs,obstacles,both")
     parser.add_argument("--difficulties", default="medium,hard")
-    parser.add_argument("--settings", default="data/blc_ladder/walks/cap_ladder/settings.json")
+    parser.add_argument("--run", default="data/blc_ladder/walks/cap_ladder",
+                        help="a results folder whose CapPlanner settings the dry walks take")
     parser.add_argument("--mdp", default="", help="MDP settings over the tuned ones, e.g. pessimism=0,action_cost=2")
     parser.add_argument("--summary", nargs="+")
     args = parser.parse_args(argv)
@@ -170,9 +168,11 @@ def main(argv=None) -> int:
     if not args.out:
         parser.error("OUT.jsonl is required")
     margins = [None if m == "none" else float(m) for m in args.margins.split(",")]
-    settings = json.loads(Path(args.settings).read_text())
+    from qz_drake.experiments.fig9 import read_config
+
+    config = read_config(args.run)
     mdp = {k: float(v) for k, _, v in (item.partition("=") for item in args.mdp.split(",") if item)}
-    run(Path(args.out), _seeds(args.seeds), margins, args.terrains.split(","), args.difficulties.split(","), settings,
+    run(Path(args.out), _seeds(args.seeds), margins, args.terrains.split(","), args.difficulties.split(","), config,
         mdp)
     return 0
 

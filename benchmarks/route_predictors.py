@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import dataclasses
 import json
 from pathlib import Path
 
@@ -28,16 +27,14 @@ import numpy as np
 def collect(out: Path, run: Path) -> None:
     from qz_drake.capability.model import CapabilityModel, predict_map
     from qz_drake.capability.patches import KINDS
-    from qz_drake.experiments.fig9 import ExperimentConfig, read_results, read_settings
+    from qz_drake.experiments.fig9 import read_config, read_results
     from qz_drake.experiments.fig9.tasks import _mdp_overrides
     from qz_drake.experiments.worlds import make_task
     from qz_drake.planning.capability_mdp import cells_on_map, plan_on_map, switchable_cells
     from qz_drake.planning.capplanner_route import mdp_config
     from qz_drake.robot.topology import TOPOLOGY_NAMES
 
-    settings = read_settings(run)
-    names = {f.name for f in dataclasses.fields(ExperimentConfig)}
-    config = ExperimentConfig(**{k: v for k, v in settings.items() if k in names})
+    config = read_config(run)
     model = CapabilityModel.load(config.capability_model or None)
     topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
     mdp = mdp_config(_mdp_overrides(config), topologies)

@@ -265,13 +265,9 @@ def _stance_argument(p) -> None:
 
 
 def _hold_margin(args) -> float | None:
-    import math
+    from qz_drake.planning.capability_planner import check_hold_margin
 
-    from qz_drake.errors import bad_value
-
-    if args.hold_margin is not None and not (math.isfinite(args.hold_margin) and args.hold_margin >= 0):
-        raise bad_value("--hold-margin", args.hold_margin, "must be a finite number >= 0")
-    return args.hold_margin
+    return check_hold_margin(args.hold_margin, "--hold-margin")
 
 
 def register(subparsers) -> None:

@@ -39,6 +39,28 @@ ROUTE_DECISIONS = ("same", "held", "changed", "off route", "new")
 # of route without a refusal or a lost route). [m]
 ROUTE_AHEAD = 2.0
 
+def check_hold_margin(value, field: str = "hold_margin") -> float | None:
+    """A hold margin (CapabilityVIPlanner's ``hold_margin``) as a float, None kept; anything but
+    a finite number >= 0 is a QzError naming ``field``."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
+        from qz_drake.errors import bad_value
+
+        raise bad_value(field, value, "must be a finite number >= 0 (value units) or none")
+    return float(value)
+
+
+def route_counts(log) -> dict[str, int]:
+    """A planner log's route decisions counted, as the walk's metrics name them (tlc_routes_*)."""
+    return {route_count_key(d): sum(1 for _, x in log.route_decisions if x == d) for d in ROUTE_DECISIONS}
+
+
+def route_count_key(decision: str) -> str:
+    """The walk-metrics key of a route decision's count."""
+    return f"tlc_routes_{decision.replace(' ', '_')}"
+
+
 # A stance from which no move of the robot's topology is predicted to walk (doubted) at least
 # this often is a dead end (measured_stance, back_out).
 DEAD_END_SUCCESS = 0.5
@@ -165,12 +187,7 @@ class CapabilityVIPlanner(RecoveringSequencer):
         self._split = split_config
         self._back_out = BackOut() if back_out else None
         self._every_topology = bool(refused_in_every_topology)
-        if hold_margin is not None and not (isinstance(hold_margin, (int, float)) and not isinstance(hold_margin, bool)
-                                            and math.isfinite(hold_margin) and hold_margin >= 0):
-            from qz_drake.errors import bad_value
-
-            raise bad_value("hold_margin", hold_margin, "must be a finite number >= 0 (value units) or None")
-        self._hold_margin = None if hold_margin is None else float(hold_margin)
+        self._hold_margin = check_hold_margin(hold_margin)
         # The model and the map for the stance at each replan (measured_stance), and what the
         # last replan's stance replaced in the MDP (capability_mdp.set_stance).
         self._model = model if measured_stance else None
@@ -206,9 +223,8 @@ class CapabilityVIPlanner(RecoveringSequencer):
                                                       solve_capability_mdp, stance_outcomes)
 
         clock = time.perf_counter()
-        ix, iy = self.mdp.cell_of(x, y, field="start", margin=self.mdp.config.cell_size)
-        k = int(round(yaw / HEADING_STEP)) % 8
-        start = self.mdp.state(ix, iy, k, topology)
+        start = self._state_at(x, y, yaw, topology, "start")
+        ix, iy, k, _ = self.mdp.unravel(start)
         restore_actions(self.mdp, self._stance_saved)
         self._stance_saved = {}
         if feet_W is not None and self._model is not None:
@@ -282,6 +298,12 @@ class CapabilityVIPlanner(RecoveringSequencer):
         self.log.replans[-1] = (t_, start, len(held), float(math.prod(s.success for m in held for s in m.steps)))
         return unwrapped_yaws(held, yaw)
 
+    def _state_at(self, x: float, y: float, yaw: float, topology: str, field: str) -> int:
+        """The grid state of a pose: its cell (up to a cell beyond the grid), the nearest of the 8
+        headings, the topology."""
+        ix, iy = self.mdp.cell_of(x, y, field=field, margin=self.mdp.config.cell_size)
+        return self.mdp.state(ix, iy, int(round(yaw / HEADING_STEP)) % 8, topology)
+
     def _route_decision(self, x: float, y: float, yaw: float, topology: str, held: list, missions: list) -> str:
         """What the replan at a mission's end does with ``held`` (the rest of the route) against
         its own ``missions``: one of ROUTE_DECISIONS (CapabilityPlannerLog.route_decisions)."""
@@ -290,8 +312,7 @@ class CapabilityVIPlanner(RecoveringSequencer):
         steps = [s for m in held for s in m.steps]
         if not steps or not missions or missions[0].back_out or any(m.back_out for m in held):
             return "new"
-        ix, iy = self.mdp.cell_of(x, y, field="expected end", margin=self.mdp.config.cell_size)
-        here = self.mdp.state(ix, iy, int(round(yaw / HEADING_STEP)) % 8, topology)
+        here = self._state_at(x, y, yaw, topology, "expected end")
         if step_state_action(self.mdp, steps[0])[0] != here:
             return "off route"
         if route_ahead(missions, ROUTE_AHEAD) == route_ahead(held, ROUTE_AHEAD):
@@ -388,8 +409,7 @@ class CapabilityVIPlanner(RecoveringSequencer):
                 "replans": max(len(self.log.replans) - 1, 0), "unreachable": self.log.unreachable,
                 "tlc_recoveries": len(self.log.recoveries), "tlc_most_probable": self.log.most_probable,
                 "tlc_back_outs": self.log.back_outs, "tlc_predicted_dead_ends": self.log.predicted_dead_ends,
-                **{f"tlc_routes_{d.replace(' ', '_')}": sum(1 for _, x in self.log.route_decisions if x == d)
-                   for d in ROUTE_DECISIONS}}
+                **route_counts(self.log)}
 
     # -- outputs -----------------------------------------------------------------------------
     def _calc_guidance(self, context, output):

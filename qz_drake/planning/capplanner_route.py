@@ -9,14 +9,13 @@ the fixed route (``FixedRoute``) and nothing above it. Callers that walk CapPlan
 from __future__ import annotations
 
 import dataclasses
-import math
 
 from qz_drake.capability.model import CapabilityModel
 from qz_drake.capability.patches import KINDS
 from qz_drake.capability.trials import TrialConfig, trial_blc_parameters
 from qz_drake.errors import bad_value
 from qz_drake.planning.capability_mdp import CapabilityMdpConfig
-from qz_drake.planning.capability_planner import CapabilityVIPlanner
+from qz_drake.planning.capability_planner import CapabilityVIPlanner, check_hold_margin
 from qz_drake.planning.guidance import MissionSplitConfig
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 from qz_drake.scene import check_standable
@@ -84,10 +83,7 @@ class CapPlannerRoute(FixedRoute):
         self.back_out = bool(back_out)
         self.measured_stance = bool(measured_stance)
         self.refused_in_every_topology = bool(refused_in_every_topology)
-        if hold_margin is not None and not (isinstance(hold_margin, (int, float)) and not isinstance(hold_margin, bool)
-                                            and math.isfinite(hold_margin) and hold_margin >= 0):
-            raise bad_value("hold_margin", hold_margin, "must be a finite number >= 0 (value units) or None")
-        self.hold_margin = None if hold_margin is None else float(hold_margin)
+        self.hold_margin = check_hold_margin(hold_margin)
 
     def blc_parameters(self):
         # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt

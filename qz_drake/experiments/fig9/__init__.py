@@ -17,7 +17,8 @@ from qz_drake.experiments.fig9.comparison import claim_check, compare_planners, 
 from qz_drake.experiments.fig9.predict import predict_route, predict_routes, route_calibration
 from qz_drake.experiments.fig9.reporting import (discordant_pictures, discordant_tasks, planner_differences,
                                                  report, report_markdown)
-from qz_drake.experiments.fig9.results import MODEL_IDENTITY, PREDICTIONS, RESULTS, read_results, read_settings
+from qz_drake.experiments.fig9.results import (MODEL_IDENTITY, PREDICTIONS, RESULTS, read_config, read_results,
+                                               read_settings)
 from qz_drake.experiments.fig9.run import run_experiment
 from qz_drake.experiments.fig9.tasks import PLANNERS, ExperimentConfig, TaskSpec, path_samples, run_task
 from qz_drake.experiments.fig9.tune import (TUNING_BODY_RADII, TUNING_DIFFICULTIES, TUNING_FAILURE_REWARDS,
@@ -30,7 +31,7 @@ from qz_drake.experiments.fig9.tune import (TUNING_BODY_RADII, TUNING_DIFFICULTI
 
 __all__ = [
     "ExperimentConfig", "TaskSpec", "PLANNERS", "run_task", "path_samples", "RESULTS", "PREDICTIONS",
-    "MODEL_IDENTITY", "read_results", "read_settings", "run_experiment", "summarise", "compare_planners",
+    "MODEL_IDENTITY", "read_results", "read_settings", "read_config", "run_experiment", "summarise", "compare_planners",
     "claim_check", "compare_runs", "predict_route", "predict_routes", "route_calibration", "report",
     "report_markdown", "planner_differences", "discordant_tasks", "discordant_pictures", "tune_astar",
     "tune_capplanner", "astar_settings", "capplanner_settings", "TUNING_TASKS_PER_CELL", "TUNING_DIFFICULTIES",

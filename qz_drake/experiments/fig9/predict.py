@@ -5,7 +5,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -13,7 +12,8 @@ import numpy as np
 
 from qz_drake.errors import bad_value
 from qz_drake.progress import ProgressReport
-from qz_drake.experiments.fig9.results import MODEL_IDENTITY, PREDICTIONS, RESULTS, read_results, read_settings
+from qz_drake.experiments.fig9.results import (MODEL_IDENTITY, PREDICTIONS, RESULTS, read_config, read_results,
+                                               read_settings)
 from qz_drake.experiments.fig9.tasks import ExperimentConfig, TaskSpec, _mdp_overrides
 from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS, make_task
 
@@ -53,10 +53,8 @@ def predict_routes(out, config: ExperimentConfig | None = None, model=None, prog
         raise bad_value("results", str(out), f"no {RESULTS} there (run qz experiment capplanner-vs-astar)")
     records = [r for r in read_results(out) if r["planner"] == "capplanner" and r["reason"] != "error"]
     if config is None:
-        settings = read_settings(out)
-        names = {f.name for f in dataclasses.fields(ExperimentConfig)}
-        config = ExperimentConfig(**{k: v for k, v in settings.items() if k in names})
-        identity = settings.get(MODEL_IDENTITY)
+        config = read_config(out)
+        identity = read_settings(out).get(MODEL_IDENTITY)
     else:
         identity = None
     model = model or CapabilityModel.load(config.capability_model or None)

@@ -8,8 +8,11 @@ identity), ``predictions.jsonl`` the routes CapPlanner's model expected (predict
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
+
+from qz_drake.experiments.fig9.tasks import ExperimentConfig
 
 # One record per task, appended as tasks finish.
 RESULTS = "results.jsonl"
@@ -41,3 +44,10 @@ def read_settings(out: Path) -> dict:
     """The settings a results folder's walks had ({} without settings.json)."""
     path = out / "settings.json"
     return {**SETTINGS_BEFORE_THEY_EXISTED, **json.loads(path.read_text())} if path.is_file() else {}
+
+
+def read_config(out) -> ExperimentConfig:
+    """The ExperimentConfig a results folder's walks had (its settings.json; the defaults for
+    what it does not name)."""
+    names = {f.name for f in dataclasses.fields(ExperimentConfig)}
+    return ExperimentConfig(**{k: v for k, v in read_settings(Path(out)).items() if k in names})

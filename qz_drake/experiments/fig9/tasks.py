@@ -166,7 +166,7 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
     """Plans and walks one task; returns its record (never raises for a failed walk)."""
     from qz_drake.config import (ControllerConfig, RobotConfig, Scenario, SimulationConfig,
                                  TerrainConfig, Waypoint)
-    from qz_drake.planning.capability_planner import ROUTE_DECISIONS
+    from qz_drake.planning.capability_planner import ROUTE_DECISIONS, route_count_key
     from qz_drake.planning.capplanner_route import route_source_for
     from qz_drake.simulation import walk
     from qz_drake.trajopt.parameters import BlcParameters
@@ -232,8 +232,7 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
             # Replans that walked the most probable path (the MDP's policy did not reach the goal).
             record["most_probable"] = int(m.get("tlc_most_probable", 0))
             # What each replan at a mission's end did with the route (CapabilityPlannerLog.route_decisions).
-            record["route_decisions"] = {d: int(m.get(f"tlc_routes_{d.replace(' ', '_')}", 0))
-                                         for d in ROUTE_DECISIONS}
+            record["route_decisions"] = {d: int(m.get(route_count_key(d), 0)) for d in ROUTE_DECISIONS}
     except Exception as e:  # a crash of the run, not an outcome: recorded as an error
         import traceback
 
