@@ -191,7 +191,8 @@ def walk_from(task, m, ladder: str, settings) -> dict:
     try:
         result = walk(scenario, heightmap=task.heightmap, stop_on_failure=True, blc_ladder=ladder or None,
                       blc_params=BlcParameters(max_iterations=settings["blc_max_iterations"],
-                                               time_limit=settings["blc_time_limit"]))
+                                               time_limit=settings["blc_time_limit"],
+                                               terminal_stance=settings.get("blc_terminal_stance", "free")))
     except QzError as e:  # the stance cannot be stood in from standing (feet on two levels)
         return {"success": False, "reasons": ["stance_not_set_up"], "message": str(e)[:300], "blc_solves": 0}
     metrics = result.metrics
@@ -229,7 +230,8 @@ def replay(out: Path, runs, walk_ladder: str | None = None) -> None:
             task = make_task(record["terrain"], record["difficulty"], int(record["seed"]))
             timing = MissionTiming(speed=settings["speed"], phase_duration=settings["phase_duration"])
             planner = blc_mission_planner(task.heightmap, DEFAULT_PARAMS, timing, BlcParameters(
-                max_iterations=settings["blc_max_iterations"], time_limit=settings["blc_time_limit"]))
+                max_iterations=settings["blc_max_iterations"], time_limit=settings["blc_time_limit"],
+                terminal_stance=settings.get("blc_terminal_stance", "free")))
             b = m["blc_start"]
             base_z = None if b["base_z"] is None or math.isnan(b["base_z"]) else b["base_z"]  # NaN: unknown
             start = MissionStart(time=0.0, xy_yaw=tuple(b["xy_yaw"]), feet_W=np.array(b["feet"]),

@@ -4,8 +4,10 @@ with the robot at the cell centre, heading k * 45 deg, on its topology's nominal
 walk's mission starts where the last plan ended. For every recorded mission of CapPlanner's
 walks (results folders walked with ``--record-missions``), the start's base offset from its
 grid cell's centre, its heading's offset from k * 45 deg, and its feet's offsets from the
-nominal footholds there (horizontal, largest and mean; vertical, largest), for the missions
-the BLC planned and those it refused, with each offset's AUC as a predictor of the refusal:
+stance the map assumes there (horizontal, largest and mean; vertical, largest): the nominal
+footholds, or the canonical stance for a run walked with ``--terminal-stance canonical``
+(its settings.json), for the missions the BLC planned and those it refused, with each
+offset's AUC as a predictor of the refusal:
 
     python benchmarks/stance_deviation.py RUN [RUN ...]
 
@@ -21,20 +23,22 @@ from pathlib import Path
 import numpy as np
 
 MEASURES = ("base offset from the cell centre [m]", "heading offset from k x 45 deg [deg]",
-            "largest foot offset from nominal, horizontal [m]", "mean foot offset from nominal, horizontal [m]",
-            "largest foot offset from nominal, vertical [m]")
+            "largest foot offset from the map's stance, horizontal [m]",
+            "mean foot offset from the map's stance, horizontal [m]",
+            "largest foot offset from the map's stance, vertical [m]")
 
 
 def offsets(runs) -> np.ndarray:
     """(n, 1 + len(MEASURES)): refused (1) or not, then MEASURES, per recorded mission."""
-    from qz_drake.capability.patches import nominal_feet_W
-    from qz_drake.experiments.fig9 import read_results
+    from qz_drake.capability.patches import map_stance, stance_feet_W
+    from qz_drake.experiments.fig9 import read_config, read_results
     from qz_drake.experiments.worlds import make_task
     from qz_drake.robot.params import DEFAULT_PARAMS
     from qz_drake.robot.topology import get_topology
 
     rows = []
     for run in runs:
+        stance = map_stance(read_config(run).blc_terminal_stance)
         for r in read_results(run):
             if r["planner"] != "capplanner" or not r.get("mission_records"):
                 continue
@@ -49,8 +53,8 @@ def offsets(runs) -> np.ndarray:
                 cx, cy = sx + round(x - sx), sy + round(y - sy)
                 k_yaw = round(yaw / (np.pi / 4)) * np.pi / 4
                 feet = np.asarray(m["feet"], dtype=float)
-                nominal = nominal_feet_W(task.heightmap, cx, cy, k_yaw, get_topology(m["switched_from"] or m["topology"]),
-                                         DEFAULT_PARAMS.foot_radius)
+                nominal = stance_feet_W(task.heightmap, cx, cy, k_yaw, get_topology(m["switched_from"] or m["topology"]),
+                                        DEFAULT_PARAMS.foot_radius, stance)
                 horizontal = np.linalg.norm(feet[:, :2] - nominal[:, :2], axis=1)
                 rows.append((float(m["outcome"] == "no_plan"), float(np.hypot(x - cx, y - cy)),
                              float(abs(np.degrees(yaw - k_yaw))), float(horizontal.max()), float(horizontal.mean()),

@@ -292,7 +292,9 @@ class FixedRoute:
     def blc_parameters(self):
         return None
 
-    def make(self, scenario, info, targets):
+    def make(self, scenario, info, targets, blc_params=None):
+        """The walk's route source system; ``blc_params`` are the BLC's (what its missions will
+        end in: BlcParameters.terminal_stance), None the defaults."""
         from qz_drake.systems.mission_sequencer import MissionTargetSequencer
 
         return MissionTargetSequencer(targets=targets, plan_ahead=scenario.controller.plan_ahead)
@@ -440,7 +442,7 @@ def build_walk(scenario: Scenario, *, route_source: FixedRoute | None = None, me
         retries = route_source.mission_retries if mission_retries is None else mission_retries
         if ladder is not None and mission_retries is None:
             retries = 0  # the ladder replaces the route source's retries
-        source = route_source.make(scenario, info, targets)
+        source = route_source.make(scenario, info, targets, blc_params=blc_params)
         unreachable = route_source.unreachable(source)
         if unreachable:
             return WalkNotStarted(f"goal unreachable: {unreachable}", "unreachable", source.counts())

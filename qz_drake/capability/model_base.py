@@ -131,10 +131,12 @@ class CapabilityModelBase:
         return (topology, kind) in self._networks
 
     @staticmethod
-    def query_inputs(heightmap, x, y, heading_index, kind: str, topology: str, *, ground=None):
+    def query_inputs(heightmap, x, y, heading_index, kind: str, topology: str, *, ground=None,
+                     stance: str = "nominal"):
         """(patches, feet) for robots at (x, y) with heading index k (yaw = k * 45 deg),
-        standing on the topology's nominal footholds; x, y and k broadcast. Vectorised over
-        every query (built on qz_drake.capability.patches)."""
+        standing in the topology's ``stance`` (patches.stance_feet_W: "nominal" footholds or
+        the "canonical" stance); x, y and k broadcast. Vectorised over every query (built on
+        qz_drake.capability.patches)."""
         from qz_drake.robot.params import DEFAULT_PARAMS
         from qz_drake.robot.topology import get_topology
 
@@ -143,12 +145,13 @@ class CapabilityModelBase:
         yaw = P.heading_yaw(k)
         ground = P.ground_reference(heightmap, x, y) if ground is None else ground
         patches = P.sample_patches(heightmap, x, y, yaw, kind, ground)
-        feet_W = P.nominal_feet_W(heightmap, x, y, yaw, get_topology(topology), DEFAULT_PARAMS.foot_radius)
+        feet_W = P.stance_feet_W(heightmap, x, y, yaw, get_topology(topology), DEFAULT_PARAMS.foot_radius, stance)
         return patches, P.feet_in_heading_frame(feet_W, x, y, yaw, ground)
 
-    def map_success(self, heightmap, topologies=None, *, cell_size: float = P.CELL_SIZE) -> "CapabilityMap":
+    def map_success(self, heightmap, topologies=None, *, cell_size: float = P.CELL_SIZE,
+                    stance: str = "nominal") -> "CapabilityMap":
         """Every action's success probability from every cell and heading (see predict_map)."""
-        return predict_map(self, heightmap, topologies, cell_size=cell_size)
+        return predict_map(self, heightmap, topologies, cell_size=cell_size, stance=stance)
 
 
 @dataclasses.dataclass
@@ -200,7 +203,7 @@ class MapInputs:
     move_patches: np.ndarray
     # (8, ny, nx, 20, 20) turn patches. [m]
     turn_patches: np.ndarray
-    # topology -> (8, ny, nx, 6, 3) nominal feet in the heading frame. [m]
+    # topology -> (8, ny, nx, 6, 3) the assumed stance's feet in the heading frame. [m]
     feet: dict
 
 
@@ -214,10 +217,10 @@ def pose_inputs(heightmap, x: float, y: float, yaw: float, kind: str, feet_W) ->
 
 
 def sample_map_inputs(heightmap, topologies, *, cell_size: float = P.CELL_SIZE, anchor=None,
-                      rows: slice | None = None) -> MapInputs:
-    """Patches (once per kind: they do not depend on the topology) and each topology's nominal
-    feet for every cell and heading, vectorised over all of them (built on patches.py);
-    ``rows``: only the grid's rows of cells (ys) in that slice."""
+                      rows: slice | None = None, stance: str = "nominal") -> MapInputs:
+    """Patches (once per kind: they do not depend on the topology) and each topology's feet in
+    ``stance`` (patches.stance_feet_W) for every cell and heading, vectorised over all of them
+    (built on patches.py); ``rows``: only the grid's rows of cells (ys) in that slice."""
     from qz_drake.capability.map_sampling import ground_reference_fast, sample_patches_fast
     from qz_drake.robot.params import DEFAULT_PARAMS
     from qz_drake.robot.topology import get_topology
@@ -234,22 +237,25 @@ def sample_map_inputs(heightmap, topologies, *, cell_size: float = P.CELL_SIZE, 
     for kind, mask in (("orthogonal", even), ("diagonal", ~even)):
         move_patches[mask] = sample_patches_fast(heightmap, gx[mask], gy[mask], yaw[mask], kind, ground[mask])
     turn_patches = sample_patches_fast(heightmap, gx, gy, yaw, "turn", ground)
-    feet = {t: P.feet_in_heading_frame(P.nominal_feet_W(heightmap, gx, gy, yaw, get_topology(t),
-                                                        DEFAULT_PARAMS.foot_radius), gx, gy, yaw, ground)
+    feet = {t: P.feet_in_heading_frame(P.stance_feet_W(heightmap, gx, gy, yaw, get_topology(t),
+                                                       DEFAULT_PARAMS.foot_radius, stance), gx, gy, yaw, ground)
             for t in topologies}
     return MapInputs(xs=xs, ys=ys, cell_size=float(cell_size), move_patches=move_patches,
                      turn_patches=turn_patches, feet=feet)
 
 
 def predict_map(model, heightmap, topologies=None, *, cell_size: float = P.CELL_SIZE,
-                anchor=None) -> CapabilityMap:
+                anchor=None, stance: str = "nominal") -> CapabilityMap:
     """Every action's success probability from every cell and heading of the grid world.
 
     ``model`` is anything with CapabilityModel's ``success`` (a stub in tests). The inputs come
     from :func:`sample_map_inputs`; each network then sees all its queries in one batched
-    call. The robot is assumed to stand on the topology's nominal footholds. ``anchor`` (x, y)
-    puts a cell centre there (the robot's start; see patches.grid_centres).
+    call. The robot is assumed to stand in the topology's ``stance``: "nominal" footholds, or
+    the "canonical" stance a mission ends in with the BLC's terminal_stance "canonical"
+    (patches.stance_feet_W). ``anchor`` (x, y) puts a cell centre there (the robot's start;
+    see patches.grid_centres).
     """
+    P.check_stance(stance, "capability_mdp.stance")
     from qz_drake.robot.topology import TOPOLOGY_NAMES
 
     topologies = tuple(topologies or TOPOLOGY_NAMES)
@@ -260,11 +266,12 @@ def predict_map(model, heightmap, topologies=None, *, cell_size: float = P.CELL_
     xs, ys = P.grid_centres(heightmap, cell_size, anchor)
     band = max(1, MAP_BAND_QUERIES // (8 * len(xs)))
     if not getattr(model, "queries_independent", False) or band >= len(ys):
-        return evaluate_map(model, sample_map_inputs(heightmap, topologies, cell_size=cell_size, anchor=anchor))
+        return evaluate_map(model, sample_map_inputs(heightmap, topologies, cell_size=cell_size, anchor=anchor,
+                                                     stance=stance))
     # A model whose every query's answer is its own (the boosted trees): the map a band of rows
     # at a time, so that a 100 m map's patches never all exist at once (half a gigabyte).
     parts = [evaluate_map(model, sample_map_inputs(heightmap, topologies, cell_size=cell_size, anchor=anchor,
-                                                   rows=slice(a, a + band)))
+                                                   rows=slice(a, a + band), stance=stance))
              for a in range(0, len(ys), band)]
     first = parts[0]
     joined = {}

@@ -108,6 +108,52 @@ def nominal_feet_W(heightmap, x, y, yaw, topology, foot_radius: float) -> np.nda
     return np.stack([fx, fy, heightmap.height(fx, fy) + foot_radius], axis=-1)
 
 
+STANCES = ("nominal", "canonical")
+
+
+def check_stance(stance: str, field: str = "stance") -> str:
+    if stance not in STANCES:
+        raise bad_value(field, stance, f"expected one of {', '.join(STANCES)}")
+    return stance
+
+
+def map_stance(terminal_stance: str) -> str:
+    """The stance a planner's map assumes for a BLC whose missions end in ``terminal_stance``
+    (BlcParameters.terminal_stance): "canonical" for "canonical", else "nominal"."""
+    return "canonical" if terminal_stance == "canonical" else "nominal"
+
+
+def canonical_feet_W(heightmap, x, y, yaw, topology, foot_radius: float, blc_params=None) -> np.ndarray:
+    """The topology's canonical stance on the terrain around (x, y) heading yaw, (..., 6, 3):
+    the stance a mission ends in with the BLC's ``terminal_stance = "canonical"``
+    (trajopt/stance.py; the support field and tolerance of ``blc_params``, default
+    BlcParameters()); a foot the rule leaves free stands on its nominal foothold."""
+    from qz_drake.trajopt.parameters import BlcParameters
+    from qz_drake.trajopt.stance import canonical_stance
+    from qz_drake.trajopt.support import support_field
+    from qz_drake.trajopt.terrain import GridTerrain
+
+    p = blc_params or BlcParameters()
+    support = None
+    if p.enabled("support"):
+        # One terrain per heightmap, so that its support field is computed once (support_field
+        # caches it on the terrain) however many bands and topologies a map asks for.
+        cache = heightmap.__dict__.setdefault("_canonical_terrain", {})
+        terrain = cache.setdefault("grid", GridTerrain(heightmap))
+        support = support_field(terrain, foot_radius + p.support_margin, p.support_drop)
+    box = np.broadcast_to(np.asarray(topology.box_half_size, dtype=float), topology.footholds_B.shape)
+    return canonical_stance(topology.footholds_B, box, x, y, yaw, heightmap, support, foot_radius,
+                            p.terminal_foothold_tolerance).feet
+
+
+def stance_feet_W(heightmap, x, y, yaw, topology, foot_radius: float, stance: str = "nominal") -> np.ndarray:
+    """The feet a planner assumes at (x, y) heading yaw: ``stance`` "nominal" (nominal_feet_W)
+    or "canonical" (canonical_feet_W)."""
+    if check_stance(stance) == "canonical":
+        return canonical_feet_W(heightmap, x, y, yaw, topology, foot_radius)
+    return nominal_feet_W(heightmap, x, y, yaw, topology, foot_radius)
+
+
 def grid_centres(heightmap, cell_size: float = CELL_SIZE, anchor=None) -> tuple[np.ndarray, np.ndarray]:
     """(xs, ys) of the grid world's cell centres over a heightmap: as many whole cells of
     ``cell_size`` as fit in the area the map's cells cover, from its lower-left corner (a

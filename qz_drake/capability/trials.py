@@ -71,6 +71,10 @@ class TrialConfig:
     # under heavy load (6 processes on 2 cores) 30 iterations took up to 34 s. [iterations], [s]
     blc_max_iterations: int = 30
     blc_time_limit: float = 120.0
+    # Where the feet stand when each mission ends (BlcParameters.terminal_stance): "free", as
+    # the BLC leaves them; "canonical", the target pose's canonical stance (trajopt/stance.py,
+    # issue 54). A dataset is labelled by one of them.
+    blc_terminal_stance: str = "free"
     # How the joints are driven (StationConfig.control_mode) and the plant's step. "torque":
     # the controller computes Eq. 7 (kp, kd above) at every plant step, which must then be at
     # most 2 ms (3 ms measured: slips and missed targets). "position": the drives run Eq. 7's
@@ -85,6 +89,11 @@ class TrialConfig:
         from qz_drake.config import CONTROL_MODES
         from qz_drake.errors import bad_value
 
+        from qz_drake.trajopt.parameters import TERMINAL_STANCES
+
+        if self.blc_terminal_stance not in TERMINAL_STANCES:
+            raise bad_value("trials.blc_terminal_stance", self.blc_terminal_stance,
+                            f"expected one of {', '.join(TERMINAL_STANCES)}")
         if self.control_mode not in CONTROL_MODES:
             raise bad_value("trials.control_mode", self.control_mode, f"expected one of {', '.join(CONTROL_MODES)}")
         if not (isinstance(self.time_step, (int, float)) and 0 < self.time_step <= MAX_TRIAL_STEP):
@@ -306,7 +315,8 @@ def trial_blc_parameters(config: TrialConfig):
     """The BLC's parameters in a trial: the defaults with the trial's deterministic budget."""
     from qz_drake.trajopt.parameters import BlcParameters
 
-    return BlcParameters(max_iterations=config.blc_max_iterations, time_limit=config.blc_time_limit)
+    return BlcParameters(max_iterations=config.blc_max_iterations, time_limit=config.blc_time_limit,
+                         terminal_stance=config.blc_terminal_stance)
 
 
 def scenario_params(scenario):

@@ -66,7 +66,8 @@ def run_collect(args) -> int:
     from qz_drake.capability.collect import collect
     from qz_drake.capability.trials import TrialConfig
 
-    config = TrialConfig(headings_per_scene=args.headings, control_mode=args.control_mode, time_step=args.time_step)
+    config = TrialConfig(headings_per_scene=args.headings, control_mode=args.control_mode, time_step=args.time_step,
+                         blc_terminal_stance=args.terminal_stance)
     summary = collect(args.out, seed=args.seed, scenes=args.scenes,
                       topologies=parse_names(args.topologies, "--topologies", topology_names()),
                       kinds=parse_names(args.kinds, "--kinds", _kinds()), config=config,
@@ -171,6 +172,9 @@ def register(subparsers) -> None:
                         "(Eq. 7's PD in the drives: the plant's implicit PD on the tracker's q and v)")
     p.add_argument("--time-step", type=float, default=0.002,
                    help="the plant's step [s] (torque: at most 0.002; position: 0.004 measured stable)")
+    p.add_argument("--terminal-stance", choices=("free", "canonical"), default="free",
+                   help="where the feet stand when each mission ends: free (as the BLC leaves them) or canonical "
+                        "(the target's canonical stance, qz_drake.trajopt.stance)")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--ray-address", default=None, help="run the trials on this Ray cluster (host:port)")
     p.add_argument("--seed", type=int, default=0)

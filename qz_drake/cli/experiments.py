@@ -47,6 +47,7 @@ def run_fig9(args) -> int:
                               capplanner_refused_in_every_topology=not args.retry_other_topologies,
                               capplanner_hold_margin=_hold_margin(args),
                               blc_retries=args.blc_retries, blc_ladder=args.blc_ladder,
+                              blc_terminal_stance=args.terminal_stance,
                               record_missions=args.record_missions, **tuned)
     summary = run_experiment(args.out, planners=_names(args.planners, "--planners", tuple(PLANNERS)),
                              terrains=_names(args.terrains, "--terrains", TERRAINS),
@@ -184,6 +185,7 @@ def run_tune_astar(args) -> int:
                         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
                         config=ExperimentConfig(scale=args.scale, recovery_back_out=not args.no_back_out,
                                                 blc_retries=args.blc_retries, blc_ladder=args.blc_ladder,
+                                                blc_terminal_stance=args.terminal_stance,
                                                 record_missions=args.record_missions),
                         progress=not args.json)
     _print_tuning(report, args)
@@ -215,6 +217,7 @@ def run_tune_capplanner(args) -> int:
                                 capplanner_refused_in_every_topology=not args.retry_other_topologies,
                                 capplanner_hold_margin=_hold_margin(args),
                                 blc_retries=args.blc_retries, blc_ladder=args.blc_ladder,
+                                blc_terminal_stance=args.terminal_stance,
                                 record_missions=args.record_missions),
         progress=not args.json)
     _print_tuning(report, args)
@@ -245,10 +248,15 @@ def _back_out_argument(p) -> None:
     p.add_argument("--record-missions", action="store_true",
                    help="keep every mission of each walk in its record, a refused one with the start the BLC was "
                         "given (qz experiment score-missions; benchmarks/blc_refusals.py replay)")
+    p.add_argument("--terminal-stance", choices=("free", "canonical"), default="free",
+                   help="where the feet stand when each mission ends, for both planners: free (as the BLC leaves "
+                        "them) or canonical (the target's canonical stance, which CapPlanner's map then assumes; "
+                        "qz_drake.trajopt.stance)")
     p.add_argument("--blc-ladder", default="",
                    help="solve a mission the BLC could not plan again on these rungs, in order, until one plans, "
                         "for both planners: cycles+N (N tripod cycles longer), split, split+N (two halves "
-                        "chained), short (the target 0.1 m nearer), comma-separated; not with --blc-retries")
+                        "chained), short (the target 0.1 m nearer), free (the end stance left to the BLC, for "
+                        "--terminal-stance canonical), comma-separated; not with --blc-retries")
 
 
 def _stance_argument(p) -> None:

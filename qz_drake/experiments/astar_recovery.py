@@ -181,7 +181,7 @@ class AStarRoute(FixedRoute):
         self._max_recoveries = MAX_RECOVERIES if max_recoveries is None else max_recoveries
         self._back_out = bool(back_out)
 
-    def make(self, scenario, info, targets) -> AStarRecoverySequencer:
+    def make(self, scenario, info, targets, blc_params=None) -> AStarRecoverySequencer:
         control = scenario.controller
         return AStarRecoverySequencer(targets=targets, baseline=self._baseline, goal=self._goal,
                                       mission_length=control.mission_length, plan_ahead=control.plan_ahead,

@@ -177,6 +177,10 @@ class CapabilityMdpConfig:
     cell_size: float = P.CELL_SIZE
     # Topologies the robot may use; empty: all six.
     topologies: list[str] = dataclasses.field(default_factory=list)
+    # The stance the map assumes the robot stands in at every cell and heading: "nominal", the
+    # topology's nominal footholds (the paper's map); "canonical", the stance every mission
+    # ends in when the BLC's terminal_stance is "canonical" (trajopt/stance.py; issue 54).
+    stance: str = "nominal"
 
     def for_grid(self, nx: int, ny: int) -> "CapabilityMdpConfig":
         """The config a grid of nx x ny cells is planned with (``scale_to_grid``)."""
@@ -208,6 +212,9 @@ class CapabilityMdpConfig:
         for t in self.topologies:
             if t not in TOPOLOGY_NAMES:
                 raise bad_value("capability_mdp.topologies", t, f"expected some of {', '.join(TOPOLOGY_NAMES)}")
+        from qz_drake.capability.patches import check_stance
+
+        check_stance(self.stance, "capability_mdp.stance")
         return self
 
 
@@ -1025,7 +1032,7 @@ def plan(model, heightmap, start_xy, start_heading: int, goal_xy, *, start_topol
                                                                 f"y in [{ymin:g}, {ymax:g}])")
     # The grid is anchored on the start: the robot starts at a cell centre, as the grid world has it.
     capability_map = predict_map(model, heightmap, config.topologies or None, cell_size=config.cell_size,
-                                 anchor=start_xy)
+                                 anchor=start_xy, stance=config.stance)
     return plan_on_map(capability_map, start_xy, start_heading, goal_xy, start_topology=start_topology,
                        config=config, switchable=switchable_cells(heightmap, capability_map.xs,
                                                                   capability_map.ys, config),

@@ -198,7 +198,7 @@ class CapabilityVIPlanner(RecoveringSequencer):
         config = (mdp_config or CapabilityMdpConfig()).check()
         # The grid is anchored on the start: the robot starts at a cell centre.
         self.capability_map = predict_map(model, heightmap, config.topologies or None, cell_size=config.cell_size,
-                                          anchor=start[:2])
+                                          anchor=start[:2], stance=config.stance)
         xs, ys = self.capability_map.xs, self.capability_map.ys
         self.mdp = build_capability_mdp(self.capability_map, goal, config, switchable_cells(heightmap, xs, ys, config),
                                         cells_on_map(heightmap, xs, ys))

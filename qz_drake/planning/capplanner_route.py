@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 
 from qz_drake.capability.model import CapabilityModel
-from qz_drake.capability.patches import KINDS
+from qz_drake.capability.patches import KINDS, map_stance
 from qz_drake.capability.trials import TrialConfig, trial_blc_parameters
 from qz_drake.errors import bad_value
 from qz_drake.planning.capability_mdp import CapabilityMdpConfig
@@ -91,8 +91,11 @@ class CapPlannerRoute(FixedRoute):
         # a walk plans what the model predicts, whatever else the machine runs.
         return trial_blc_parameters(TrialConfig())
 
-    def make(self, scenario, info, targets) -> CapabilityVIPlanner:
+    def make(self, scenario, info, targets, blc_params=None) -> CapabilityVIPlanner:
         control = scenario.controller
+        # The map asks about the stance the BLC's missions end in.
+        params = blc_params or self.blc_parameters()
+        stance = map_stance(params.terminal_stance)
         model = CapabilityModel.load(control.capability_model or None)
         # The topologies the model knows all three moves of.
         topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
@@ -107,7 +110,8 @@ class CapPlannerRoute(FixedRoute):
         return CapabilityVIPlanner(model=model, heightmap=info.heightmap, goal=(goal.x, goal.y),
                                    start=(float(start_x), float(start_y), float(base_rpy(x0)[2])),
                                    initial_topology=info.topology.name, plan_ahead=control.plan_ahead,
-                                   mdp_config=mdp_config(control.capability_mdp, topologies),
+                                   mdp_config=dataclasses.replace(mdp_config(control.capability_mdp, topologies),
+                                                                  stance=stance),
                                    split_config=self._split, min_route_success=self.min_route_success,
                                    back_out=self.back_out, measured_stance=self.measured_stance,
                                    refused_in_every_topology=self.refused_in_every_topology,

@@ -8,6 +8,7 @@ p_W_base = p_W_CoM - R_WB com_B. Times are shifted to simulation time.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 
@@ -135,9 +136,11 @@ class ChainedPlan:
 # longer), chained; "short", its target SHORTEN nearer along the way (the route's next mission
 # starts from where the robot stands, so a mission may end a little short; measured on the
 # Fig. 9 world stairs-hard-3, a 1 m mission ending 0.40 m before the first riser was refused on
-# every other rung and planned ending 0.05 m nearer or farther).
-_RUNG = re.compile(r"^(cycles|split|short)(?:\+([1-4]))?$")
-RUNG_HELP = "expected 'cycles+N', 'split', 'split+N' or 'short' (N = 1..4)"
+# every other rung and planned ending 0.05 m nearer or farther); "free", the mission with its
+# end stance left to the BLC (BlcParameters.terminal_stance "free"), for a BLC asked to end in
+# the canonical stance (trajopt/stance.py), which a mission down a flight may not reach.
+_RUNG = re.compile(r"^(cycles|split|short|free)(?:\+([1-4]))?$")
+RUNG_HELP = "expected 'cycles+N', 'split', 'split+N', 'short' or 'free' (N = 1..4)"
 SHORTEN = 0.1  # [m]
 
 
@@ -152,7 +155,7 @@ def parse_ladder(ladder, field: str = "blc.ladder") -> tuple[str, ...]:
     for rung in ladder:
         match = _RUNG.match(rung) if isinstance(rung, str) else None
         if match is None or (match.group(1) == "cycles" and match.group(2) is None) or \
-                (match.group(1) == "short" and match.group(2) is not None):
+                (match.group(1) in ("short", "free") and match.group(2) is not None):
             raise bad_value(field, rung, RUNG_HELP, ConfigError)
         if rung in rungs:
             raise bad_value(field, rung, "is given twice", ConfigError)
@@ -189,6 +192,8 @@ def blc_mission_planner(heightmap, params, control, blc_params=None):
     from qz_drake.trajopt.parameters import BlcParameters
 
     stand_duration = (blc_params or BlcParameters()).stand_duration
+    # The "free" rung's parameters: the same with the end stance left to the BLC.
+    free_params = dataclasses.replace(blc_params or BlcParameters(), terminal_stance="free")
     robots = {}
     stats = {"solves": 0, "failures": 0, "solve_time_s": 0.0}
 
@@ -202,6 +207,10 @@ def blc_mission_planner(heightmap, params, control, blc_params=None):
                 return None, f"BLC: a mission of {length:.2f} m is too short to end {SHORTEN:g} m nearer"
             k = 1.0 - SHORTEN / length
             target = (x0 + k * (target[0] - x0), y0 + k * (target[1] - y0), target[2])
+        if kind == "free":
+            planned, reason = solve(start, target, topology, start_time, extra_cycles, free_params)
+            plan.last_iterations = int(plan.last_solution.iterations)
+            return planned, reason
         if kind != "split":
             planned, reason = solve(start, target, topology, start_time, extra_cycles + cycles)
             plan.last_iterations = int(plan.last_solution.iterations)
@@ -222,7 +231,7 @@ def blc_mission_planner(heightmap, params, control, blc_params=None):
             return None, f"{reason} (second half)"
         return ChainedPlan([first, second]), ""
 
-    def solve(start, target, topology, start_time, extra_cycles):
+    def solve(start, target, topology, start_time, extra_cycles, solver_params=blc_params):
         robot = robots.setdefault(topology, qingzhui(topology))
         x0, y0, yaw0 = start.xy_yaw
         com_B = np.asarray(robot.com_B, dtype=float)
@@ -254,7 +263,7 @@ def blc_mission_planner(heightmap, params, control, blc_params=None):
         task = BlcTask(target=com_target, start_position=tuple(com), start_rpy=rpy0,
                        start_feet=np.asarray(start.feet_W, dtype=float)[:NUM_LEGS], topology=topology,
                        duration=duration)
-        solution = solve_blc(task, robot, heightmap, blc_params)
+        solution = solve_blc(task, robot, heightmap, solver_params)
         plan.last_solution = solution
         stats["solves"] += 1
         stats["solve_time_s"] += solution.solve_time

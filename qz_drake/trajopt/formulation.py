@@ -200,6 +200,9 @@ class BlcFormulation:
         # Where the legs' links could meet the ground (trajopt/leg_clearance.py); None without
         # the "leg_clearance" constraint or where nothing in reach has relief.
         self.clearance = self._clearance_field() if params.enabled("leg_clearance") else None
+        # The target pose's canonical stance (trajopt/stance.py) with terminal_stance
+        # "canonical": the last footholds of its fixed feet are bounded to it; else None.
+        self.terminal = self._terminal_stance() if params.terminal_stance == "canonical" else None
         self._build_bounds()
         if realized is None:
             self._build_constraints()
@@ -210,6 +213,24 @@ class BlcFormulation:
         xs = [self.start_position[0], self.target[0], *self.start_feet[:, 0]]
         ys = [self.start_position[1], self.target[1], *self.start_feet[:, 1]]
         return (min(xs) - reach, max(xs) + reach, min(ys) - reach, max(ys) + reach)
+
+    def _terminal_stance(self):
+        from qz_drake.trajopt.stance import canonical_stance
+
+        robot = self.robot
+        stance = canonical_stance(robot.nominal_footholds, robot.box_half_sizes, self.target[0],
+                                  self.target[1], self.target_yaw, self.terrain, self.support,
+                                  robot.foot_radius, self.params.terminal_foothold_tolerance)
+        # A foot that never swings keeps its start foothold.
+        stance.fixed &= np.array([len(f) > 1 for f in self.variables.footholds])
+        return stance
+
+    def put_terminal_feet(self, x: np.ndarray) -> None:
+        """Writes the canonical stance's fixed feet into x as their last footholds (a guess)."""
+        if self.terminal is None:
+            return
+        for leg in np.flatnonzero(self.terminal.fixed):
+            x[self.variables.footholds[leg][-1]] = self.terminal.feet[leg]
 
     def _clearance_field(self):
         """The legs' clearance field over the task (leg_clearance.py), or None where no link
@@ -315,6 +336,12 @@ class BlcFormulation:
                             (self.target_yaw, v.base_ang[end, 0, 2]), (0.0, v.base_ang[end, 1])):
             lo[idx] = values
             hi[idx] = values
+        if self.terminal is not None:
+            tol = p.terminal_foothold_tolerance
+            for leg in np.flatnonzero(self.terminal.fixed):
+                idx = v.footholds[leg][-1][:2]
+                lo[idx] = self.terminal.feet[leg, :2] - tol
+                hi[idx] = self.terminal.feet[leg, :2] + tol
         if v.layout is not None:
             lo[v.phase_scale] = v.layout.scale_lower
             hi[v.phase_scale] = v.layout.scale_upper

@@ -272,6 +272,8 @@ def straight_line_guess(formulation) -> np.ndarray:
                 xy = f.support.nearest_supported(footholds[1:, 0], footholds[1:, 1])[moved]
                 footholds[1:][moved] = np.column_stack(
                     [xy, terrain.height(xy[:, 0], xy[:, 1]) + robot.foot_radius])
+        if f.terminal is not None and f.terminal.fixed[leg]:
+            footholds[-1] = f.terminal.feet[leg]
         x0[v.footholds[leg]] = footholds
         if len(stances) > 1:
             mid = 0.5 * (footholds[:-1] + footholds[1:])
@@ -332,5 +334,6 @@ def shifted_solution_guess(formulation, solution, time_shift: float = 0.0) -> np
             pp = solution.foot_forces[leg]
             x0[nodes[free, 0]] = np.array([pp.value(t).ravel() for t in times]) / weight
             x0[nodes[free, 1]] = np.array([pp.EvalDerivative(t, 1).ravel() for t in times]) / weight
+    f.put_terminal_feet(x0)
     f.fix_start(x0)
     return x0

@@ -34,6 +34,8 @@ DEFAULT_CONSTRAINTS = ("dynamics", "base_acceleration", "kinematics", "terrain",
 # How the straight-line guess chooses footholds (BlcParameters.foothold_guess).
 LINEAR_SOLVERS = ("mumps", "spral")
 FOOTHOLD_GUESSES = ("auto", "mid", "stance")
+# Where the feet stand when a task ends (BlcParameters.terminal_stance).
+TERMINAL_STANCES = ("free", "canonical")
 
 # Every cost the formulation knows; none is on by default: Eq. 1-6 is a feasibility problem.
 COST_REASONS: dict[str, str] = {
@@ -198,6 +200,14 @@ class BlcParameters:
     # within 8 cm is also ground steeper than 32 degrees, beyond the friction cone (mu 0.6).
     support_margin: float = 0.05  # [m]
     support_drop: float = 0.05  # [m]
+    # Where the feet stand when the task ends (issue 54): "free", wherever the program leaves
+    # them in their boxes; "canonical", each foot within terminal_foothold_tolerance (x, y) of
+    # the target pose's canonical foothold (trajopt/stance.py: the nominal foothold, moved to
+    # the nearest ground terminal_foothold_tolerance clear of unsupported ground; a foot whose
+    # move would leave its box stays free), so that a mission ends in the stance a planner's
+    # map assumes. [m]
+    terminal_stance: str = "free"
+    terminal_foothold_tolerance: float = 0.02
     # The dense verdict fails a stance foothold deeper than this inside unsupported ground. [m]
     dense_support_tolerance: float = 0.01
     # Legs' links above the ground (constraint "leg_clearance", trajopt/leg_clearance.py):
@@ -258,7 +268,7 @@ class BlcParameters:
                      "dense_residual_limit", "dense_residual_lever", "support_margin",
                      "support_drop", "dense_support_tolerance", "leg_clearance_dt",
                      "leg_clearance_spacing", "leg_clearance_relief", "dense_link_tolerance",
-                     "leg_clearance_footprint"):
+                     "leg_clearance_footprint", "terminal_foothold_tolerance"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and value > 0):
                 raise bad_value(f"blc.{name}", value, "must be positive", ConfigError)
@@ -293,6 +303,9 @@ class BlcParameters:
         if self.foothold_guess not in FOOTHOLD_GUESSES:
             raise bad_value("blc.foothold_guess", self.foothold_guess,
                             f"expected one of {', '.join(FOOTHOLD_GUESSES)}")
+        if self.terminal_stance not in TERMINAL_STANCES:
+            raise bad_value("blc.terminal_stance", self.terminal_stance,
+                            f"expected one of {', '.join(TERMINAL_STANCES)}", ConfigError)
         if self.linear_solver not in LINEAR_SOLVERS:
             raise bad_value("blc.linear_solver", self.linear_solver,
                             f"expected one of {', '.join(LINEAR_SOLVERS)}")

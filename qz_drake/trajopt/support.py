@@ -51,6 +51,8 @@ class SupportField:
     nearest: np.ndarray
     # Signed distance to the unsupported set, interpolated (a TerrainModel over the field).
     distance: GridTerrain
+    # nearest_clear's (iy, ix) maps, per margin (computed on first use).
+    _clear: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     def margin(self, x, y) -> np.ndarray:
         """Signed distance to the nearest unsupported point (negative: unsupported). [m]"""
@@ -87,6 +89,29 @@ class SupportField:
         out = np.stack([x, y], axis=-1).astype(float)
         out[moved, 0] = self.origin[0] + jx[moved] * self.resolution
         out[moved, 1] = self.origin[1] + jy[moved] * self.resolution
+        return out
+
+    def nearest_clear(self, x, y, margin: float) -> np.ndarray:
+        """(..., 2) the centre of the nearest cell at least ``margin`` from unsupported ground
+        (the signed distance at its centre >= margin; the point itself where its own cell is).
+        Where no cell is that clear, the nearest supported one. [m]"""
+        key = round(float(margin), 6)
+        if key not in self._clear:
+            from scipy.ndimage import distance_transform_edt
+
+            blocked = self.distance.heights < key - 1e-9
+            if blocked.all():
+                self._clear[key] = (self.nearest, self.unsupported)
+            else:
+                _, nearest = distance_transform_edt(blocked, return_indices=True)
+                self._clear[key] = (nearest, blocked)
+        nearest, blocked = self._clear[key]
+        x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+        iy, ix = self._cells(x, y)
+        moved = blocked[iy, ix]
+        out = np.stack([x, y], axis=-1).astype(float)
+        out[moved, 0] = self.origin[0] + nearest[1][iy, ix][moved] * self.resolution
+        out[moved, 1] = self.origin[1] + nearest[0][iy, ix][moved] * self.resolution
         return out
 
 

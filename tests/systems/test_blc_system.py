@@ -242,7 +242,8 @@ def test_a_split_rung_plans_the_mission_in_two_halves_that_read_as_one_plan():
 def test_ladder_rungs_are_checked_and_named():
     assert parse_ladder("cycles+1, split, split+2") == ("cycles+1", "split", "split+2")
     assert parse_ladder(None) == parse_ladder("") == ()
-    for bad in ("cycles", "split+9", "longer", "split,split", "short+1"):
+    assert parse_ladder("free,cycles+1") == ("free", "cycles+1")
+    for bad in ("cycles", "split+9", "longer", "split,split", "short+1", "free+1"):
         with pytest.raises(QzError, match="ladder"):
             TrajectoryOptimizationBLC(ladder=bad)
     with pytest.raises(QzError, match="mission_retries"):

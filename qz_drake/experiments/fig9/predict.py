@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -24,7 +25,7 @@ def predict_route(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig(),
     chance that no action ends the walk (fall_free), the product of the actions' success
     (success), the actions and topology changes; reaches False where it found no path."""
     from qz_drake.capability.model import CapabilityModel
-    from qz_drake.capability.patches import KINDS
+    from qz_drake.capability.patches import KINDS, map_stance
     from qz_drake.planning.capability_mdp import plan
     from qz_drake.robot.topology import TOPOLOGY_NAMES
     from qz_drake.planning.capplanner_route import mdp_config
@@ -32,7 +33,8 @@ def predict_route(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig(),
     model = model or CapabilityModel.load(config.capability_model or None)
     task = make_task(spec.terrain, spec.difficulty, spec.seed, scale=config.scale)
     topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
-    mdp = mdp_config(_mdp_overrides(config), topologies)
+    mdp = dataclasses.replace(mdp_config(_mdp_overrides(config), topologies),
+                              stance=map_stance(config.blc_terminal_stance))
     heading = int(round(task.start_yaw / (np.pi / 4))) % 8
     result = plan(model, task.heightmap, task.start, heading, task.goal, config=mdp)
     return {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,

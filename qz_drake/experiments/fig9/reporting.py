@@ -37,6 +37,8 @@ def planner_differences(settings: dict) -> list[str]:
              "longer each time")
     if c.get("blc_ladder"):
         retry = f"a refused mission solved again on the ladder {c['blc_ladder']}"
+    if c.get("blc_terminal_stance", "free") == "canonical":
+        retry += ", every mission ending in its target's canonical stance"
     out = [f"Shared: the BLC ({c['blc_max_iterations']} Ipopt iterations a mission, {retry}), the IK tracker "
            f"and joint PD, the strict verdict, the time budget ({c['time_factor']:g} x the straight-line walking "
            f"time + {c['time_margin']:g} s), the speed and tripod phase."]

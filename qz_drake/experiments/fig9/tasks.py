@@ -44,6 +44,10 @@ class ExperimentConfig:
     # The BLC ladder instead (TrajectoryOptimizationBLC's ``ladder``, e.g. "cycles+1,split"), for
     # both planners alike; "": the retries'. Not with blc_retries.
     blc_ladder: str = ""
+    # Where the feet stand when each mission ends (BlcParameters.terminal_stance), for both
+    # planners alike: "free" (every run before issue 54) or "canonical" (trajopt/stance.py;
+    # CapPlanner's map then asks about the same stance, capability_mdp.CapabilityMdpConfig.stance).
+    blc_terminal_stance: str = "free"
     # CapPlanner's capability model folder; empty: the shipped one.
     capability_model: str = ""
     # World scale (1: the experiment; smaller: tiny tasks for tests, see worlds.make_task).
@@ -215,7 +219,8 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
                       route_source=route_source or route_source_for(scenario),
                       on_judged=keep_missions if config.record_missions else None,
                       blc_params=BlcParameters(max_iterations=config.blc_max_iterations,
-                                               time_limit=config.blc_time_limit))
+                                               time_limit=config.blc_time_limit,
+                                               terminal_stance=config.blc_terminal_stance))
         m = result.metrics
         walked = float(np.sum(np.linalg.norm(np.diff(result.states[:, BASE_XY], axis=0), axis=1))) \
             if len(result.states) > 1 else 0.0
