@@ -486,6 +486,32 @@ def test_one_planners_half_is_walked_before_the_other_is_tuned(briefly_trained_m
     assert json.loads((tmp_path / "settings.json").read_text()) == settings
 
 
+def test_the_learned_astar_owns_its_settings_and_shares_astars_thresholds(briefly_trained_model_dir, tmp_path):
+    """The learned A* (planner astar_learned) walks beside A* in one folder: its own settings and
+    the model are taken when it first walks there and held after; A*'s thresholds are its too."""
+    from qz_drake.errors import QzError
+    from qz_drake.experiments.fig9 import MODEL_IDENTITY, ExperimentConfig, run_experiment
+
+    def record(spec):
+        return {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,
+                "planner": spec.planner, "success": True, "reason": "", "displacement_ratio": 1.1}
+
+    cell = dict(terrains=("obstacles",), difficulties=("simple",), tasks=1, progress=False, reuse=record)
+    astar_half = ExperimentConfig(scale=0.3)
+    run_experiment(tmp_path, planners=("astar",), config=astar_half, **cell)
+    learned = dataclasses.replace(astar_half, capability_model=str(briefly_trained_model_dir), astar_learned_weight=5.0)
+    summary = run_experiment(tmp_path, planners=("astar_learned",), config=learned, **cell)
+    assert summary["reused"] == 1 and {r["planner"] for r in summary["rows"]} == {"astar", "astar_learned"}
+    settings = json.loads((tmp_path / "settings.json").read_text())
+    assert settings["astar_learned_weight"] == 5.0 and MODEL_IDENTITY in settings
+    with pytest.raises(QzError, match="astar_learned_weight 5.0, this run's 10.0"):
+        run_experiment(tmp_path, planners=("astar_learned",), config=dataclasses.replace(learned, astar_learned_weight=10.0),
+                       **cell)
+    with pytest.raises(QzError, match="astar_max_step_height 0.2, this run's 0.24"):
+        run_experiment(tmp_path, planners=("astar_learned",), config=dataclasses.replace(learned, astar_max_step_height=0.24),
+                       **cell)
+
+
 def test_a_run_walks_seed_by_seed_across_the_cells(tmp_path):
     """A run cut off part way (a session's end) holds whole seeds spread over every cell and
     planner, not the first cells complete and the last untouched."""

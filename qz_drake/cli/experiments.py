@@ -29,7 +29,8 @@ def _names(text, field, valid) -> tuple[str, ...]:
 
 
 def run_fig9(args) -> int:
-    from qz_drake.experiments.fig9 import PLANNERS, ExperimentConfig, run_experiment
+    from qz_drake.cli.arguments import parse_names
+    from qz_drake.experiments.fig9 import EXPERIMENT_PLANNERS, PLANNERS, ExperimentConfig, run_experiment
     from qz_drake.experiments.plots import plot_fig9
     from qz_drake.experiments.worlds import DIFFICULTIES, TASKS_PER_CELL, TERRAINS
 
@@ -48,8 +49,11 @@ def run_fig9(args) -> int:
                               capplanner_hold_margin=_hold_margin(args),
                               blc_retries=args.blc_retries, blc_ladder=args.blc_ladder,
                               blc_terminal_stance=args.terminal_stance,
+                              astar_learned_weight=args.astar_learned_weight,
+                              astar_learned_veto=args.astar_learned_veto,
                               record_missions=args.record_missions, **tuned)
-    summary = run_experiment(args.out, planners=_names(args.planners, "--planners", tuple(PLANNERS)),
+    summary = run_experiment(args.out, planners=parse_names(args.planners, "--planners", tuple(PLANNERS))
+                             or EXPERIMENT_PLANNERS,
                              terrains=_names(args.terrains, "--terrains", TERRAINS),
                              difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
                              tasks=args.tasks, workers=args.workers, ray_address=args.ray_address, config=config,
@@ -289,7 +293,13 @@ def register(subparsers) -> None:
                         "the aim)")
     p.add_argument("--terrains", default=None, help="comma-separated: stairs,obstacles,both")
     p.add_argument("--difficulties", default=None, help="comma-separated: simple,medium,hard")
-    p.add_argument("--planners", default=None, help="comma-separated: capplanner,astar (default both)")
+    p.add_argument("--planners", default=None,
+                   help="comma-separated: capplanner, astar, astar_learned (A* with the capability model as an edge "
+                        "cost and veto; --astar-learned-weight, --astar-learned-veto) (default capplanner,astar)")
+    p.add_argument("--astar-learned-weight", type=float, default=10.0,
+                   help="astar_learned: cost per unit of -log of a grid move's predicted success (default 10)")
+    p.add_argument("--astar-learned-veto", type=float, default=0.5,
+                   help="astar_learned: least predicted success of a grid move it may take (default 0.5)")
     p.add_argument("--model", default=None, help="CapPlanner's capability model folder (default: shipped)")
     p.add_argument("--astar-tuning", default=None,
                    help="tuning.json (or its folder) of qz experiment tune-astar: A*'s chosen thresholds "

@@ -36,6 +36,54 @@ class AStarBaselineConfig:
     body_radius: float = 0.7
 
 
+@dataclasses.dataclass(frozen=True)
+class LearnedCost:
+    """The capability model's answers as A*'s edge cost and veto (issue 54's baseline from the
+    field: a geometric planner that asks a learned estimator about each edge, as ArtPlanner and
+    Guzzi et al. do). ``capability_map`` (capability.model_base.CapabilityMap, with the nominal
+    topology) gives, for each 1 m grid cell and heading k, the chance that a move one cell along
+    k walks; every cost-map cell inside that grid cell moving along k adds ``weight`` x
+    (-log p) / (the move's length) to its geometric cost of Eq. 16, p the least of headings k and
+    k +- 45 deg (a zigzag of the fine grid's steps walks along the heading between them) (a cost per metre in [0, 1],
+    weighted against distance by the safety weight as it is), so that crossing the grid cell
+    costs about safety_weight x weight x -log p metres more, and is blocked for that heading
+    where p < ``veto``. With safety weight 0.5 and weight 10, a move predicted to walk 9 times in
+    10 costs about half a metre of detour, one predicted to walk half the time 3.5 m."""
+
+    capability_map: object
+    # Cost per unit of -log(success) of a grid move (0: the geometric A* with the veto alone).
+    weight: float = 10.0
+    # Least predicted success of a grid move that A* may take.
+    veto: float = 0.5
+
+    def __post_init__(self):
+        if not (math.isfinite(self.weight) and self.weight >= 0):
+            raise bad_value("astar_learned_weight", self.weight, "must be finite and >= 0")
+        if not (math.isfinite(self.veto) and 0.0 <= self.veto < 1.0):
+            raise bad_value("astar_learned_veto", self.veto, "must be in [0, 1)")
+        if "nominal" not in self.capability_map.topologies:
+            raise bad_value("capability_map.topologies", self.capability_map.topologies,
+                            "must include nominal (A* walks in the nominal topology)")
+
+    def heading_cost(self, cost_map) -> np.ndarray:
+        """(8, H, W) the learned cost per metre on the cost map's cells (inf where vetoed)."""
+        cm = self.capability_map
+        H, W = cost_map.shape
+        res, (x0, y0) = cost_map.resolution, cost_map.origin
+        ix = np.clip(np.rint((x0 + res * np.arange(W) - cm.xs[0]) / cm.cell_size), 0, len(cm.xs) - 1).astype(int)
+        iy = np.clip(np.rint((y0 + res * np.arange(H) - cm.ys[0]) / cm.cell_size), 0, len(cm.ys) - 1).astype(int)
+        p = np.asarray(cm.forward[cm.topologies.index("nominal")], dtype=float)  # (8, ny, nx)
+        # A step of the fine grid along k may belong to a path (and a mission) along k +- 45 deg:
+        # a zigzag of diagonal steps walks straight along the axis between them. Each step pays
+        # for the worst of the three headings, or A* would zigzag past a vetoed move.
+        p = np.minimum.reduce([np.roll(p, shift, axis=0) for shift in (-1, 0, 1)])
+        p = p[:, iy[:, None], ix[None, :]]  # (8, H, W)
+        length = cm.cell_size * np.where(np.arange(8) % 2 == 1, math.sqrt(2.0), 1.0)[:, None, None]
+        with np.errstate(divide="ignore"):
+            cost = self.weight * -np.log(np.clip(p, 1e-9, 1.0)) / length
+        return np.where(p < self.veto, np.inf, cost)
+
+
 @dataclasses.dataclass
 class Route:
     """A top-level controller's answer: waypoints (x, y, yaw, topology), or why there are none."""
@@ -52,7 +100,10 @@ class AStarBaseline:
     and cells blocked where the BLC could not plan a mission (the recovery of
     :class:`AStarRecoverySequencer`, the same going round that CapPlanner does)."""
 
-    def __init__(self, heightmap, config: AStarBaselineConfig = AStarBaselineConfig()):
+    def __init__(self, heightmap, config: AStarBaselineConfig = AStarBaselineConfig(),
+                 learned: LearnedCost | None = None):
+        """``learned``: the capability model's answers as an edge cost and veto on top of the
+        geometric cost map (LearnedCost); None: the geometric A* of paper 000's Fig. 9."""
         from qz_drake.terrain.features import BodyCostConfig, BodyFeatureConfig, CostMapConfig, build_cost_map
 
         self.config = config
@@ -64,6 +115,8 @@ class AStarBaseline:
         self.cost_map = dataclasses.replace(cost_map, body_cost=np.where(blocked, np.inf, cost_map.body_cost))
         # (x, y, radius) of the discs blocked so far. [m]
         self.blocked: list[tuple[float, float, float]] = []
+        self.learned = learned
+        self._learned_cost = None if learned is None else learned.heading_cost(self.cost_map)
 
     def block(self, xy, radius: float, *, keep_clear=None) -> None:
         """Blocks the cells within ``radius`` of ``xy`` (x, y); with ``keep_clear`` (where the
@@ -91,12 +144,27 @@ class AStarBaseline:
 
         clock = time.perf_counter()
         config = self.config
-        result = astar(self.cost_map, start, goal, config=AStarConfig(distance_weight=1.0 - config.safety_weight,
-                                                                     safety_weight=config.safety_weight))
+        cost_map = self.cost_map
+        if self._learned_cost is not None:
+            cost_map = _LearnedCostMap(cost_map, self._learned_cost)
+        result = astar(cost_map, start, goal, config=AStarConfig(distance_weight=1.0 - config.safety_weight,
+                                                                safety_weight=config.safety_weight))
         elapsed = time.perf_counter() - clock
         if not result.found:
             return Route(False, f"A*: {result.reason}", [], elapsed, np.zeros((0, 2)))
         return Route(True, "", waypoints_along(result.xy, goal, config.waypoint_spacing), elapsed, result.xy)
+
+
+class _LearnedCostMap:
+    """A cost map whose heading_cost adds the learned one (what ``astar`` reads of it)."""
+
+    def __init__(self, cost_map, learned_cost):
+        self._cost_map, self._learned_cost = cost_map, learned_cost
+        self.shape, self.resolution, self.origin = cost_map.shape, cost_map.resolution, cost_map.origin
+        self.cell = cost_map.cell
+
+    def heading_cost(self) -> np.ndarray:
+        return self._cost_map.heading_cost() + self._learned_cost
 
 
 def astar_route(heightmap, start, goal, config: AStarBaselineConfig = AStarBaselineConfig()) -> Route:

@@ -20,7 +20,8 @@ from qz_drake.experiments.fig9.reporting import (discordant_pictures, discordant
 from qz_drake.experiments.fig9.results import (MODEL_IDENTITY, PREDICTIONS, RESULTS, read_config, read_results,
                                                read_settings)
 from qz_drake.experiments.fig9.run import run_experiment
-from qz_drake.experiments.fig9.tasks import PLANNERS, ExperimentConfig, TaskSpec, path_samples, run_task
+from qz_drake.experiments.fig9.tasks import (EXPERIMENT_PLANNERS, PLANNERS, ExperimentConfig, TaskSpec, path_samples,
+                                             run_task)
 from qz_drake.experiments.fig9.tune import (TUNING_BODY_RADII, TUNING_DIFFICULTIES, TUNING_FAILURE_REWARDS,
                                             TUNING_MERGE_MIN_SUCCESS, TUNING_MISSION_LENGTHS,
                                             TUNING_PESSIMISMS, TUNING_PLAN_FAILURE_RISKS, TUNING_SLOPES_DEG,
@@ -30,7 +31,7 @@ from qz_drake.experiments.fig9.tune import (TUNING_BODY_RADII, TUNING_DIFFICULTI
                                             tune_astar, tune_capplanner)
 
 __all__ = [
-    "ExperimentConfig", "TaskSpec", "PLANNERS", "run_task", "path_samples", "RESULTS", "PREDICTIONS",
+    "ExperimentConfig", "TaskSpec", "PLANNERS", "EXPERIMENT_PLANNERS", "run_task", "path_samples", "RESULTS", "PREDICTIONS",
     "MODEL_IDENTITY", "read_results", "read_settings", "read_config", "run_experiment", "summarise", "compare_planners",
     "claim_check", "compare_runs", "predict_route", "predict_routes", "route_calibration", "report",
     "report_markdown", "planner_differences", "discordant_tasks", "discordant_pictures", "tune_astar",

@@ -19,7 +19,8 @@ from qz_drake.errors import bad_value
 from qz_drake.progress import ProgressReport
 from qz_drake.experiments.fig9.comparison import compare_planners, summarise
 from qz_drake.experiments.fig9.results import MODEL_IDENTITY, RESULTS, SETTINGS_BEFORE_THEY_EXISTED, read_results
-from qz_drake.experiments.fig9.tasks import PLANNERS, ExperimentConfig, TaskSpec, run_task
+from qz_drake.experiments.fig9.tasks import (EXPERIMENT_PLANNERS, MODEL_PLANNERS, PLANNERS, ExperimentConfig, TaskSpec,
+                                             run_task)
 from qz_drake.experiments.worlds import DIFFICULTIES, TASKS_PER_CELL, TERRAINS, make_task
 
 # Most tasks per terrain and difficulty one run may plan: 20 times the experiment's.
@@ -40,16 +41,20 @@ def _crashed(spec: TaskSpec, message: str, config) -> dict:
             "planner": spec.planner, "success": False, "reason": "error", "error": message}
 
 
-def _setting_owner(field: str) -> str | None:
-    """The planner whose walks alone a setting changes (None: every planner's)."""
+def _setting_owners(field: str) -> tuple[str, ...] | None:
+    """The planners whose walks alone a setting changes (None: every planner's)."""
+    if field.startswith("astar_learned_"):
+        return ("astar_learned",)
     if field.startswith("astar_"):
-        return "astar"
-    if field.startswith("capplanner_") or field in ("capability_model", MODEL_IDENTITY):
-        return "capplanner"
+        return ("astar", "astar_learned")
+    if field.startswith("capplanner_"):
+        return ("capplanner",)
+    if field in ("capability_model", MODEL_IDENTITY):
+        return MODEL_PLANNERS
     return None
 
 
-def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficulties=DIFFICULTIES,
+def run_experiment(out, *, planners=EXPERIMENT_PLANNERS, terrains=TERRAINS, difficulties=DIFFICULTIES,
                    tasks: int = TASKS_PER_CELL, workers: int = 1, ray_address: str | None = None,
                    config: ExperimentConfig = ExperimentConfig(), progress: bool = True,
                    first_seed: int = 0, recordings: int = 1, reuse=None) -> dict:
@@ -95,7 +100,7 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
     for d in difficulties:
         make_task("stairs", d, 0, scale=config.scale)
     model = None
-    if "capplanner" in planners:
+    if set(MODEL_PLANNERS) & set(planners):
         from qz_drake.capability.model import CapabilityModel
 
         model = CapabilityModel.load(config.capability_model or None)  # a missing model fails before any walk
@@ -116,14 +121,14 @@ def run_experiment(out, *, planners=tuple(PLANNERS), terrains=TERRAINS, difficul
         theirs = {**dataclasses.asdict(ExperimentConfig()), **SETTINGS_BEFORE_THEY_EXISTED, **stored}
         walked = {r.get("planner") for r in read_results(out) if r.get("reason") != "error"}
         for field in sorted(set(mine) | set(theirs)):
-            owner = _setting_owner(field)
-            if owner is not None and owner not in planners:
+            owners = _setting_owners(field)
+            if owners is not None and not set(owners) & set(planners):
                 # Not this run's planner: its settings stay those its walks (if any) had.
                 if field in theirs:
                     mine[field] = theirs[field]
                 else:
                     mine.pop(field, None)
-            elif owner is not None and owner not in walked:
+            elif owners is not None and not set(owners) & walked:
                 continue  # this run's planner walks here first: its settings are this run's
             elif field == MODEL_IDENTITY and field not in stored:
                 mine.pop(field, None)  # results written before the model was recorded carry none

@@ -58,6 +58,12 @@ class ExperimentConfig:
     astar_max_slope_deg: float = 30.0
     astar_safety_weight: float = 0.5
     astar_body_radius: float = 0.7
+    # The learned A* (planner ``astar_learned``, issue 54's baseline from the field): A*'s
+    # geometric search with CapPlanner's model as an edge cost and veto
+    # (astar_baseline.LearnedCost: the weight on -log of a grid move's predicted success, and the
+    # least predicted success A* may take); otherwise A*'s thresholds and recovery.
+    astar_learned_weight: float = 10.0
+    astar_learned_veto: float = 0.5
     # Missions the BLC could not plan that A* goes round (experiments/astar_recovery.py, issue
     # 38): the same number CapPlanner's TLC does (4); 0: A* stops at the first (the first
     # Fig. 9 run's baseline).
@@ -118,9 +124,10 @@ class TaskSpec:
         return f"{self.terrain}-{self.difficulty}-{self.seed}-{self.planner}"
 
 
-def _astar(task, config):
+def _astar(task, config, learned=None):
     """A* over the geometric cost map: a route in the nominal topology (planner blc), walked
-    with the recovery of experiments/astar_recovery.py (``astar_max_recoveries``)."""
+    with the recovery of experiments/astar_recovery.py (``astar_max_recoveries``); ``learned``
+    (astar_baseline.LearnedCost) adds the model's answers to the cost map."""
     import time
 
     from qz_drake.experiments.astar_baseline import AStarBaseline, AStarBaselineConfig
@@ -131,11 +138,29 @@ def _astar(task, config):
                                                                  max_slope_deg=config.astar_max_slope_deg,
                                                                  safety_weight=config.astar_safety_weight,
                                                                  body_radius=config.astar_body_radius,
-                                                                 waypoint_spacing=config.mission_length))
+                                                                 waypoint_spacing=config.mission_length),
+                             learned=learned(task) if learned is not None else None)
     route = baseline.route(task.start, task.goal)
     route = dataclasses.replace(route, planning_time_s=time.perf_counter() - clock)
     return route, "blc", route.waypoints, AStarRoute(baseline, task.goal, config.astar_max_recoveries,
                                                      back_out=config.recovery_back_out)
+
+
+def _astar_learned(task, config):
+    """The learned A*: A* with CapPlanner's model as an edge cost and veto, its capability map
+    of the nominal topology made from the task's start (as CapPlanner's, in the stance the
+    BLC's missions end in); the route and recovery are A*'s, the map's time part of planning."""
+    from qz_drake.capability.model import CapabilityModel, predict_map
+    from qz_drake.capability.patches import map_stance
+    from qz_drake.experiments.astar_baseline import LearnedCost
+
+    def learned(task):
+        model = CapabilityModel.load(config.capability_model or None)
+        capability_map = predict_map(model, task.heightmap, ["nominal"], anchor=task.start,
+                                     stance=map_stance(config.blc_terminal_stance))
+        return LearnedCost(capability_map, config.astar_learned_weight, config.astar_learned_veto)
+
+    return _astar(task, config, learned)
 
 
 def _capplanner(task, config):
@@ -163,7 +188,11 @@ def _mdp_overrides(config: ExperimentConfig) -> dict:
 
 # Top-level controllers: name -> (task, config) -> (Route, walking planner, waypoints, route
 # source of the walk or None: the scenario's own, qz_drake.planning.capplanner_route.route_source_for).
-PLANNERS = {"astar": _astar, "capplanner": _capplanner}
+PLANNERS = {"astar": _astar, "capplanner": _capplanner, "astar_learned": _astar_learned}
+# The two of paper 000's Fig. 9, which a run walks unless told otherwise.
+EXPERIMENT_PLANNERS = ("astar", "capplanner")
+# The planners that ask the capability model.
+MODEL_PLANNERS = ("capplanner", "astar_learned")
 
 
 def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> dict:

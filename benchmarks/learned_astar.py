@@ -1,0 +1,93 @@
+"""The learned A* on the tuning tasks (issue 54's baseline from the field): A*'s geometric search
+with CapPlanner's capability model as an edge cost and veto (planner ``astar_learned``,
+``qz_drake.experiments.astar_baseline.LearnedCost``), walked in Drake on the 24 medium and hard
+tuning tasks (seeds 1000-1003) at A*'s tuned thresholds, with the BLC and recovery of the runs it
+is compared with:
+
+    python benchmarks/learned_astar.py OUT [--weight 10] [--veto 0.5] [--blc-ladder LADDER]
+        [--terminal-stance free|canonical] [--workers 2]
+    python benchmarks/learned_astar.py --table RUN [RUN ...]
+
+OUT is a Fig. 9 results folder (resumable). ``--table`` prints, per results folder, the tasks
+walked (medium / hard), refusals heard, walks that spent all four, back-outs and the
+displacement ratio, and which tasks each folder alone walked against the first. Worlds of seeds
+50-99 are never walked here (the tuning seeds start at 1000).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+ASTAR_TUNING = "data/astar_tuning"
+
+
+def walk(out: Path, weight: float, veto: float, ladder: str, stance: str, workers: int) -> dict:
+    from qz_drake.experiments.fig9 import ExperimentConfig, astar_settings, run_experiment
+    from qz_drake.experiments.fig9.tune import TUNING_DIFFICULTIES, TUNING_TASKS_PER_CELL
+    from qz_drake.experiments.worlds import TERRAINS, TUNING_SEED_START
+
+    config = ExperimentConfig(blc_ladder=ladder, blc_terminal_stance=stance, record_missions=True,
+                              astar_learned_weight=weight, astar_learned_veto=veto, **astar_settings(ASTAR_TUNING))
+    return run_experiment(out, planners=("astar_learned",), terrains=TERRAINS, difficulties=TUNING_DIFFICULTIES,
+                          tasks=TUNING_TASKS_PER_CELL, workers=workers, config=config, progress=True,
+                          first_seed=TUNING_SEED_START, recordings=0)
+
+
+def _records(run: Path) -> dict:
+    files = [run] if run.is_file() else sorted(run.rglob("results.jsonl"))
+    if len(files) != 1:
+        raise SystemExit(f"{run}: expected one results.jsonl, found {len(files)}")
+    records = [json.loads(line) for line in files[0].read_text().splitlines() if line.strip()]
+    return {r["key"].rsplit("-", 1)[0]: r for r in records if r.get("reason") != "error"}
+
+
+def table(runs) -> str:
+    loaded = [(run, _records(run)) for run in runs]
+    lines = ["| run | planner | walked (medium / hard) | refusals heard | spent all four | back-outs "
+             "| displacement medium / hard | walked where the first did not / not where it did |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    first = loaded[0][1]
+    for run, records in loaded:
+        rs = list(records.values())
+
+        def count(difficulty):
+            return sum(r["success"] for r in rs if r["difficulty"] == difficulty)
+
+        disp = [np.mean([r["displacement_ratio"] for r in rs if r["success"] and r["difficulty"] == d] or [np.nan])
+                for d in ("medium", "hard")]
+        gained = sorted(k for k, r in records.items() if r["success"] and k in first and not first[k]["success"])
+        lost = sorted(k for k, r in records.items() if not r["success"] and k in first and first[k]["success"])
+        lines.append(f"| {run} | {rs[0]['planner']} | {sum(r['success'] for r in rs)} ({count('medium')} / "
+                     f"{count('hard')}) | {sum(r['recoveries'] for r in rs)} | "
+                     f"{sum(1 for r in rs if r['recoveries'] >= 4)} | {sum(r['back_outs'] for r in rs)} | "
+                     f"{disp[0]:.3f} / {disp[1]:.3f} | {', '.join(gained) or '-'} / {', '.join(lost) or '-'} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("out", nargs="?", type=Path)
+    parser.add_argument("--weight", type=float, default=10.0)
+    parser.add_argument("--veto", type=float, default=0.5)
+    parser.add_argument("--blc-ladder", default="cycles+1,split,split+1,cycles+2")
+    parser.add_argument("--terminal-stance", choices=("free", "canonical"), default="free")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--table", nargs="+", type=Path, default=None, metavar="RUN")
+    args = parser.parse_args(argv)
+    if args.table:
+        print(table(args.table))
+        return 0
+    if args.out is None:
+        parser.error("give OUT, or --table RUN ...")
+    summary = walk(args.out, args.weight, args.veto, args.blc_ladder, args.terminal_stance, args.workers)
+    print(json.dumps({k: summary[k] for k in ("ran", "reused", "already_done", "wall_time_s", "out")}))
+    print(table([args.out]))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
