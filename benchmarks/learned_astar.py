@@ -1,17 +1,18 @@
 """The learned A* on the tuning tasks (issue 54's baseline from the field): A*'s geometric search
 with CapPlanner's capability model as an edge cost and veto (planner ``astar_learned``,
 ``qz_drake.experiments.astar_baseline.LearnedCost``), walked in Drake on the 24 medium and hard
-tuning tasks (seeds 1000-1003) at A*'s tuned thresholds, with the BLC and recovery of the runs it
-is compared with:
+tuning tasks (seeds 1000-1003; ``--first-seed 500``: validation worlds) at A*'s tuned thresholds,
+with the BLC and recovery of the runs it is compared with (``--planner astar``: the geometric A*
+on the same worlds and settings):
 
-    python benchmarks/learned_astar.py OUT [--weight 10] [--veto 0.5] [--blc-ladder LADDER]
-        [--terminal-stance free|canonical] [--workers 2]
+    python benchmarks/learned_astar.py OUT [--weight 3] [--veto 0] [--blc-ladder LADDER]
+        [--terminal-stance free|canonical] [--workers 2] [--first-seed 1000] [--planner astar]
     python benchmarks/learned_astar.py --table RUN [RUN ...]
 
 OUT is a Fig. 9 results folder (resumable). ``--table`` prints, per results folder, the tasks
 walked (medium / hard), refusals heard, walks that spent all four, back-outs and the
 displacement ratio, and which tasks each folder alone walked against the first. Worlds of seeds
-50-99 are never walked here (the tuning seeds start at 1000).
+50-99 are refused.
 """
 
 from __future__ import annotations
@@ -25,16 +26,19 @@ import numpy as np
 ASTAR_TUNING = "data/astar_tuning"
 
 
-def walk(out: Path, weight: float, veto: float, ladder: str, stance: str, workers: int) -> dict:
+def walk(out: Path, weight: float, veto: float, ladder: str, stance: str, workers: int, first_seed: int,
+         planner: str = "astar_learned") -> dict:
     from qz_drake.experiments.fig9 import ExperimentConfig, astar_settings, run_experiment
     from qz_drake.experiments.fig9.tune import TUNING_DIFFICULTIES, TUNING_TASKS_PER_CELL
-    from qz_drake.experiments.worlds import TERRAINS, TUNING_SEED_START
+    from qz_drake.experiments.worlds import TERRAINS
 
+    if first_seed <= 99 and first_seed + TUNING_TASKS_PER_CELL > 50:
+        raise SystemExit(f"--first-seed {first_seed}: seeds 50-99 are kept for checks outside the project")
     config = ExperimentConfig(blc_ladder=ladder, blc_terminal_stance=stance, record_missions=True,
                               astar_learned_weight=weight, astar_learned_veto=veto, **astar_settings(ASTAR_TUNING))
-    return run_experiment(out, planners=("astar_learned",), terrains=TERRAINS, difficulties=TUNING_DIFFICULTIES,
+    return run_experiment(out, planners=(planner,), terrains=TERRAINS, difficulties=TUNING_DIFFICULTIES,
                           tasks=TUNING_TASKS_PER_CELL, workers=workers, config=config, progress=True,
-                          first_seed=TUNING_SEED_START, recordings=0)
+                          first_seed=first_seed, recordings=0)
 
 
 def _records(run: Path) -> dict:
@@ -71,11 +75,15 @@ def table(runs) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("out", nargs="?", type=Path)
-    parser.add_argument("--weight", type=float, default=10.0)
-    parser.add_argument("--veto", type=float, default=0.5)
+    parser.add_argument("--weight", type=float, default=3.0)
+    parser.add_argument("--veto", type=float, default=0.0)
     parser.add_argument("--blc-ladder", default="cycles+1,split,split+1,cycles+2")
     parser.add_argument("--terminal-stance", choices=("free", "canonical"), default="free")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--first-seed", type=int, default=1000,
+                        help="the worlds' first seed (1000: the tuning worlds; 500-999: validation)")
+    parser.add_argument("--planner", choices=("astar_learned", "astar"), default="astar_learned",
+                        help="astar: the geometric A* beside it, on the same worlds and settings")
     parser.add_argument("--table", nargs="+", type=Path, default=None, metavar="RUN")
     args = parser.parse_args(argv)
     if args.table:
@@ -83,7 +91,8 @@ def main(argv=None) -> int:
         return 0
     if args.out is None:
         parser.error("give OUT, or --table RUN ...")
-    summary = walk(args.out, args.weight, args.veto, args.blc_ladder, args.terminal_stance, args.workers)
+    summary = walk(args.out, args.weight, args.veto, args.blc_ladder, args.terminal_stance, args.workers,
+                   args.first_seed, args.planner)
     print(json.dumps({k: summary[k] for k in ("ran", "reused", "already_done", "wall_time_s", "out")}))
     print(table([args.out]))
     return 0

@@ -296,10 +296,11 @@ def register(subparsers) -> None:
     p.add_argument("--planners", default=None,
                    help="comma-separated: capplanner, astar, astar_learned (A* with the capability model as an edge "
                         "cost and veto; --astar-learned-weight, --astar-learned-veto) (default capplanner,astar)")
-    p.add_argument("--astar-learned-weight", type=float, default=10.0,
-                   help="astar_learned: cost per unit of -log of a grid move's predicted success (default 10)")
-    p.add_argument("--astar-learned-veto", type=float, default=0.5,
-                   help="astar_learned: least predicted success of a grid move it may take (default 0.5)")
+    p.add_argument("--astar-learned-weight", type=float, default=3.0,
+                   help="astar_learned: cost per unit of -log of a grid move's predicted success (default 3, "
+                        "chosen on the tuning worlds)")
+    p.add_argument("--astar-learned-veto", type=float, default=0.0,
+                   help="astar_learned: least predicted success of a grid move it may take (default 0: none)")
     p.add_argument("--model", default=None, help="CapPlanner's capability model folder (default: shipped)")
     p.add_argument("--astar-tuning", default=None,
                    help="tuning.json (or its folder) of qz experiment tune-astar: A*'s chosen thresholds "

@@ -47,14 +47,14 @@ class LearnedCost:
     k +- 45 deg (a zigzag of the fine grid's steps walks along the heading between them) (a cost per metre in [0, 1],
     weighted against distance by the safety weight as it is), so that crossing the grid cell
     costs about safety_weight x weight x -log p metres more, and is blocked for that heading
-    where p < ``veto``. With safety weight 0.5 and weight 10, a move predicted to walk 9 times in
-    10 costs about half a metre of detour, one predicted to walk half the time 3.5 m."""
+    where p < ``veto``. With safety weight 0.5 and weight 3, a move predicted to walk 9 times in
+    10 costs about 0.16 m of detour, one predicted to walk half the time about 1 m."""
 
     capability_map: object
     # Cost per unit of -log(success) of a grid move (0: the geometric A* with the veto alone).
-    weight: float = 10.0
-    # Least predicted success of a grid move that A* may take.
-    veto: float = 0.5
+    weight: float = 3.0
+    # Least predicted success of a grid move that A* may take (0: none vetoed).
+    veto: float = 0.0
 
     def __post_init__(self):
         if not (math.isfinite(self.weight) and self.weight >= 0):
