@@ -42,12 +42,12 @@ class LearnedCost:
     field: a geometric planner that asks a learned estimator about each edge, as ArtPlanner and
     Guzzi et al. do). ``capability_map`` (capability.model_base.CapabilityMap, with the nominal
     topology) gives, for each 1 m grid cell and heading k, the chance that a move one cell along
-    k walks; every cost-map cell inside that grid cell moving along k adds ``weight`` x
-    (-log p) / (the move's length) to its geometric cost of Eq. 16, p the least of headings k and
-    k +- 45 deg (a zigzag of the fine grid's steps walks along the heading between them) (a cost per metre in [0, 1],
-    weighted against distance by the safety weight as it is), so that crossing the grid cell
-    costs about safety_weight x weight x -log p metres more, and is blocked for that heading
-    where p < ``veto``. With safety weight 0.5 and weight 3, a move predicted to walk 9 times in
+    k walks. Every cost-map cell inside that grid cell moving along k adds ``weight`` x
+    (-log p) / (the move's length) to its geometric cost of Eq. 16 (a cost per metre, weighted
+    against distance by the safety weight as it is), p the least of headings k and k +- 45 deg (a
+    zigzag of the fine grid's steps walks along the heading between them); crossing the grid cell
+    then costs about safety_weight x weight x -log p metres more. A step is blocked for that
+    heading where p < ``veto``. With safety weight 0.5 and weight 3, a move predicted to walk 9 times in
     10 costs about 0.16 m of detour, one predicted to walk half the time about 1 m."""
 
     capability_map: object
