@@ -2,11 +2,12 @@
 with CapPlanner's capability model as an edge cost and veto (planner ``astar_learned``,
 ``qz_drake.experiments.astar_baseline.LearnedCost``), walked in Drake on the 24 medium and hard
 tuning tasks (seeds 1000-1003; ``--first-seed 500``: validation worlds) at A*'s tuned thresholds,
-with the BLC and recovery of the runs it is compared with (``--planner astar``: the geometric A*
-on the same worlds and settings):
+with the BLC and recovery of the runs it is compared with (``--planner astar`` or ``capplanner``:
+the geometric A* or CapPlanner at its tuned setting, ``data/capplanner_tuning``, on the same
+worlds and settings):
 
     python benchmarks/learned_astar.py OUT [--weight 3] [--veto 0] [--blc-ladder LADDER]
-        [--terminal-stance free|canonical] [--workers 2] [--first-seed 1000] [--planner astar]
+        [--terminal-stance free|canonical] [--workers 2] [--first-seed 1000] [--planner astar|capplanner]
     python benchmarks/learned_astar.py --table RUN [RUN ...]
 
 OUT is a Fig. 9 results folder (resumable). ``--table`` prints, per results folder, the tasks
@@ -24,18 +25,20 @@ from pathlib import Path
 import numpy as np
 
 ASTAR_TUNING = "data/astar_tuning"
+CAPPLANNER_TUNING = "data/capplanner_tuning"
 
 
 def walk(out: Path, weight: float, veto: float, ladder: str, stance: str, workers: int, first_seed: int,
          planner: str = "astar_learned") -> dict:
-    from qz_drake.experiments.fig9 import ExperimentConfig, astar_settings, run_experiment
+    from qz_drake.experiments.fig9 import ExperimentConfig, astar_settings, capplanner_settings, run_experiment
     from qz_drake.experiments.fig9.tune import TUNING_DIFFICULTIES, TUNING_TASKS_PER_CELL
     from qz_drake.experiments.worlds import TERRAINS
 
     if first_seed <= 99 and first_seed + TUNING_TASKS_PER_CELL > 50:
         raise SystemExit(f"--first-seed {first_seed}: seeds 50-99 are kept for checks outside the project")
     config = ExperimentConfig(blc_ladder=ladder, blc_terminal_stance=stance, record_missions=True,
-                              astar_learned_weight=weight, astar_learned_veto=veto, **astar_settings(ASTAR_TUNING))
+                              astar_learned_weight=weight, astar_learned_veto=veto, **astar_settings(ASTAR_TUNING),
+                              **capplanner_settings(CAPPLANNER_TUNING))
     return run_experiment(out, planners=(planner,), terrains=TERRAINS, difficulties=TUNING_DIFFICULTIES,
                           tasks=TUNING_TASKS_PER_CELL, workers=workers, config=config, progress=True,
                           first_seed=first_seed, recordings=0)
@@ -82,8 +85,9 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--first-seed", type=int, default=1000,
                         help="the worlds' first seed (1000: the tuning worlds; 500-999: validation)")
-    parser.add_argument("--planner", choices=("astar_learned", "astar"), default="astar_learned",
-                        help="astar: the geometric A* beside it, on the same worlds and settings")
+    parser.add_argument("--planner", choices=("astar_learned", "astar", "capplanner"), default="astar_learned",
+                        help="astar, capplanner: the geometric A* or CapPlanner (at its tuned setting) beside it, "
+                             "on the same worlds and settings")
     parser.add_argument("--table", nargs="+", type=Path, default=None, metavar="RUN")
     args = parser.parse_args(argv)
     if args.table:
