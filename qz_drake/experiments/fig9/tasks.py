@@ -64,7 +64,7 @@ class ExperimentConfig:
     # least predicted success A* may take); otherwise A*'s thresholds and recovery. Chosen on the
     # 24 tuning tasks (session 48, BENCHMARKS "capplanner, learned A*"): weight 3 without a veto
     # walked 20 (A* 18), weight 10 17, weight 10 with a veto at 0.5 14 (8 hard worlds left without
-    # a route); on 24 validation tasks (seeds 500-503) weight 3 walked 18, A* 17.
+    # a route); on 24 validation tasks (seeds 500-503) weight 3 walked 18, A* 17, CapPlanner 20.
     astar_learned_weight: float = 3.0
     astar_learned_veto: float = 0.0
     # Missions the BLC could not plan that A* goes round (experiments/astar_recovery.py, issue
