@@ -45,11 +45,13 @@ def walk(out: Path, weight: float, veto: float, ladder: str, stance: str, worker
 
 
 def _records(run: Path) -> dict:
-    files = [run] if run.is_file() else sorted(run.rglob("results.jsonl"))
-    if len(files) != 1:
-        raise SystemExit(f"{run}: expected one results.jsonl, found {len(files)}")
-    records = [json.loads(line) for line in files[0].read_text().splitlines() if line.strip()]
-    return {r["key"].rsplit("-", 1)[0]: r for r in records if r.get("reason") != "error"}
+    """A results folder's records (or its tuning's one setting's) by task, the planner left out."""
+    from qz_drake.experiments.fig9 import read_results
+
+    folders = sorted({f.parent for f in run.rglob("results.jsonl")})
+    if len(folders) != 1:
+        raise SystemExit(f"{run}: expected one results folder, found {len(folders)}")
+    return {r["key"].rsplit("-", 1)[0]: r for r in read_results(folders[0]) if r.get("reason") != "error"}
 
 
 def table(runs) -> str:

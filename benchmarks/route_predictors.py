@@ -26,7 +26,7 @@ import numpy as np
 
 def collect(out: Path, run: Path) -> None:
     from qz_drake.capability.model import CapabilityModel, predict_map
-    from qz_drake.capability.patches import KINDS
+    from qz_drake.capability.patches import KINDS, map_stance
     from qz_drake.experiments.fig9 import read_config, read_results
     from qz_drake.experiments.fig9.tasks import _mdp_overrides
     from qz_drake.experiments.worlds import make_task
@@ -37,7 +37,7 @@ def collect(out: Path, run: Path) -> None:
     config = read_config(run)
     model = CapabilityModel.load(config.capability_model or None)
     topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
-    mdp = mdp_config(_mdp_overrides(config), topologies)
+    mdp = mdp_config(_mdp_overrides(config), topologies, map_stance(config.blc_terminal_stance))
     done = {json.loads(line)["key"] for line in out.read_text().splitlines()} if out.exists() else set()
     records = [r for r in read_results(run) if r["planner"] == "capplanner" and r["reason"] != "error"
                and r["key"] not in done]
@@ -47,7 +47,8 @@ def collect(out: Path, run: Path) -> None:
         for r in records:
             task = make_task(r["terrain"], r["difficulty"], r["seed"], scale=config.scale)
             heading = int(round(task.start_yaw / (np.pi / 4))) % 8
-            cm = predict_map(model, task.heightmap, topologies, cell_size=mdp.cell_size, anchor=task.start)
+            cm = predict_map(model, task.heightmap, topologies, cell_size=mdp.cell_size, anchor=task.start,
+                             stance=mdp.stance)
             plan = plan_on_map(cm, task.start, heading, task.goal, config=mdp,
                                switchable=switchable_cells(task.heightmap, cm.xs, cm.ys, mdp),
                                on_map=cells_on_map(task.heightmap, cm.xs, cm.ys))

@@ -42,8 +42,12 @@ def test_a_help_page_lists_the_names_of_the_modules_it_did_not_import():
     from qz_drake.robot.topology import TOPOLOGY_NAMES
     from qz_drake.terrain import TERRAIN_KINDS
 
-    # The copy that spares the parser the trials' imports.
+    # The copies that spare the parser the trials' and the BLC's imports.
     assert capability.PROTOCOLS == PROTOCOLS
+    from qz_drake.cli.arguments import TERMINAL_STANCES
+    from qz_drake.trajopt.parameters import TERMINAL_STANCES as BLC_TERMINAL_STANCES
+
+    assert TERMINAL_STANCES == BLC_TERMINAL_STANCES
     collect = _qz("capability", "collect", "--help")
     assert collect.returncode == 0, collect.stderr
     page = " ".join(collect.stdout.split())

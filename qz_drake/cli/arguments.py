@@ -16,6 +16,10 @@ from pathlib import Path
 from qz_drake.errors import ConfigError, bad_value
 
 
+# qz_drake.trajopt.parameters.TERMINAL_STANCES, here so that building the parser does not import
+# the BLC (tests/test_cli_imports.py holds the two equal).
+TERMINAL_STANCES = ("free", "canonical")
+
 # A number or a comma-separated list of numbers, e.g. -5,-3 or -1e-2: an option's value, not an
 # option. Maps are centred on the origin, so half of all coordinates are negative.
 _NEGATIVE_NUMBERS = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(,\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)*$")

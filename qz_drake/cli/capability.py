@@ -30,7 +30,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from qz_drake.cli.arguments import LazyText, one_of, parse_names, terrain_names, topology_names
+from qz_drake.cli.arguments import TERMINAL_STANCES, LazyText, one_of, parse_names, terrain_names, topology_names
 from qz_drake.errors import bad_value
 
 # qz_drake.capability.collect.PROTOCOLS, here so that building the parser does not import the
@@ -172,7 +172,7 @@ def register(subparsers) -> None:
                         "(Eq. 7's PD in the drives: the plant's implicit PD on the tracker's q and v)")
     p.add_argument("--time-step", type=float, default=0.002,
                    help="the plant's step [s] (torque: at most 0.002; position: 0.004 measured stable)")
-    p.add_argument("--terminal-stance", choices=("free", "canonical"), default="free",
+    p.add_argument("--terminal-stance", choices=TERMINAL_STANCES, default="free",
                    help="where the feet stand when each mission ends: free (as the BLC leaves them) or canonical "
                         "(the target's canonical stance, qz_drake.trajopt.stance)")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")

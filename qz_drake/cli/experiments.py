@@ -8,6 +8,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from qz_drake.cli.arguments import TERMINAL_STANCES
+
 
 def _switches(text: str | None, flag: str) -> tuple[bool, ...] | None:
     """A comma-separated list of on/off values (on, off, true, false, 1, 0)."""
@@ -252,7 +254,7 @@ def _back_out_argument(p) -> None:
     p.add_argument("--record-missions", action="store_true",
                    help="keep every mission of each walk in its record, a refused one with the start the BLC was "
                         "given (qz experiment score-missions; benchmarks/blc_refusals.py replay)")
-    p.add_argument("--terminal-stance", choices=("free", "canonical"), default="free",
+    p.add_argument("--terminal-stance", choices=TERMINAL_STANCES, default="free",
                    help="where the feet stand when each mission ends, for both planners: free (as the BLC leaves "
                         "them) or canonical (the target's canonical stance, which CapPlanner's map then assumes; "
                         "qz_drake.trajopt.stance)")

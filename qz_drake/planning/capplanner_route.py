@@ -32,10 +32,10 @@ from qz_drake.state_layout import BASE_XY, base_rpy
 CAPPLANNER_MISSION_RETRIES = 2
 
 
-def mdp_config(overrides: dict, topologies) -> CapabilityMdpConfig:
+def mdp_config(overrides: dict, topologies, stance: str = "nominal") -> CapabilityMdpConfig:
     """CapPlanner's MDP settings: the defaults, ``overrides`` (controller.capability_mdp) by
-    name, the topologies the model knows. A switch (``topology_doubt``) is given as 1 or 0
-    (the scenario's settings there are numbers)."""
+    name, the topologies the model knows, the stance its map assumes (CapabilityMdpConfig.stance).
+    A switch (``topology_doubt``) is given as 1 or 0 (the scenario's settings there are numbers)."""
     fields = {f.name: f.type for f in dataclasses.fields(CapabilityMdpConfig)}
     numbers = [name for name, kind in fields.items() if kind in ("float", float, "bool", bool)]
     values = {}
@@ -49,7 +49,7 @@ def mdp_config(overrides: dict, topologies) -> CapabilityMdpConfig:
             values[key] = bool(value)
         else:
             values[key] = float(value)
-    return CapabilityMdpConfig(topologies=list(topologies), **values).check()
+    return CapabilityMdpConfig(topologies=list(topologies), stance=stance, **values).check()
 
 
 class CapPlannerRoute(FixedRoute):
@@ -94,8 +94,7 @@ class CapPlannerRoute(FixedRoute):
     def make(self, scenario, info, targets, blc_params=None) -> CapabilityVIPlanner:
         control = scenario.controller
         # The map asks about the stance the BLC's missions end in.
-        params = blc_params or self.blc_parameters()
-        stance = map_stance(params.terminal_stance)
+        stance = map_stance((blc_params or self.blc_parameters()).terminal_stance)
         model = CapabilityModel.load(control.capability_model or None)
         # The topologies the model knows all three moves of.
         topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
@@ -110,8 +109,7 @@ class CapPlannerRoute(FixedRoute):
         return CapabilityVIPlanner(model=model, heightmap=info.heightmap, goal=(goal.x, goal.y),
                                    start=(float(start_x), float(start_y), float(base_rpy(x0)[2])),
                                    initial_topology=info.topology.name, plan_ahead=control.plan_ahead,
-                                   mdp_config=dataclasses.replace(mdp_config(control.capability_mdp, topologies),
-                                                                  stance=stance),
+                                   mdp_config=mdp_config(control.capability_mdp, topologies, stance),
                                    split_config=self._split, min_route_success=self.min_route_success,
                                    back_out=self.back_out, measured_stance=self.measured_stance,
                                    refused_in_every_topology=self.refused_in_every_topology,

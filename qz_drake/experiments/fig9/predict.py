@@ -5,7 +5,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -33,8 +32,7 @@ def predict_route(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig(),
     model = model or CapabilityModel.load(config.capability_model or None)
     task = make_task(spec.terrain, spec.difficulty, spec.seed, scale=config.scale)
     topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
-    mdp = dataclasses.replace(mdp_config(_mdp_overrides(config), topologies),
-                              stance=map_stance(config.blc_terminal_stance))
+    mdp = mdp_config(_mdp_overrides(config), topologies, map_stance(config.blc_terminal_stance))
     heading = int(round(task.start_yaw / (np.pi / 4))) % 8
     result = plan(model, task.heightmap, task.start, heading, task.goal, config=mdp)
     return {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,
