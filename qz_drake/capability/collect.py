@@ -71,7 +71,7 @@ def _maybe_crash(spec: TrialSpec) -> None:
         os._exit(17)
 
 
-def _start_work(spec) -> None:
+def start_work(spec) -> None:
     """What every worker does before a trial or an episode: Drake's warnings quiet (Ipopt's
     "maximum iteration limit" is the trials' budget doing its job; the record says so, reason
     blc_time_limit), then the fault-injection hook."""
@@ -83,7 +83,7 @@ def _start_work(spec) -> None:
 
 def execute(spec: TrialSpec, config: TrialConfig) -> dict:
     """What a worker runs: the trial, behind the fault-injection hook."""
-    _start_work(spec)
+    start_work(spec)
     return run_trial(spec, config)
 
 
@@ -262,7 +262,7 @@ def execute_episode(spec, config: TrialConfig) -> list[dict]:
     """What a worker runs for an episode (protocol "episodes"): its records, one per mission."""
     from qz_drake.capability.episodes import run_episode
 
-    _start_work(spec)
+    start_work(spec)
     return run_episode(spec, config)
 
 
@@ -277,7 +277,7 @@ def execute_plan_chain(spec, config: TrialConfig) -> list[dict]:
     """What a worker runs for a plan chain (protocol "plans"): its records, one per command."""
     from qz_drake.capability.plan_chains import run_plan_chain
 
-    _start_work(spec)
+    start_work(spec)
     return run_plan_chain(spec, config)
 
 
@@ -393,10 +393,6 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
                                                     f"--kinds out with --protocol {protocol}")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise bad_value("--seed", seed, "must be a whole number >= 0 (it seeds numpy's generators)")
-    if isinstance(shard_size, bool) or not isinstance(shard_size, int) or shard_size < 1:
-        raise bad_value("--shard-size", shard_size, "must be a whole number of records, at least 1")
-    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int) or limit < 0):
-        raise bad_value("--limit", limit, "must be a whole number of trials, 0 or more")
     # An episode per scene and topology; a trial per scene, heading, topology and kind.
     per_scene = len(topologies) * (1 if episodes else config.headings_per_scene * len(kinds))
     if scenes * per_scene > MAX_TRIALS:
@@ -404,30 +400,50 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
         field, value = ("--headings", config.headings_per_scene) if per_scene > MAX_TRIALS else ("--scenes", scenes)
         raise bad_value(field, value, f"{scenes} scenes x {per_scene:.3g} {unit} per scene = "
                                       f"{scenes * per_scene:.3g} {unit}; at most {MAX_TRIALS:.3g} in one collection")
+    settings = settings_dict(config)
+    if episodes:  # a moves dataset's settings stay as they were before episodes existed
+        settings["protocol"] = protocol
+        from qz_drake.capability.episodes import episode_specs
+
+        specs = episode_specs(seed, scenes, topologies=topologies)
+    else:
+        specs = trial_specs(seed, scenes, topologies=topologies, kinds=kinds,
+                            headings_per_scene=config.headings_per_scene)
+    function, crashed = _protocol_functions(protocol)
+    return collect_units(out, specs, seed=seed, settings=settings, config=config, function=function,
+                         crashed=crashed, unit=_unit(protocol), workers=workers, ray_address=ray_address,
+                         shard_size=shard_size, max_retries=max_retries, progress=progress, command=command,
+                         limit=limit, log_every=log_every)
+
+
+def collect_units(out, specs, *, seed: int, settings: dict, config: TrialConfig, function, crashed,
+                  unit: str, workers: int = 1, ray_address: str | None = None, shard_size: int = 100,
+                  max_retries: int = 2, progress: bool = True, command: str = "", limit: int | None = None,
+                  log_every: float = 0.0) -> CollectionSummary:
+    """Runs (or resumes) ``specs`` (each with a unique ``index``) into the dataset folder
+    ``out``: ``function(spec, config)`` on the workers gives a spec's record or records,
+    ``crashed(spec, message, config)`` the record of a spec whose worker died; ``settings``
+    and the code's fingerprints are the manifest's, checked on a resume; ``unit`` names a spec
+    in progress lines. :func:`collect`'s protocols and the episodes of the planners' own routes
+    (qz_drake.experiments.route_episodes) run through it."""
+    check_workers(workers)
+    if isinstance(shard_size, bool) or not isinstance(shard_size, int) or shard_size < 1:
+        raise bad_value("--shard-size", shard_size, "must be a whole number of records, at least 1")
+    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int) or limit < 0):
+        raise bad_value("--limit", limit, "must be a whole number of trials, 0 or more")
     if ray_address:
         check_ray_address(ray_address)
     clock = time.perf_counter()
     parts = fingerprints(config)
-    settings = settings_dict(config)
-    if episodes:  # a moves dataset's settings stay as they were before episodes existed
-        settings["protocol"] = protocol
     store = TrialStore(out, seed=seed, settings=settings, parts=parts, command=command)
     try:
-        if episodes:
-            from qz_drake.capability.episodes import episode_specs
-
-            specs = episode_specs(seed, scenes, topologies=topologies)
-        else:
-            specs = trial_specs(seed, scenes, topologies=topologies, kinds=kinds,
-                                headings_per_scene=config.headings_per_scene)
         done = store.done_indices()
         todo = [s for s in specs if s.index not in done]
         if limit is not None:
             todo = todo[:limit]
         buffer: list[dict] = []
         counts = {"ran": 0, "errors": 0, "invalid": 0}
-        monitor = _Progress(len(todo), enabled=progress, log_every=log_every,
-                            unit=_unit(protocol))
+        monitor = _Progress(len(todo), enabled=progress, log_every=log_every, unit=unit)
 
         def on_record(result):
             # A trial's record, or an episode's records (its first tells how it started).
@@ -445,7 +461,6 @@ def collect(out, *, seed: int = 0, scenes: int = 1000, topologies=None, kinds=No
 
         pool = None
         previous = _raise_on_sigterm()
-        function, crashed = _protocol_functions(protocol)
         try:
             if todo:
                 pool = RayPool(ray_address, config, max_retries, function=function, crashed=crashed) \
@@ -608,7 +623,21 @@ class Recertification:
     unit: str = "trials"
 
 
-def _episode_sample(arrays: dict, count: int, key: str, seed: int):
+@dataclasses.dataclass(frozen=True)
+class RecertifyHooks:
+    """What recertify needs of a protocol :func:`collect` does not run (the episodes of the
+    planners' routes, qz_drake.experiments.route_episodes.recertify_hooks): the settings keys
+    that are not TrialConfig's (``extra``), the specs by index from the manifest's settings and
+    seed (``specs``), and the worker's function and crashed-record function."""
+
+    protocol: str
+    extra: tuple
+    specs: object  # (settings, seed) -> {index: spec}
+    function: object
+    crashed: object
+
+
+def _episode_sample(arrays: dict, count: int, key: str, seed: int, specs_by_index=None):
     """(EpisodeSpecs, episode index -> its stored records in mission order) of up to ``count``
     episodes, chosen as recertification_sample chooses trials but by each episode's last record
     (where an episode's outcome is: the first failure ends it)."""
@@ -625,7 +654,8 @@ def _episode_sample(arrays: dict, count: int, key: str, seed: int):
     positions = sorted(last.values())
     ends = {k: v[positions] for k, v in arrays.items()}
     chosen = [int(ends["index"][j]) for j in recertification_sample(ends, count, key)]
-    specs = [EpisodeSpec(seed, e, int(arrays["scene"][first[e]]), str(arrays["topology"][first[e]])) for e in chosen]
+    specs = [specs_by_index[e] if specs_by_index is not None else
+             EpisodeSpec(seed, e, int(arrays["scene"][first[e]]), str(arrays["topology"][first[e]])) for e in chosen]
     stored = {e: [{k: v[i:i + 1] for k, v in arrays.items()} for i in order if int(index[i]) == e] for e in chosen}
     return specs, stored
 
@@ -657,7 +687,7 @@ def recertification_sample(arrays: dict, count: int, key: str) -> list[int]:
 
 
 def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "",
-              reference_code=None) -> Recertification:
+              reference_code=None, hooks: RecertifyHooks | None = None) -> Recertification:
     """Re-runs a sample of a dataset's trials with the running code; if every re-run record is
     identical to the stored one (all fields but the wall times), the manifest is moved to this
     code's fingerprints and the certification (old and new fingerprints, the trials re-run, the
@@ -675,7 +705,8 @@ def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "",
     code on this machine: where it gives exactly what the new code gives, the difference is
     the machine's, not the change's; it is accepted and listed in the certification
     (``machine_differences``). The tree must have the manifest's fingerprints. An episode
-    dataset's mismatched episodes are run again whole, every mission compared.
+    dataset's mismatched episodes are run again whole, every mission compared. ``hooks`` give
+    the specs and worker of a protocol this module does not run (RecertifyHooks).
     """
     from qz_drake.capability.dataset import DatasetLock, read_manifest
 
@@ -690,12 +721,13 @@ def recertify(path, *, sample: int = 36, workers: int = 1, command: str = "",
     manifest = read_manifest(path)
     lock = DatasetLock(path, field="dataset")  # no collection may write it meanwhile
     try:
-        return _recertify(path, manifest, sample, workers, command, clock, reference_code)
+        return _recertify(path, manifest, sample, workers, command, clock, reference_code, hooks)
     finally:
         lock.release()
 
 
-def _recertify(path, manifest, sample, workers, command, clock, reference_code=None) -> Recertification:
+def _recertify(path, manifest, sample, workers, command, clock, reference_code=None,
+               hooks: RecertifyHooks | None = None) -> Recertification:
     from datetime import datetime, timezone
 
     from qz_drake.capability.dataset import (combined_fingerprint, differing_fields, load_records,
@@ -704,9 +736,18 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
 
     settings = dict(manifest.get("settings", {}))
     protocol = settings.pop("protocol", "moves")
-    if protocol not in PROTOCOLS:
-        raise bad_value("dataset.settings.protocol", protocol, f"expected one of {', '.join(PROTOCOLS)}")
-    episodes = protocol in CHAINED
+    extra = {}
+    if hooks is not None and protocol == hooks.protocol:
+        extra = {k: settings.pop(k) for k in hooks.extra if k in settings}
+        if reference_code is not None:
+            raise bad_value("--reference-code", str(reference_code),
+                            f"a {protocol} dataset is re-run with this code only (its specs come from walks' records)")
+    elif protocol not in PROTOCOLS:
+        raise bad_value("dataset.settings.protocol", protocol,
+                        f"expected one of {', '.join(PROTOCOLS)}" + ("; a routes dataset is recertified by `qz "
+                                                                      "capability recertify`" if protocol == "routes"
+                                                                      else ""))
+    episodes = protocol in CHAINED or bool(extra) or (hooks is not None and protocol == hooks.protocol)
     try:
         config = TrialConfig(**settings)
     except TypeError as e:
@@ -721,8 +762,10 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
     arrays, _ = load_records(path)
     seed = int(manifest["seed"])
     key = before + combined_fingerprint(parts)
+    routed = hooks is not None and protocol == hooks.protocol
     if episodes:
-        specs, stored = _episode_sample(arrays, sample, key, seed)
+        specs, stored = _episode_sample(arrays, sample, key, seed,
+                                        hooks.specs({**settings, **extra}, seed) if routed else None)
     else:
         positions = recertification_sample(arrays, sample, key)
         specs = [TrialSpec(seed, int(arrays["index"][i]), int(arrays["scene"][i]),
@@ -730,7 +773,7 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
                            str(arrays["kind"][i])) for i in positions]
         stored = {int(arrays["index"][i]): [{k: v[i:i + 1] for k, v in arrays.items()}] for i in positions}
     rerun: dict[int, list] = {}
-    function, crashed = _protocol_functions(protocol)
+    function, crashed = (hooks.function, hooks.crashed) if routed else _protocol_functions(protocol)
     pool = LocalPool(min(workers, len(specs)), config, 0, function, crashed) if specs else None
     try:
         if pool is not None:
@@ -787,7 +830,7 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
         write_manifest(path, manifest)
     return Recertification(str(path), changed, len(stored), not mismatches, mismatches, before,
                            after if not mismatches else before, time.perf_counter() - clock,
-                           largest, machine, _unit(protocol))
+                           largest, machine, "episodes" if routed else _unit(protocol))
 
 
 # Run by _run_with_code in a fresh interpreter whose qz_drake is the reference tree's.

@@ -37,8 +37,9 @@ REQUIRED_KEYS = ("patch", "feet", "direction", "success", "blc_success", "scene"
 # The fields of the learners' arrays (load_training_arrays, load_plan_arrays).
 LEARNER_FIELDS = ("patch", "feet", "direction", "success", "blc_success", "scene", "scene_kind",
                   "topology", "kind", "index", "reason", "difficulty")
-# Protocols whose specs are chains of missions, a record per mission (collect.PROTOCOLS).
-CHAINED_PROTOCOLS = ("episodes", "plans")
+# Protocols whose specs are chains of missions, a record per mission (collect.PROTOCOLS, and
+# "routes": the episodes of the planners' own routes, qz_drake.experiments.route_episodes).
+CHAINED_PROTOCOLS = ("episodes", "plans", "routes")
 FORMAT = "qz_drake.capability.dataset/1"
 MANIFEST = "manifest.json"
 
@@ -486,6 +487,57 @@ def load_training_arrays(path) -> tuple[dict[str, np.ndarray], dict]:
         raise bad_value("dataset", str(path), f"has no executed missions, only {chained} labelled by the BLC "
                                               "alone (a plan chain walks nothing: no execution label to learn)")
     return {k: arrays[k][keep] for k in LEARNER_FIELDS}, manifest
+
+
+# The trial settings that decide a label (TrialConfig's fields but the scene sampling's): datasets
+# learned from together must agree on them (merge_training_arrays).
+SAMPLING_SETTINGS = ("headings_per_scene", "foot_offset")
+
+
+def merge_training_arrays(loaded, field: str = "--dataset") -> tuple[dict[str, np.ndarray], dict]:
+    """One learner's arrays and manifest from several datasets' (``loaded``: (path, arrays,
+    manifest) each, as load_training_arrays gives them), for a model that learns from a
+    collection and the episodes of the planners' own routes together. They must be labelled
+    by one BLC-robot system (the robot, BLC, controller and verdict fingerprints and the label
+    settings, TrialConfig's but SAMPLING_SETTINGS, equal) and hold no scene in common (the
+    split keeps a scene's records together); else QzError naming ``field``. The manifest's
+    ``fingerprint`` is a digest of the datasets' own, its ``fingerprints`` theirs with
+    ``scenes`` digested alike, and ``sources`` lists each dataset with its records."""
+    from qz_drake.capability.trials import TrialConfig
+
+    if len(loaded) == 1:
+        return loaded[0][1], loaded[0][2]
+    label_keys = [f.name for f in dataclasses.fields(TrialConfig) if f.name not in SAMPLING_SETTINGS]
+    first_path, _, first = loaded[0]
+    defaults = dataclasses.asdict(TrialConfig())
+
+    def labels(manifest):
+        settings = manifest.get("settings", {})
+        return {k: settings.get(k, defaults[k]) for k in label_keys}
+
+    scenes: dict[int, str] = {}
+    for path, arrays, manifest in loaded:
+        theirs, ours = manifest.get("fingerprints", {}), first.get("fingerprints", {})
+        differ = [k for k in ("robot", "blc", "controller", "verdict") if theirs.get(k) != ours.get(k)]
+        differ += [f"settings.{k}" for k, v in labels(manifest).items() if labels(first)[k] != v]
+        if differ:
+            raise bad_value(field, str(path), f"its {', '.join(differ)} differ from {first_path}'s: labelled by "
+                                              "another BLC-robot system (collect it again with this code)")
+        for scene in np.unique(arrays["scene"]).tolist():
+            if scenes.setdefault(int(scene), str(path)) != str(path):
+                raise bad_value(field, str(path), f"scene {scene} is also {scenes[int(scene)]}'s: two collections of "
+                                                  "the same scenes (another seed or protocol numbers them apart)")
+        if set(arrays) != set(loaded[0][1]):
+            raise bad_value(field, str(path), f"its arrays {sorted(arrays)} are not {first_path}'s {sorted(loaded[0][1])}")
+    arrays = {k: np.concatenate([a[k] for _, a, _ in loaded]) for k in loaded[0][1]}
+    parts = dict(first.get("fingerprints", {}))
+    parts["scenes"] = _digest(*(m.get("fingerprints", {}).get("scenes", "") for _, _, m in loaded))
+    manifest = {"fingerprint": _digest(*(m.get("fingerprint", "") for _, _, m in loaded)), "fingerprints": parts,
+                "settings": dict(first.get("settings", {})),
+                "sources": [{"dataset": str(path), "fingerprint": m.get("fingerprint", ""),
+                             "protocol": m.get("settings", {}).get("protocol", "moves"), "records": int(len(a["scene"]))}
+                            for path, a, m in loaded]}
+    return arrays, manifest
 
 
 def load_plan_arrays(path) -> tuple[dict[str, np.ndarray], dict]:

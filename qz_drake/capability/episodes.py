@@ -204,7 +204,8 @@ def episode_scenario(spec: EpisodeSpec, missions: list[Mission], heading: float,
     # distance at the mission speed, and the BLC may retry none: 3 s a mission is ample.
     # A switch takes about 4.9 s (SwitchTiming: six legs in turn): 6 s.
     moves = [m for m in missions if m.kind != "switch"]
-    duration = sum(move_distance(m.kind) / config.speed + 3.0 for m in moves) \
+    # With the BLC ladder each mission may take a longer rung's plan (config.ladder_allowance).
+    duration = sum(move_distance(m.kind) / config.speed + 3.0 + config.ladder_allowance for m in moves) \
         + 6.0 * (len(missions) - len(moves)) + 1.0
     xs = [0.0] + [m.target[0] for m in missions]
     ys = [0.0] + [m.target[1] for m in missions]
@@ -269,15 +270,30 @@ def run_episode(spec: EpisodeSpec, config: TrialConfig = TrialConfig(), criteria
     start the topology cannot stand on gives one ``invalid`` record, a crash one ``error``
     record (never raised)."""
     from qz_drake.capability.scenes import scene_for
-    from qz_drake.scene import standing_state
-    from qz_drake.robot.topology import get_topology
-    from qz_drake.simulation import SETTLE_TIME, build_walk, feet_in_world, judge_walk_run, run_walk
 
     clock = time.perf_counter()
     scene = scene_for(spec.seed, spec.scene)
     heading, offsets, missions = episode_commands(spec, EPISODE_HALF_SIZE, config)
     hm = padded_scene_map(scene.heightmap, EPISODE_HALF_SIZE)
     scene = dataclasses.replace(scene, heightmap=hm)
+    return walk_episode(spec, scene, heading, offsets, missions, config, criteria, clock)
+
+
+def walk_episode(spec, scene, heading: float, offsets: np.ndarray, missions: list[Mission],
+                 config: TrialConfig = TrialConfig(), criteria=None, clock: float | None = None) -> list[dict]:
+    """Walks the ``missions`` of an episode from the start (0, 0) facing ``heading`` with the
+    feet ``offsets`` from the topology's footholds, on ``scene.heightmap`` (a map that reaches
+    EPISODE_HALF_SIZE around the start), and labels them as :func:`run_episode` does. ``spec``
+    needs ``index``, ``scene``, ``topology`` and ``episode_id``; ``scene`` ``kind``,
+    ``difficulty``, ``seed`` and ``heightmap`` (the records' scene fields). The episodes of
+    the planners' own routes (qz_drake.experiments.route_episodes) start this way from the
+    stances their walks stood in."""
+    from qz_drake.scene import standing_state
+    from qz_drake.robot.topology import get_topology
+    from qz_drake.simulation import SETTLE_TIME, build_walk, feet_in_world, judge_walk_run, run_walk
+
+    clock = time.perf_counter() if clock is None else clock
+    hm = scene.heightmap
     first = _record(spec, scene, 0, missions[0])
     try:
         scenario = episode_scenario(spec, missions, heading, offsets, config, EPISODE_HALF_SIZE, criteria)
@@ -289,7 +305,8 @@ def run_episode(spec: EpisodeSpec, config: TrialConfig = TrialConfig(), criteria
             first.update(status="invalid", error=f"start not standable: {e}"[:400],
                          time_total_s=time.perf_counter() - clock)
             return [first]
-        built = build_walk(scenario, heightmap=hm, blc_params=trial_blc_parameters(config))
+        built = build_walk(scenario, heightmap=hm, blc_params=trial_blc_parameters(config),
+                           blc_ladder=config.blc_ladder or None)
         run = None if not hasattr(built, "diagram") else run_walk(built, scenario, stop_on_failure=True)
     except Exception as e:  # a crash of the episode, not a label
         first.update(status="error", error=f"{type(e).__name__}: {e}\n{traceback.format_exc(limit=3)}"[:400],

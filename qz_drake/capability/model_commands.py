@@ -11,7 +11,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from qz_drake.capability.dataset import load_training_arrays
+from qz_drake.capability.dataset import load_training_arrays, merge_training_arrays
 from qz_drake.capability.model import UNFINISHED_DIR, save_model, save_network, unfinished_networks
 from qz_drake.capability.training import train_networks, training_identity
 from qz_drake.config import TerrainConfig, parse_key_values
@@ -21,7 +21,10 @@ from qz_drake.terrain import HeightMap
 
 
 def load_dataset(path) -> tuple[dict, dict]:
-    """(arrays, manifest) of a trial dataset (qz_drake.capability.dataset)."""
+    """(arrays, manifest) of a trial dataset (qz_drake.capability.dataset), or of several learned
+    from together (a list of folders: dataset.merge_training_arrays)."""
+    if isinstance(path, (list, tuple)):
+        return merge_training_arrays([(p, *load_training_arrays(p)) for p in path])
     return load_training_arrays(path)
 
 

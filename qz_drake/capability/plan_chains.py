@@ -20,8 +20,9 @@ not measured: ``success`` is False and means nothing in these records; the simul
 label execution. A chain costs the BLC's solves and the scene's setup only, so it labels many
 more starts an hour (BENCHMARKS "capability").
 
-The BLC is the trials' (trial_blc_parameters: the first solve, no ladder, no retry), the
-mission timing theirs, the switch the BLC system's (plan_topology_switch from the standing
+The BLC is the trials' (trial_blc_parameters; with the trials' ``blc_ladder`` a refused mission
+is solved again on its rungs in order, as the BLC system does, and labelled planned if one
+plans: :func:`solve_on_ladder`), the mission timing theirs, the switch the BLC system's (plan_topology_switch from the standing
 robot). Unlike a simulated episode, a start whose trunk or legs would touch the terrain once
 the robot settles is not found (nothing settles); the feet are where the plan put them, not
 where the robot's would be. That difference shows: a plan learner fed 6 190 chain labels told
@@ -51,6 +52,22 @@ CHAIN_MISSIONS = 8
 BLC_ONLY = "blc_only"
 
 
+def solve_on_ladder(planner, ladder, start, target, topology):
+    """(plan or None, reason, Ipopt iterations of every solve) of a mission solved as the BLC
+    system solves it (TrajectoryOptimizationBLC): first as asked, then on each rung of
+    ``ladder`` in order until one plans; a mission no rung plans keeps its first solve's reason.
+    No wall-time budget: the chain's labels stay a function of the mission alone."""
+    first_reason, iterations = "", 0
+    for k, rung in enumerate(("",) + tuple(ladder)):
+        plan, reason = planner(start, target, topology, start.time, rung=rung)
+        iterations += int(planner.last_iterations)
+        if k == 0:
+            first_reason = reason
+        if plan is not None:
+            return plan, "", iterations
+    return None, first_reason, iterations
+
+
 def run_plan_chain(spec: EpisodeSpec, config: TrialConfig = TrialConfig()) -> list[dict]:
     """Plans a chain (see the module docstring); returns one ``blc_only`` record per command,
     a switch included (a refused switch leaves the robot in its topology, and the next command
@@ -60,7 +77,7 @@ def run_plan_chain(spec: EpisodeSpec, config: TrialConfig = TrialConfig()) -> li
     from qz_drake.config import MissionTiming
     from qz_drake.robot.topology import get_topology
     from qz_drake.scene import standing_state
-    from qz_drake.systems.blc_plan import blc_mission_planner, expected_end
+    from qz_drake.systems.blc_plan import blc_mission_planner, expected_end, parse_ladder
     from qz_drake.systems.mission_sequencer import measured_start
     from qz_drake.systems.topology_switch import plan_topology_switch
 
@@ -88,6 +105,7 @@ def run_plan_chain(spec: EpisodeSpec, config: TrialConfig = TrialConfig()) -> li
         planner = blc_mission_planner(hm, DEFAULT_PARAMS, MissionTiming(speed=config.speed,
                                                                        phase_duration=config.phase_duration),
                                       trial_blc_parameters(config))
+        ladder = parse_ladder(config.blc_ladder, "trials.blc_ladder")
         start = measured_start(x0, 0.0, DEFAULT_PARAMS)
         x = y = 0.0
         topology = spec.topology
@@ -123,8 +141,8 @@ def run_plan_chain(spec: EpisodeSpec, config: TrialConfig = TrialConfig()) -> li
             position += 1
             _mission_inputs(record, hm, start.xy_yaw, start.feet_W)
             solve = time.perf_counter()
-            plan, reason = planner(start, command.target, topology, start.time)
-            record.update(status=BLC_ONLY, blc_success=plan is not None, blc_iterations=int(planner.last_iterations),
+            plan, reason, iterations = solve_on_ladder(planner, ladder, start, command.target, topology)
+            record.update(status=BLC_ONLY, blc_success=plan is not None, blc_iterations=iterations,
                           time_solve_s=time.perf_counter() - solve)
             if plan is None:  # the robot stands where it was; the next command from there
                 record.update(reason=blc_failure_code(reason), message=reason[:200], blc_reason=reason[:200])

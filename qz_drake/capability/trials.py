@@ -75,6 +75,12 @@ class TrialConfig:
     # the BLC leaves them; "canonical", the target pose's canonical stance (trajopt/stance.py,
     # issue 54). A dataset is labelled by one of them.
     blc_terminal_stance: str = "free"
+    # The BLC ladder a refused mission is solved again on before it counts as not planned
+    # (TrajectoryOptimizationBLC's ``ladder``, qz_drake.systems.blc_plan.parse_ladder; e.g.
+    # "cycles+1,split,split+1,cycles+2", the tuned walks'): labels of the BLC the planners walk
+    # with. "": the first solve only (every dataset before issue 54's). Kept in its canonical
+    # form (rungs comma-separated, no spaces).
+    blc_ladder: str = ""
     # How the joints are driven (StationConfig.control_mode) and the plant's step. "torque":
     # the controller computes Eq. 7 (kp, kd above) at every plant step, which must then be at
     # most 2 ms (3 ms measured: slips and missed targets). "position": the drives run Eq. 7's
@@ -91,6 +97,11 @@ class TrialConfig:
 
         from qz_drake.trajopt.parameters import TERMINAL_STANCES
 
+        from qz_drake.systems.blc_plan import parse_ladder
+
+        if not isinstance(self.blc_ladder, str):
+            raise bad_value("trials.blc_ladder", self.blc_ladder, "expected a comma-separated string of rungs")
+        object.__setattr__(self, "blc_ladder", ",".join(parse_ladder(self.blc_ladder, "trials.blc_ladder")))
         if self.blc_terminal_stance not in TERMINAL_STANCES:
             raise bad_value("trials.blc_terminal_stance", self.blc_terminal_stance,
                             f"expected one of {', '.join(TERMINAL_STANCES)}")
@@ -103,6 +114,14 @@ class TrialConfig:
                             f"the explicit joint PD (control_mode torque) needs steps of at most "
                             f"{MAX_EXPLICIT_PD_STEP:g} s; use control_mode position for longer ones")
 
+    @property
+    def ladder_allowance(self) -> float:
+        """Simulated time each mission gets beyond its own for the ladder's rungs (a rung's plan
+        is longer: tripod cycles added, or two halves each with its stands); 0 without a
+        ladder, so that such trials are simulated as before. A walk stops once its missions are
+        done, so the allowance costs nothing where no rung was needed. [s]"""
+        return LADDER_ALLOWANCE if self.blc_ladder else 0.0
+
     def station_and_simulation(self, duration: float):
         """(StationConfig, SimulationConfig) of a trial's or episode's scenario lasting
         ``duration`` simulated seconds."""
@@ -113,6 +132,9 @@ class TrialConfig:
         return station, SimulationConfig(duration=duration, time_step=self.time_step)
 
 
+# Simulated time a mission may need beyond its own on the BLC ladder's longest rungs: split+N
+# is two halves, each with its stands, N tripod cycles longer. [s]
+LADDER_ALLOWANCE = 6.0
 # Longest plant step a trial may take, and the longest the explicit joint PD stays stable at. [s]
 MAX_TRIAL_STEP = 0.01
 MAX_EXPLICIT_PD_STEP = 0.002
@@ -185,7 +207,8 @@ def trial_scenario(spec: TrialSpec, config: TrialConfig, criteria=None):
     r = TRIAL_REGION_MARGIN
     region = [min(0.0, x) - r, max(0.0, x) + r, min(0.0, y) - r, max(0.0, y) + r]
     # A mission is at most 2 tripod cycles longer than distance / speed (blc_plan).
-    station, simulation = config.station_and_simulation(move_distance(spec.kind) / config.speed + 4.0)
+    station, simulation = config.station_and_simulation(move_distance(spec.kind) / config.speed + 4.0
+                                                         + config.ladder_allowance)
     return Scenario(
         name=f"trial_{spec.trial_id}",
         description="capability trial",
@@ -277,7 +300,8 @@ def run_trial(spec: TrialSpec, config: TrialConfig = TrialConfig(), criteria=Non
             return _error_record(record, f"start not standable: {e}", status="invalid")
         feet = feet_in_world(x0[None], params)[0]
         record["feet"] = feet_in_heading_frame(feet, 0.0, 0.0, heading, ground)
-        result = walk(scenario, heightmap=hm, stop_on_failure=True, blc_params=trial_blc_parameters(config))
+        result = walk(scenario, heightmap=hm, stop_on_failure=True, blc_params=trial_blc_parameters(config),
+                      blc_ladder=config.blc_ladder or None)
     except Exception as e:  # a crash of the trial, not a label: recorded and excluded
         record["time_total_s"] = time.perf_counter() - clock
         return _error_record(record, f"{type(e).__name__}: {e}\n{traceback.format_exc(limit=3)}")

@@ -67,7 +67,7 @@ def run_collect(args) -> int:
     from qz_drake.capability.trials import TrialConfig
 
     config = TrialConfig(headings_per_scene=args.headings, control_mode=args.control_mode, time_step=args.time_step,
-                         blc_terminal_stance=args.terminal_stance)
+                         blc_terminal_stance=args.terminal_stance, blc_ladder=args.blc_ladder)
     summary = collect(args.out, seed=args.seed, scenes=args.scenes,
                       topologies=parse_names(args.topologies, "--topologies", topology_names()),
                       kinds=parse_names(args.kinds, "--kinds", _kinds()), config=config,
@@ -75,6 +75,27 @@ def run_collect(args) -> int:
                       progress=not args.json and sys.stderr.isatty() or args.progress,
                       command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
                       limit=args.limit, log_every=args.log_every, protocol=args.protocol)
+    print(json.dumps(dataclasses.asdict(summary), indent=None if args.json else 2))
+    return 0
+
+
+def run_collect_routes(args) -> int:
+    if args.workers < 1:
+        raise bad_value("--workers", args.workers, "must be at least 1")
+    if not args.log_every >= 0:
+        raise bad_value("--log-every", args.log_every, "must be 0 (off) or a number of seconds")
+    if not args.time_step >= MIN_TIME_STEP:  # NaN too
+        raise bad_value("--time-step", args.time_step, f"must be at least {MIN_TIME_STEP:g} s")
+    from qz_drake.capability.trials import TrialConfig
+    from qz_drake.experiments.route_episodes import collect_route_episodes
+
+    config = TrialConfig(control_mode=args.control_mode, time_step=args.time_step,
+                         blc_terminal_stance=args.terminal_stance, blc_ladder=args.blc_ladder)
+    summary = collect_route_episodes(args.out, args.walks, seed=args.seed, config=config, workers=args.workers,
+                                     shard_size=args.shard_size, ray_address=args.ray_address,
+                                     progress=not args.json and sys.stderr.isatty() or args.progress,
+                                     command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+                                     limit=args.limit, log_every=args.log_every)
     print(json.dumps(dataclasses.asdict(summary), indent=None if args.json else 2))
     return 0
 
@@ -118,10 +139,19 @@ def run_stats(args) -> int:
 
 def run_recertify(args) -> int:
     from qz_drake.capability.collect import recertify
+    from qz_drake.capability.dataset import read_manifest
 
+    # The episodes of the planners' routes are made from walks' records (qz_drake.experiments):
+    # their specs and worker come from there.
+    protocol = read_manifest(args.dataset).get("settings", {}).get("protocol")
+    hooks = None
+    if protocol == "routes":
+        from qz_drake.experiments.route_episodes import recertify_hooks
+
+        hooks = recertify_hooks()
     result = recertify(args.dataset, sample=args.sample, workers=args.workers,
                        command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
-                       reference_code=args.reference_code)
+                       reference_code=args.reference_code, hooks=hooks)
     if args.json:
         print(json.dumps(dataclasses.asdict(result)))
     elif not result.changed:
@@ -147,6 +177,32 @@ def run_recertify(args) -> int:
     return 0 if result.identical else 1
 
 
+def _label_arguments(p) -> None:
+    """The options of a collection that decide its labels (TrialConfig's)."""
+    p.add_argument("--control-mode", default="torque",
+                   help="how the joints are driven: torque (Eq. 7 in the controller, at 2 ms steps) or position "
+                        "(Eq. 7's PD in the drives: the plant's implicit PD on the tracker's q and v)")
+    p.add_argument("--time-step", type=float, default=0.002,
+                   help="the plant's step [s] (torque: at most 0.002; position: 0.004 measured stable)")
+    p.add_argument("--terminal-stance", choices=TERMINAL_STANCES, default="free",
+                   help="where the feet stand when each mission ends: free (as the BLC leaves them) or canonical "
+                        "(the target's canonical stance, qz_drake.trajopt.stance)")
+    p.add_argument("--blc-ladder", default="", metavar="RUNGS",
+                   help="a refused mission is solved again on these rungs before it is labelled not planned, as "
+                        "the walks' BLC does (e.g. cycles+1,split,split+1,cycles+2; default: the first solve only)")
+
+
+def _run_arguments(p, unit: str) -> None:
+    """The options of how a collection runs, where it stores and what it prints."""
+    p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    p.add_argument("--shard-size", type=int, default=100, help="records per shard file")
+    p.add_argument("--limit", type=int, default=None, help=f"stop after this many new {unit}")
+    p.add_argument("--progress", action="store_true", help="show the progress display even when not on a terminal")
+    p.add_argument("--log-every", type=float, default=0.0, metavar="SECONDS",
+                   help="print a plain progress line on stderr at most this often (background runs)")
+    p.add_argument("--json", action="store_true", help="print one JSON line")
+
+
 def register(subparsers) -> None:
     """Adds ``capability`` (collect, stats, and the model commands) to the ``qz`` command."""
     capability = subparsers.add_parser("capability", help="capability trials, dataset and model (paper 000)")
@@ -167,24 +223,23 @@ def register(subparsers) -> None:
                         "actions walked like a walk, a record per mission (issue 37); plans: per scene "
                         "and topology a chain of such actions planned by the BLC one after the other and "
                         "never walked, a record per mission labelled by the BLC alone (status blc_only)")
-    p.add_argument("--control-mode", default="torque",
-                   help="how the joints are driven: torque (Eq. 7 in the controller, at 2 ms steps) or position "
-                        "(Eq. 7's PD in the drives: the plant's implicit PD on the tracker's q and v)")
-    p.add_argument("--time-step", type=float, default=0.002,
-                   help="the plant's step [s] (torque: at most 0.002; position: 0.004 measured stable)")
-    p.add_argument("--terminal-stance", choices=TERMINAL_STANCES, default="free",
-                   help="where the feet stand when each mission ends: free (as the BLC leaves them) or canonical "
-                        "(the target's canonical stance, qz_drake.trajopt.stance)")
-    p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    _label_arguments(p)
     p.add_argument("--ray-address", default=None, help="run the trials on this Ray cluster (host:port)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--shard-size", type=int, default=100, help="records per shard file")
-    p.add_argument("--limit", type=int, default=None, help="stop after this many new trials")
-    p.add_argument("--progress", action="store_true", help="show the progress display even when not on a terminal")
-    p.add_argument("--log-every", type=float, default=0.0, metavar="SECONDS",
-                   help="print a plain progress line on stderr at most this often (background runs)")
-    p.add_argument("--json", action="store_true", help="print one JSON line")
+    _run_arguments(p, "trials")
     p.set_defaults(func=run_collect)
+
+    p = sub.add_parser("collect-routes", help="run (or resume) episodes from the stances the planners' own walks "
+                                              "stood in, on their training worlds (issue 54; a dataset as collect's)")
+    p.add_argument("--walks", required=True, nargs="+", metavar="RUN",
+                   help="folders of qz experiment walks with --record-missions on training worlds (seeds from "
+                        "2^24); every mission start they recorded starts an episode")
+    p.add_argument("--out", required=True, help="dataset folder (manifest.json + shards)")
+    _label_arguments(p)
+    p.add_argument("--ray-address", default=None, help="run the episodes on this Ray cluster (host:port)")
+    p.add_argument("--seed", type=int, default=0, help="draws the actions after each route's own")
+    _run_arguments(p, "episodes")
+    p.set_defaults(func=run_collect_routes)
 
     p = sub.add_parser("stats", help="summarise a capability dataset")
     p.add_argument("dataset", help="dataset folder")
@@ -258,6 +313,12 @@ def run_train(args) -> int:
     result, resumed = model_commands.train_resumably(arrays, manifest, config, args.out, restart=args.restart,
                                       progress=not args.json)
     out = Path(args.out)
+    if manifest.get("sources"):  # learned from several datasets: the card names each
+        from qz_drake.capability.model_base import MODEL_CARD
+
+        card = json.loads((out / MODEL_CARD).read_text())
+        card["sources"] = manifest["sources"]
+        (out / MODEL_CARD).write_text(json.dumps(card, indent=2))
     rows = []
     for (topology, kind), network in sorted(result.networks.items(), key=lambda item: training.ALL_NETWORKS.index(item[0])):
         card = network.card
@@ -330,6 +391,8 @@ def run_train_boosted(args) -> int:
         config.max_iter = args.max_iter
     result = train_boosted(arrays, fingerprint=manifest.get("fingerprint"), fingerprints=manifest.get("fingerprints"),
                            config=config, progress=not args.json, plan_arrays=plan_arrays, plan_source=plan_source)
+    if manifest.get("sources"):  # learned from several datasets: the card names each
+        result.card["sources"] = manifest["sources"]
     out = save_boosted(result, args.out)
     test = result.card["test"]
     rows = [{"network": name, "n": scores["n"], **{o: scores["counts"][o] for o in OUTCOMES},
@@ -417,7 +480,9 @@ def run_map(args) -> int:
 def register_model_commands(subparsers) -> None:
     """Adds ``train``, ``evaluate`` and ``map`` to the ``qz capability`` subparsers."""
     p = subparsers.add_parser("train", help="train the capability networks on a trial dataset")
-    p.add_argument("--dataset", required=True, help="trial dataset folder")
+    p.add_argument("--dataset", required=True, action="append",
+                   help="trial dataset folder; repeat it to learn from several of one BLC-robot system together "
+                        "(e.g. an episode collection and the episodes of the planners' routes, collect-routes)")
     p.add_argument("--out", required=True, help="model folder to write")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     p.add_argument("--seed", type=int, default=0, help="split, initialisation and batch order")

@@ -59,7 +59,7 @@ def run_fig9(args) -> int:
                              terrains=_names(args.terrains, "--terrains", TERRAINS),
                              difficulties=_names(args.difficulties, "--difficulties", DIFFICULTIES),
                              tasks=args.tasks, workers=args.workers, ray_address=args.ray_address, config=config,
-                             progress=not args.json, recordings=args.recordings)
+                             progress=not args.json, recordings=args.recordings, first_seed=args.first_seed)
     png = plot_fig9(summary["rows"], f"{args.out}/fig9.png", title="CapPlanner's TLC against A* (same BLC)")
     summary["figure"] = str(png)
     print(json.dumps(summary, indent=None if args.json else 2))
@@ -311,6 +311,10 @@ def register(subparsers) -> None:
                    help="tuning.json (or its folder) of qz experiment tune-capplanner: CapPlanner's chosen "
                         "failure reward and topology-change cost (default: the MDP's defaults)")
     p.add_argument("--scale", type=float, default=1.0, help="world scale (1: the experiment's worlds)")
+    p.add_argument("--first-seed", type=int, default=0,
+                   help="the worlds' first seed (0: the experiment's 0-49; 100: the fresh run's 100-149; 500-999 "
+                        "validation; from 16777216 = 2^24 training worlds, whose walks collect-routes learns from; "
+                        "50-99 are refused)")
     p.add_argument("--recordings", type=int, default=1,
                    help="record the first N tasks of every terrain, difficulty and planner (out/recordings/)")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")

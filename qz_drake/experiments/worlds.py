@@ -45,6 +45,9 @@ DIFFICULTIES: tuple[str, ...] = ("simple", "medium", "hard")
 TASKS_PER_CELL = 50
 VALIDATION_SEED_START = 500
 TUNING_SEED_START = 1000
+# The worlds whose walks are data (issue 54: CapPlanner's data from its own routes): apart from
+# every other role's, as the capability scenes' seeds are (capability.scenes.SCENE_SEED_START).
+TRAINING_SEED_START = 2 ** 24
 WORLD_SIZE_X = 18.0
 WORLD_SIZE_Y = 10.0
 BAND_HALF_WIDTH = 3.0
@@ -148,6 +151,24 @@ def make_task(terrain: str, difficulty: str, seed: int, scale: float = 1.0) -> T
     yaw = math.atan2(goal[1] - start[1], goal[0] - start[0])
     return Task(terrain=terrain, difficulty=difficulty, seed=int(seed), start=start, start_yaw=yaw,
                 goal=goal, heightmap=HeightMap(heights, RESOLUTION, origin))
+
+
+def seed_role(seed: int) -> str:
+    """What the worlds of ``seed`` are for: "experiment" (0-49, the first decisive run's, and
+    100-149, the fresh run's), "reserved" (50-99: checks outside the project; never walked,
+    tuned, pictured or trained on here), "validation" (500-999), "tuning" (1000 up to
+    TRAINING_SEED_START), "training" (from TRAINING_SEED_START: walks whose missions may be
+    learned from), "unassigned" (150-499)."""
+    seed = int(seed)
+    if 50 <= seed < 100:
+        return "reserved"
+    if 0 <= seed < 150:
+        return "experiment"
+    if VALIDATION_SEED_START <= seed < TUNING_SEED_START:
+        return "validation"
+    if TUNING_SEED_START <= seed < TRAINING_SEED_START:
+        return "tuning"
+    return "training" if seed >= TRAINING_SEED_START else "unassigned"
 
 
 def experiment_tasks(terrains=TERRAINS, difficulties=DIFFICULTIES, tasks: int = TASKS_PER_CELL,

@@ -83,6 +83,14 @@ def run_experiment(out, *, planners=EXPERIMENT_PLANNERS, terrains=TERRAINS, diff
         raise bad_value("--tasks", tasks, f"more than {MAX_TASKS_PER_CELL} tasks per terrain and difficulty "
                                           f"(each a walk of minutes; the experiment's are {TASKS_PER_CELL})")
     check_workers(workers)
+    from qz_drake.experiments.worlds import seed_role
+
+    if isinstance(first_seed, bool) or not isinstance(first_seed, int) or first_seed < 0:
+        raise bad_value("--first-seed", first_seed, "must be a whole number >= 0")
+    reserved = [s for s in range(first_seed, first_seed + tasks) if seed_role(s) == "reserved"]
+    if reserved:
+        raise bad_value("--first-seed", first_seed, f"its {tasks} tasks reach seed {reserved[0]}: seeds 50-99 are "
+                                                    "kept for checks outside the project (never walked here)")
     if isinstance(config.blc_retries, bool) or not isinstance(config.blc_retries, int) or config.blc_retries < 0:
         raise bad_value("--blc-retries", config.blc_retries, "must be a whole number >= 0")
     if config.blc_retries > MAX_BLC_RETRIES:
