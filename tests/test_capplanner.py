@@ -146,6 +146,15 @@ def test_the_claim_is_checked_on_paired_tasks_and_reported_as_tables(tmp_path, c
     assert "judges its next moves from the stance" not in text  # a folder from before that setting
     assert main(["experiment", "report", str(tmp_path / "nothing")]) == 2
     assert "results" in capsys.readouterr().err
+    # A third arm, the learned A*: its own columns per cell and CapPlanner paired with it too.
+    learned = [record("medium", s, "astar_learned", s != 0) for s in range(9)]
+    (tmp_path / RESULTS).write_text("".join(json.dumps(r) + "\n" for r in records + learned))
+    assert main(["experiment", "report", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert "| terrain | difficulty | CapPlanner success | A* success | learned A* success |" in text
+    assert "| stairs | medium | 8/9 (89 %) | 4/10 (40 %) | 8/9 (89 %) |" in text
+    assert "| only CapPlanner | only learned A* |" in text
+    assert "| stairs | medium | 9 | 7 | 1 | 1 | 0 |" in text  # seed 0 only CapPlanner's, seed 8 only learned A*'s
 
 
 def test_a_run_is_compared_task_by_task_with_an_earlier_run_of_the_same_worlds(tmp_path, capsys):

@@ -56,9 +56,9 @@ def _save(fig, path, dpi: int) -> Path:
 
 
 # Colours of the planners in the pictures (others take matplotlib's cycle).
-PLANNER_COLOURS = {"capplanner": "tab:red", "astar": "tab:blue"}
+PLANNER_COLOURS = {"capplanner": "tab:red", "astar": "tab:blue", "astar_learned": "tab:green"}
 # Line styles, so that two paths along the same route both show.
-PLANNER_STYLES = {"capplanner": ("-", 3.0), "astar": ("--", 2.0)}
+PLANNER_STYLES = {"capplanner": ("-", 3.0), "astar": ("--", 2.0), "astar_learned": (":", 2.0)}
 
 
 def plot_task_pair(task, records: dict, path, *, title: str = "") -> Path:

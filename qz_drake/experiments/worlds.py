@@ -36,7 +36,7 @@ from qz_drake.terrain.heightmap import HeightMap
 
 TERRAINS: tuple[str, ...] = ("stairs", "obstacles", "both")
 # The planners compared on these worlds, as a reader calls them.
-PLANNER_NAMES = {"capplanner": "CapPlanner", "astar": "A*"}
+PLANNER_NAMES = {"capplanner": "CapPlanner", "astar": "A*", "astar_learned": "learned A*"}
 DIFFICULTIES: tuple[str, ...] = ("simple", "medium", "hard")
 # Tasks per terrain and difficulty (issue 38): 50 give 80 % power to find a 10-point paired
 # difference on medium + hard at McNemar p < 0.01 when 25 % of the tasks are discordant (the

@@ -115,7 +115,8 @@ def report(out, against=None) -> dict:
         elif not r["success"]:
             bucket = reasons.setdefault(r["planner"], {})
             bucket[r["reason"]] = bucket.get(r["reason"], 0) + 1
-    summary = {"rows": summarise(records), "comparisons": compare_planners(records), "failure_reasons": reasons,
+    summary = {"rows": summarise(records), "comparisons": compare_planners(records),
+               "comparisons_learned": compare_planners(records, baseline="astar_learned"), "failure_reasons": reasons,
                "claim": claim_check(records), "errors": errors, "tasks_done": len(records),
                "wall_time_s": float(sum(r.get("wall_time_s", 0.0) for r in records)),
                "differences": planner_differences(read_settings(out)), "routes": route_rows(records)}
@@ -142,6 +143,10 @@ def _against(out: Path, records: list[dict], against) -> dict:
             "comparisons": compare_runs(records, read_results(against))}
 
 
+# The order of the planners in the report's tables (others after them, by name).
+REPORT_ORDER = ("capplanner", "astar", "astar_learned")
+
+
 def report_markdown(summary: dict) -> str:
     """The report as Markdown tables: per cell both planners' success and displacement ratio,
     the paired comparison, and the failure reasons."""
@@ -153,19 +158,28 @@ def report_markdown(summary: dict) -> str:
         return "-" if row is None or row["displacement_ratio"] is None else f"{row['displacement_ratio']:.3f}"
 
     by_cell = {(r["terrain"], r["difficulty"], r["planner"]): r for r in summary["rows"]}
-    lines = ["| terrain | difficulty | CapPlanner success | A* success | CapPlanner displacement ratio "
-             "| A* displacement ratio |", "| --- | --- | --- | --- | --- | --- |"]
+    # Every planner the run walked, the paper's two first (a third arm, the learned A*, after).
+    present = {r["planner"] for r in summary["rows"]}
+    planners = [p for p in REPORT_ORDER if p in present] + sorted(present - set(REPORT_ORDER))
+    names = [PLANNER_NAMES.get(p, p) for p in planners]
+    lines = ["| terrain | difficulty | " + " | ".join(f"{n} success" for n in names) + " | "
+             + " | ".join(f"{n} displacement ratio" for n in names) + " |",
+             "| --- | --- |" + " --- |" * (2 * len(planners))]
     for terrain in TERRAINS:
         for difficulty in DIFFICULTIES:
-            cap, astar = by_cell.get((terrain, difficulty, "capplanner")), by_cell.get((terrain, difficulty, "astar"))
-            if cap or astar:
-                lines.append(f"| {terrain} | {difficulty} | {rate(cap)} | {rate(astar)} | {ratio(cap)} | {ratio(astar)} |")
-    if summary["comparisons"]:
-        lines += ["", "| terrain | difficulty | paired tasks | both | only CapPlanner | only A* | neither "
+            cells = [by_cell.get((terrain, difficulty, p)) for p in planners]
+            if any(cells):
+                lines.append(f"| {terrain} | {difficulty} | " + " | ".join(rate(c) for c in cells) + " | "
+                             + " | ".join(ratio(c) for c in cells) + " |")
+    for baseline, comparisons in (("astar", summary["comparisons"]), ("astar_learned", summary.get("comparisons_learned"))):
+        if not comparisons:
+            continue
+        other = PLANNER_NAMES.get(baseline, baseline)
+        lines += ["", f"| terrain | difficulty | paired tasks | both | only CapPlanner | only {other} | neither "
                       "| McNemar exact p |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
-        for c in summary["comparisons"]:
+        for c in comparisons:
             lines.append(f"| {c['terrain']} | {c['difficulty']} | {c['tasks']} | {c['both']} | {c['only_capplanner']} "
-                         f"| {c['only_astar']} | {c['neither']} | {c['p_value']:.2g} |")
+                         f"| {c[f'only_{baseline}']} | {c['neither']} | {c['p_value']:.2g} |")
     claim = summary.get("claim")
     if claim:
         lo, hi = claim["difference_ci95"]
