@@ -783,29 +783,7 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
     finally:
         if pool is not None:
             pool.close()
-    mismatches = []
-    largest = 0.0
-    for index, old_records in stored.items():
-        new_records = rerun[index]
-        if len(new_records) != len(old_records):
-            mismatches.append({"index": index, "fields": ["records"],
-                               "stored": {"records": len(old_records)}, "now": {"records": len(new_records)}})
-            continue
-        for old_record, record in zip(old_records, new_records):
-            new = records_to_arrays([record])
-            # Labels, reasons, iteration counts and inputs: equal. Measured floats: equal to
-            # RECERTIFY_RTOL for a walk that succeeded; a failed walk's measurements are where
-            # it was stopped, which rounding on another processor moves (not compared).
-            skip = TIME_FIELDS + (() if bool(old_record["success"][0]) else MEASURED_FIELDS)
-            fields = differing_fields(old_record, new, skip=skip, rtol=RECERTIFY_RTOL,
-                                      atol=RECERTIFY_ATOL)
-            largest = max(largest, _largest_relative_difference(old_record, new))
-            if fields:
-                mismatches.append({"index": index, "fields": fields,
-                                   **({"mission": int(old_record["heading_sample"][0])} if episodes else {}),
-                                   "stored": {f: _plain(old_record[f][0]) for f in fields[:4]},
-                                   "now": {f: _plain(new[f][0]) for f in fields[:4]}})
-                break
+    mismatches, largest = compare_records(stored, rerun, episodes)
     machine = []
     if mismatches and reference_code is not None:
         indices = [m["index"] for m in mismatches]
@@ -831,6 +809,37 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
     return Recertification(str(path), changed, len(stored), not mismatches, mismatches, before,
                            after if not mismatches else before, time.perf_counter() - clock,
                            largest, machine, "episodes" if routed else _unit(protocol))
+
+
+def compare_records(stored: dict, rerun: dict, episodes: bool) -> tuple[list, float]:
+    """(mismatches, largest relative difference of a measured float) of re-run records against
+    stored ones (both: index -> its records in order; stored as one-row arrays, re-run as
+    record dicts): labels, reasons, iteration counts and inputs equal; measured floats equal to
+    RECERTIFY_RTOL for a walk that succeeded (a failed walk's measurements are where it was
+    stopped, which rounding on another processor moves: not compared)."""
+    from qz_drake.capability.dataset import differing_fields, records_to_arrays
+    from qz_drake.capability.trials import TIME_FIELDS
+
+    mismatches = []
+    largest = 0.0
+    for index, old_records in stored.items():
+        new_records = rerun[index]
+        if len(new_records) != len(old_records):
+            mismatches.append({"index": index, "fields": ["records"],
+                               "stored": {"records": len(old_records)}, "now": {"records": len(new_records)}})
+            continue
+        for old_record, record in zip(old_records, new_records):
+            new = records_to_arrays([record])
+            skip = TIME_FIELDS + (() if bool(old_record["success"][0]) else MEASURED_FIELDS)
+            fields = differing_fields(old_record, new, skip=skip, rtol=RECERTIFY_RTOL, atol=RECERTIFY_ATOL)
+            largest = max(largest, _largest_relative_difference(old_record, new))
+            if fields:
+                mismatches.append({"index": index, "fields": fields,
+                                   **({"mission": int(old_record["heading_sample"][0])} if episodes else {}),
+                                   "stored": {f: _plain(old_record[f][0]) for f in fields[:4]},
+                                   "now": {f: _plain(new[f][0]) for f in fields[:4]}})
+                break
+    return mismatches, largest
 
 
 # Run by _run_with_code in a fresh interpreter whose qz_drake is the reference tree's.

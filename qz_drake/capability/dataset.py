@@ -314,6 +314,11 @@ class TrialStore:
             self.manifest.setdefault("commands", []).append(self._command)
             self._command = ""
 
+    def note(self, key: str, value) -> None:
+        """Keeps ``value`` under ``key`` in the manifest (what a relabelling checked, say)."""
+        self.manifest[key] = value
+        self._write_manifest()
+
     def done_indices(self) -> set[int]:
         done = set()
         for shard in self.manifest["shards"]:

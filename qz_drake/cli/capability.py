@@ -100,6 +100,27 @@ def run_collect_routes(args) -> int:
     return 0
 
 
+def run_relabel(args) -> int:
+    if args.workers < 1:
+        raise bad_value("--workers", args.workers, "must be at least 1")
+    if not args.log_every >= 0:
+        raise bad_value("--log-every", args.log_every, "must be 0 (off) or a number of seconds")
+    from qz_drake.capability.dataset import read_manifest
+    from qz_drake.capability.relabel import relabel
+
+    hooks = None
+    if read_manifest(args.dataset).get("settings", {}).get("protocol") == "routes":
+        from qz_drake.experiments.route_episodes import recertify_hooks
+
+        hooks = recertify_hooks()
+    summary = relabel(args.dataset, args.out, blc_ladder=args.blc_ladder, workers=args.workers,
+                      shard_size=args.shard_size, progress=not args.json and sys.stderr.isatty() or args.progress,
+                      command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]), limit=args.limit,
+                      log_every=args.log_every, verify=args.verify, hooks=hooks)
+    print(json.dumps(dataclasses.asdict(summary), indent=None if args.json else 2))
+    return 0
+
+
 def run_stats(args) -> int:
     from qz_drake.capability import stats
 
@@ -240,6 +261,18 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="draws the actions after each route's own")
     _run_arguments(p, "episodes")
     p.set_defaults(func=run_collect_routes)
+
+    p = sub.add_parser("relabel", help="an episode dataset labelled again with the walks' BLC ladder: episodes that "
+                                       "refused and failed nothing copied (a sample walked again to check), the "
+                                       "others walked again (resumable)")
+    p.add_argument("dataset", help="the episode (or route-episode) dataset folder")
+    p.add_argument("--out", required=True, help="the new dataset folder")
+    p.add_argument("--blc-ladder", required=True, metavar="RUNGS",
+                   help="the ladder to label with (e.g. cycles+1,split,split+1,cycles+2, the tuned walks')")
+    p.add_argument("--verify", type=int, default=12,
+                   help="episodes to be copied that are walked again first and must come out the same (default 12)")
+    _run_arguments(p, "episodes")
+    p.set_defaults(func=run_relabel)
 
     p = sub.add_parser("stats", help="summarise a capability dataset")
     p.add_argument("dataset", help="dataset folder")

@@ -81,3 +81,82 @@ def test_plan_chains_and_episodes_label_with_the_ladder():
     assert len(records) == 1 and records[0]["status"] == "executed" and not records[0]["blc_success"]
     assert records[0]["blc_iterations"] == 3 and records[0]["reason"] == "blc_time_limit"
     assert "no rung of the ladder planned it" in records[0]["blc_reason"]
+
+
+def test_only_episodes_that_refused_or_failed_something_are_walked_again():
+    import numpy as np
+
+    from qz_drake.capability.relabel import _unchanged
+
+    arrays = {"index": np.array([0, 0, 1, 1, 2, 3, 4]), "status": np.array(["executed"] * 4 + ["invalid", "executed", "error"]),
+              "blc_success": np.array([True, True, True, False, False, True, False]),
+              "success": np.array([True, True, True, False, False, False, False])}
+    same, others = _unchanged(arrays)
+    # 0 walked all; 1 was refused; 2 never stood (the same under any ladder); 3 failed walking; 4 crashed.
+    assert same == {0, 2} and others == {1, 3, 4}
+
+
+def test_relabelling_refuses_what_it_cannot_relabel(tmp_path):
+    import json
+
+    from qz_drake.capability.relabel import relabel
+
+    folder = tmp_path / "moves"
+    folder.mkdir()
+    (folder / "manifest.json").write_text(json.dumps({"format": "qz_drake.capability.dataset/1", "seed": 0,
+                                                      "settings": {}, "fingerprints": {}, "shards": []}))
+    with pytest.raises(QzError, match="moves dataset"):
+        relabel(folder, tmp_path / "out", blc_ladder="cycles+1")
+    manifest = json.loads((folder / "manifest.json").read_text())
+    manifest["settings"] = {"protocol": "episodes", "blc_ladder": "cycles+1"}
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(QzError, match="--blc-ladder.*source's own"):
+        relabel(folder, tmp_path / "out", blc_ladder=" cycles+1")
+    assert not (tmp_path / "out").exists()
+
+
+# Two flat episodes walked, one checked and one walked again with the ladder: about 40 s.
+@pytest.mark.slow
+def test_an_episode_dataset_relabelled_with_the_ladder(tmp_path):
+    import json
+
+    import numpy as np
+
+    from qz_drake.capability.dataset import load_records
+    from qz_drake.capability.relabel import relabel
+
+    from qz_drake.capability.collect import _protocol_functions, collect_units
+    from qz_drake.capability.dataset import settings_dict
+    from qz_drake.capability.episodes import episode_specs
+
+    source = tmp_path / "episodes"
+    scene = _flat_spec().scene
+    # The flat scene's nominal and hind_bend episodes (every mission walked at 30 iterations).
+
+    specs = [s for s in episode_specs(0, scene + 1, topologies=["nominal", "hind_bend"]) if s.scene == scene]
+    settings = dict(settings_dict(TrialConfig()), protocol="episodes")
+    function, crashed = _protocol_functions("episodes")
+    collect_units(source, specs, seed=0, settings=settings, config=TrialConfig(), function=function, crashed=crashed,
+                  unit="episodes", progress=False)
+    stored, _ = load_records(source)
+    assert stored["blc_success"].all() and stored["success"].all()
+    # Stored as if the hind_bend episode's second mission had been refused (a shard edited here).
+    manifest = json.loads((source / "manifest.json").read_text())
+    shard = source / manifest["shards"][0]["file"]
+    with np.load(shard) as data:
+        arrays = {k: data[k] for k in data.files}
+    hit = np.flatnonzero((arrays["topology"] == "hind_bend") & (arrays["heading_sample"] == 1))[0]
+    arrays["blc_success"][hit] = arrays["success"][hit] = False
+    np.savez_compressed(shard, **arrays)
+    out = tmp_path / "laddered"
+    summary = relabel(source, out, blc_ladder="cycles+1,split", verify=1, progress=False)
+    assert summary.planned == 2 and summary.ran == 1
+    got, manifest = load_records(out)
+    assert manifest["settings"]["blc_ladder"] == "cycles+1,split" and manifest["relabel_verified"]["episodes"]
+    assert manifest["settings"]["relabelled_from"]["dataset"] == str(source)
+    # The nominal episode copied as it was; the hind_bend one walked again: every mission walked.
+    nominal = got["topology"] == "nominal"
+    np.testing.assert_array_equal(got["patch"][nominal], stored["patch"][stored["topology"] == "nominal"])
+    assert got["blc_success"][~nominal].all() and got["success"][~nominal].all()
+    # Resumed: nothing left to do.
+    assert relabel(source, out, blc_ladder="cycles+1,split", progress=False).ran == 0
