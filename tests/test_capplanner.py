@@ -395,7 +395,8 @@ def test_capplanner_is_tuned_on_the_same_tuning_worlds_as_astar(synthetic_model_
                                              "capplanner_plan_failure_risk": 0.0,
                                              "capplanner_mission_length": 1.5,
                                              "capplanner_merge_min_success": 0.95,
-                                             "capplanner_topology_doubt": False, "capplanner_pessimism": 0.5}
+                                             "capplanner_topology_doubt": False, "capplanner_pessimism": 0.5,
+                                             "capplanner_edge_cost": 0.0}
     with pytest.raises(QzError, match="--topology-doubts"):
         tune_capplanner(tmp_path, topology_doubts=(1.0,), progress=False)
     with pytest.raises(QzError, match="--pessimisms"):
@@ -655,7 +656,8 @@ def test_experiment_takes_a_tuning_and_refuses_a_missing_or_foreign_one(tmp_path
                                                                  "capplanner_mission_length": 2.0,
                                                                  "capplanner_merge_min_success": 0.8,
                                                                  "capplanner_topology_doubt": False,
-                                                                 "capplanner_pessimism": 1.0}
+                                                                 "capplanner_pessimism": 1.0,
+                                                                 "capplanner_edge_cost": 0.0}
     with pytest.raises(QzError, match="--astar-tuning"):
         astar_settings(tmp_path / "capplanner.json")
     with pytest.raises(QzError, match="--capplanner-tuning"):

@@ -203,6 +203,7 @@ def run_tune_capplanner(args) -> int:
                                            TUNING_PLAN_FAILURE_RISKS, TUNING_TOPOLOGY_CHANGE_COSTS,
                                            TUNING_PESSIMISMS, TUNING_TOPOLOGY_DOUBTS, ExperimentConfig,
                                            TUNING_DIFFICULTIES, tune_capplanner)
+    from qz_drake.experiments.fig9.tune import TUNING_EDGE_COSTS
     from qz_drake.experiments.worlds import TERRAINS
 
     _check_tasks(args)
@@ -214,6 +215,7 @@ def run_tune_capplanner(args) -> int:
         merge_min_success=_numbers(args.merge_thresholds, "--merge-thresholds") or TUNING_MERGE_MIN_SUCCESS,
         topology_doubts=_switches(args.topology_doubts, "--topology-doubts") or TUNING_TOPOLOGY_DOUBTS,
         pessimisms=_numbers(args.pessimisms, "--pessimisms") or TUNING_PESSIMISMS,
+        edge_costs=_numbers(args.edge_costs, "--edge-costs") or TUNING_EDGE_COSTS,
         terrains=_names(args.terrains, "--terrains", TERRAINS),
         difficulties=_names(args.difficulties, "--difficulties", TUNING_DIFFICULTIES),
         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
@@ -377,6 +379,10 @@ def register(subparsers) -> None:
     p.add_argument("--pessimisms", default=None,
                    help="comma-separated doubts of an action's success by the ensemble's spread, p - pessimism x "
                         "spread (default 1)")
+    p.add_argument("--edge-costs", default=None,
+                   help="comma-separated costs of a move or turn that passes near an edge (a step's riser, a box's "
+                        "side), in value units at the edge, falling to 0 at 0.5 m (CapabilityMdpConfig.edge_cost; "
+                        "default 0: none)")
     p.add_argument("--model", default=None, help="CapPlanner's capability model folder (default: shipped)")
     _stance_argument(p)
     p.set_defaults(func=run_tune_capplanner)

@@ -131,6 +131,17 @@ class CapabilityMdpConfig:
     # Cost of every action (forward one cell or a 45 deg turn): prefers short routes with few
     # turns; small against the goal so that risk, not length, decides between corridors.
     action_cost: float = 1.0
+    # Cost of a move or turn that passes within ``edge_reach`` of an edge (a map cell whose
+    # height differs from a neighbour's by more than ``edge_height``: a step's riser, a box's
+    # side), rising linearly from 0 at that distance to ``edge_cost`` on the edge. The BLC's
+    # refusals are at edges for every planner (the median refused mission passes within 1-27 cm
+    # of one), and A*'s cost map, which keeps its body off them, is refused half as often as
+    # CapPlanner trusting the model alone (BENCHMARKS "capplanner, route data", session 49;
+    # issue 54's "clearance from obstacles where the model is unsure"). 0: none, the paper's
+    # TLC and every run before. [value units], [m], [m]
+    edge_cost: float = 0.0
+    edge_reach: float = 0.5
+    edge_height: float = 0.05
     # Extra cost of switching to another topology: a reconfiguration is a BLC mission of its
     # own on the robot (feet moved one by one), worth about two ordinary actions; the robot
     # changes topology only where the new one is clearly more capable.
@@ -188,14 +199,18 @@ class CapabilityMdpConfig:
         if not self.scale_to_grid or k <= 1.0:
             return self
         return dataclasses.replace(self, discount=1.0 - (1.0 - self.discount) / k, action_cost=self.action_cost / k,
+                                   edge_cost=self.edge_cost / k,
                                    topology_change_cost=self.topology_change_cost / k,
                                    plan_failure_cost=self.plan_failure_cost / k, scale_to_grid=False)
 
     def check(self) -> "CapabilityMdpConfig":
         for name in ("goal_reward", "action_cost", "topology_change_cost", "switch_max_slope_deg",
-                     "switch_max_roughness", "switch_max_step", "plan_failure_cost", "pessimism"):
+                     "switch_max_roughness", "switch_max_step", "plan_failure_cost", "pessimism", "edge_cost"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise bad_value(f"capability_mdp.{name}", getattr(self, name), "must be finite and >= 0")
+        for name in ("edge_reach", "edge_height"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise bad_value(f"capability_mdp.{name}", getattr(self, name), "must be finite and > 0 [m]")
         if not (np.isfinite(self.failure_reward) and self.failure_reward <= 0):
             raise bad_value("capability_mdp.failure_reward", self.failure_reward, "must be finite and <= 0")
         share = self.plan_failure_share
@@ -355,6 +370,37 @@ def switchable_cells(heightmap, xs, ys, config: CapabilityMdpConfig | None = Non
             & (step <= config.switch_max_step))
 
 
+def edge_clearances(heightmap, xs, ys, config: CapabilityMdpConfig | None = None) -> np.ndarray:
+    """(K, ny, nx) how far [m] each forward move from the cell centres (xs, ys) along heading k
+    passes from the nearest edge (a map cell whose height differs from a neighbour's by more
+    than ``edge_height``), at most ``edge_reach``; a turn's is the distance at the cell centre
+    (index K: turns, so the array is (K + 1, ny, nx))."""
+    from scipy.ndimage import distance_transform_edt
+
+    config = config or CapabilityMdpConfig()
+    h = np.asarray(heightmap.heights, dtype=float)
+    jump = np.zeros(h.shape, dtype=bool)
+    dy, dx = np.abs(np.diff(h, axis=0)) > config.edge_height, np.abs(np.diff(h, axis=1)) > config.edge_height
+    jump[:-1] |= dy
+    jump[1:] |= dy
+    jump[:, :-1] |= dx
+    jump[:, 1:] |= dx
+    X, Y = np.meshgrid(np.asarray(xs, dtype=float), np.asarray(ys, dtype=float))
+    out = np.full((len(HEADING_STEPS) + 1, *X.shape), float(config.edge_reach))
+    if not jump.any():
+        return out
+    distance = distance_transform_edt(~jump) * heightmap.resolution
+    res = heightmap.resolution
+    for k, (sx, sy) in enumerate(HEADING_STEPS):
+        n = int(np.ceil(np.hypot(sx, sy) * config.cell_size / res)) + 1
+        t = np.linspace(0.0, 1.0, n)
+        ix, iy = heightmap.index(X[..., None] + t * sx * config.cell_size, Y[..., None] + t * sy * config.cell_size)
+        out[k] = np.minimum(distance[iy, ix].min(axis=-1), config.edge_reach)
+    ix, iy = heightmap.index(X, Y)
+    out[-1] = np.minimum(distance[iy, ix], config.edge_reach)
+    return out
+
+
 def cells_on_map(heightmap, xs, ys) -> np.ndarray:
     """(ny, nx) True where a robot at the cell centre (xs, ys) has all its feet on the heightmap:
     the centre at least MAP_EDGE_REACH inside the map's edges."""
@@ -374,12 +420,14 @@ def action_reward(config: CapabilityMdpConfig, p, q, to_goal, switch):
 
 
 def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | None = None,
-                         switchable: np.ndarray | None = None, on_map: np.ndarray | None = None) -> CapabilityMdp:
+                         switchable: np.ndarray | None = None, on_map: np.ndarray | None = None,
+                         edge_clearance: np.ndarray | None = None) -> CapabilityMdp:
     """The MDP of a CapabilityMap (qz_drake.capability.model.predict_map) and a goal position;
     ``switchable`` (ny, nx): where a topology change can succeed (:func:`switchable_cells`;
     None: everywhere); ``on_map`` (ny, nx): the cells a robot may stand in (:func:`cells_on_map`;
     None: all): a move into another fails, as a move off the grid does (the goal's cell is
-    always allowed)."""
+    always allowed); ``edge_clearance`` (K + 1, ny, nx): each move's and turn's distance from an
+    edge (:func:`edge_clearances`), which ``edge_cost`` charges for (needed when it is > 0)."""
     T, K, ny, nx = capability_map.forward.shape
     config = (config or CapabilityMdpConfig()).check().for_grid(nx, ny)
     topologies = tuple(capability_map.topologies)
@@ -406,6 +454,16 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
                                "model, per state" if getattr(capability_map, "forward_plan", None) is not None
                                else "model cards' shares")
     reference = _reference_motions(capability_map, config, topologies, k, iy, ix, allowed)
+    near_edge = None
+    if config.edge_cost > 0:
+        if edge_clearance is None:
+            raise bad_value("edge_clearance", None, "needed with capability_mdp.edge_cost > 0 (edge_clearances of "
+                                                    "the map)")
+        clearance = np.asarray(edge_clearance, dtype=float)
+        if clearance.shape != (K + 1, ny, nx):
+            raise bad_value("edge_clearance", f"array of shape {clearance.shape}", f"expected ({K + 1}, {ny}, {nx})")
+        closeness = np.clip(1.0 - clearance / config.edge_reach, 0.0, 1.0)
+        near_edge = (closeness[k, iy, ix], closeness[K, iy, ix], closeness[K, iy, ix])
     for t in range(T):
         # Grid state of the same cell and heading in topology t (the action's).
         same = np.ravel_multi_index((np.full(grid, t), k, iy, ix), (T, K, ny, nx))
@@ -445,6 +503,8 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
                 refused = (t0 != t) & ~np.asarray(switchable, dtype=bool)[iy, ix]
                 p, q = np.where(refused, 0.0, p), np.where(refused, 0.0, q)
             reward = action_reward(config, p, q, nxt == goal, t0 != t)
+            if near_edge is not None:
+                reward = reward - config.edge_cost * near_edge[m]
             # A robot already in the goal cell (a start there) has arrived: any action ends it.
             success[a, :grid] = np.where(at_goal, 1.0, p)
             stand[a, :grid] = np.where(at_goal, 0.0, q)
@@ -1004,10 +1064,10 @@ def _compile_kernels():
 
 def plan_on_map(capability_map, start_xy, start_heading: int, goal_xy, *, start_topology: str = "nominal",
                 config: CapabilityMdpConfig | None = None, switchable: np.ndarray | None = None,
-                on_map: np.ndarray | None = None) -> CapabilityPlan:
+                on_map: np.ndarray | None = None, edge_clearance: np.ndarray | None = None) -> CapabilityPlan:
     """Builds the MDP of a CapabilityMap, solves it by value iteration and extracts the most
     likely path from the start (x, y, heading index, topology) to the goal."""
-    mdp = build_capability_mdp(capability_map, goal_xy, config, switchable, on_map)
+    mdp = build_capability_mdp(capability_map, goal_xy, config, switchable, on_map, edge_clearance)
     if start_topology not in mdp.topologies:
         raise bad_value("start_topology", start_topology, f"expected one of {', '.join(mdp.topologies)}")
     ix, iy = mdp.cell_of(*start_xy, field="start")
@@ -1036,4 +1096,6 @@ def plan(model, heightmap, start_xy, start_heading: int, goal_xy, *, start_topol
     return plan_on_map(capability_map, start_xy, start_heading, goal_xy, start_topology=start_topology,
                        config=config, switchable=switchable_cells(heightmap, capability_map.xs,
                                                                   capability_map.ys, config),
-                       on_map=cells_on_map(heightmap, capability_map.xs, capability_map.ys))
+                       on_map=cells_on_map(heightmap, capability_map.xs, capability_map.ys),
+                       edge_clearance=edge_clearances(heightmap, capability_map.xs, capability_map.ys, config)
+                       if config.edge_cost > 0 else None)

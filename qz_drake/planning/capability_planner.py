@@ -180,7 +180,7 @@ class CapabilityVIPlanner(RecoveringSequencer):
         super().__init__(log=CapabilityPlannerLog(), max_recoveries=max_recoveries, plan_ahead=plan_ahead)
         from qz_drake.capability.model import predict_map
         from qz_drake.planning.capability_mdp import (CapabilityMdpConfig, build_capability_mdp, cells_on_map,
-                                                      solve_capability_mdp, switchable_cells)
+                                                      edge_clearances, solve_capability_mdp, switchable_cells)
 
         # The plan from the start (a CapabilityPlan, for drawing: capability.plots.plot_plan).
         self.first_plan = None
@@ -201,7 +201,8 @@ class CapabilityVIPlanner(RecoveringSequencer):
                                           anchor=start[:2], stance=config.stance)
         xs, ys = self.capability_map.xs, self.capability_map.ys
         self.mdp = build_capability_mdp(self.capability_map, goal, config, switchable_cells(heightmap, xs, ys, config),
-                                        cells_on_map(heightmap, xs, ys))
+                                        cells_on_map(heightmap, xs, ys),
+                                        edge_clearances(heightmap, xs, ys, config) if config.edge_cost > 0 else None)
         self.solution = solve_capability_mdp(self.mdp)
         self.log.planning_time_s = time.perf_counter() - clock
         self.log.value_iterations = int(self.solution.iterations)

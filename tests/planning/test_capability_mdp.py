@@ -516,3 +516,44 @@ def test_a_start_or_goal_off_the_map_is_named_before_any_planning(start, goal, n
     heightmap = HeightMap(np.zeros((40, 100)), 0.05, (-1.0, -1.0))  # x in [-1, 3.95]
     with pytest.raises(QzError, match=re.escape(named) + ".*off the map"):
         plan(None, heightmap, start, 0, goal)  # refused before the model is asked anything
+
+
+def test_a_move_near_an_edge_costs_what_edge_cost_says_and_routes_keep_their_distance():
+    """Issue 54 (session 49): the BLC refuses at edges; CapPlanner may charge a move for passing
+    near one. A flat 14 m x 12 m map with a low box (0.15 m, which the stub model walks over
+    and past alike) just beside the straight line from start to goal."""
+    from qz_drake.planning.capability_mdp import HEADING_STEPS, edge_clearances
+
+    res = 0.05
+    x = 0.025 + res * np.arange(280)
+    y = 0.025 + res * np.arange(240)
+    X, Y = np.meshgrid(x, y)
+    h = np.where((X > 6.2) & (X < 6.8) & (Y > 5.8) & (Y < 7.0), 0.15, 0.0)
+    hm = HeightMap(h, res, (0.025, 0.025))
+    config = CapabilityMdpConfig(topologies=["nominal"], edge_cost=5.0)
+    cm = predict_map(StubModel(default=1.0), hm, ["nominal"], anchor=START)
+    clearance = edge_clearances(hm, cm.xs, cm.ys, config)
+    assert clearance.shape == (len(HEADING_STEPS) + 1, len(cm.ys), len(cm.xs))
+    ix, iy = int(np.argmin(np.abs(cm.xs - 5.5))), int(np.argmin(np.abs(cm.ys - 5.5)))
+    # From (5.5, 5.5) east to (6.5, 5.5) the path runs 0.3 m below the box: within the reach.
+    assert clearance[0, iy, ix] == pytest.approx(0.3 - res / 2, abs=res)
+    far = int(np.argmin(np.abs(cm.ys - 1.5)))
+    assert clearance[0, far, ix] == config.edge_reach and clearance[-1, far, ix] == config.edge_reach
+    # No cost: the rewards of before, and the clearance not needed.
+    plain = build_capability_mdp(cm, GOAL, dataclasses.replace(config, edge_cost=0.0))
+    costly = build_capability_mdp(cm, GOAL, config, edge_clearance=clearance)
+    # A forward move in heading 0 (action 0) from (5.5, 5.5): charged (1 - 0.275 / 0.5) x 5.
+    state = costly.state(ix, iy, 0, "nominal")
+    assert plain.R[state, 0] - costly.R[state, 0] == pytest.approx(5.0 * (1 - clearance[0, iy, ix] / 0.5))
+    assert costly.R[costly.state(ix, far, 0, "nominal"), 0] == plain.R[plain.state(ix, far, 0, "nominal"), 0]
+    with pytest.raises(QzError, match="edge_clearance"):
+        build_capability_mdp(cm, GOAL, config)
+    with pytest.raises(QzError, match="edge_reach"):
+        CapabilityMdpConfig(edge_reach=0.0).check()
+    # The route: straight along y = 5.5 m without the cost; with a cost worth the detour's turns
+    # and its longer moves' risk, a cell farther from the box.
+    straight = plan(StubModel(default=1.0), hm, START, 0, GOAL, config=dataclasses.replace(config, edge_cost=0.0))
+    kept = plan(StubModel(default=1.0), hm, START, 0, GOAL, config=dataclasses.replace(config, edge_cost=20.0))
+    assert straight.reaches_goal and kept.reaches_goal
+    assert np.allclose(straight.cells[:, 1], 5.5)
+    assert not np.any(np.isclose(kept.cells[:, 1], 5.5) & np.isclose(kept.cells[:, 0], 6.5))

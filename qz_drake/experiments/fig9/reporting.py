@@ -56,6 +56,9 @@ def planner_differences(settings: dict) -> list[str]:
                   if c.get("capplanner_hold_margin") is not None else "."))
     out.append("Topology: A* walks in the nominal topology; CapPlanner may change topology"
                + (" where the gain exceeds its ensemble's doubt about it." if c["capplanner_topology_doubt"] else "."))
+    if c.get("capplanner_edge_cost"):
+        out.append(f"CapPlanner charges a move or turn up to {c['capplanner_edge_cost']:g} for passing within 0.5 m "
+                   f"of an edge; A*'s cost map keeps its body disc ({c['astar_body_radius']:g} m) off obstacles.")
     if c["capplanner_measured_stance"]:
         out.append("CapPlanner judges its next moves from the stance the robot stands in and backs out of a "
                    "stance its model foretells as a dead end; A* has no model of the BLC to do so.")

@@ -88,6 +88,9 @@ class ExperimentConfig:
     # How far CapPlanner doubts an action's success by the ensemble's spread
     # (capability_mdp.CapabilityMdpConfig.pessimism: p - pessimism * spread).
     capplanner_pessimism: float = 1.0
+    # What CapPlanner's MDP charges a move or turn for passing near an edge
+    # (capability_mdp.CapabilityMdpConfig.edge_cost; session 49): 0, none, as every run before.
+    capplanner_edge_cost: float = 0.0
     # Whether CapPlanner judges the first moves of each replan from the stance the robot stands
     # in, and backs out of a dead end the model foretells (CapabilityVIPlanner's measured_stance).
     capplanner_measured_stance: bool = True
@@ -186,7 +189,8 @@ def _mdp_overrides(config: ExperimentConfig) -> dict:
     return dict(failure_reward=config.capplanner_failure_reward,
                 topology_change_cost=config.capplanner_topology_change_cost,
                 plan_failure_risk=config.capplanner_plan_failure_risk,
-                topology_doubt=float(config.capplanner_topology_doubt), pessimism=config.capplanner_pessimism)
+                topology_doubt=float(config.capplanner_topology_doubt), pessimism=config.capplanner_pessimism,
+                edge_cost=config.capplanner_edge_cost)
 
 
 # Top-level controllers: name -> (task, config) -> (Route, walking planner, waypoints, route

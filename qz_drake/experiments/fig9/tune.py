@@ -37,7 +37,7 @@ CAPPLANNER_TUNED = {"failure_reward": "capplanner_failure_reward",
                     "mission_length": "capplanner_mission_length",
                     "merge_min_success": "capplanner_merge_min_success",
                     "topology_doubt": "capplanner_topology_doubt",
-                    "pessimism": "capplanner_pessimism"}
+                    "pessimism": "capplanner_pessimism", "edge_cost": "capplanner_edge_cost"}
 # Tuning tasks per terrain and difficulty for either planner (issue 38: with two, every A*
 # setting scored 9-11 of 18 and the choice was noise).
 TUNING_TASKS_PER_CELL = 4
@@ -246,13 +246,15 @@ TUNING_TOPOLOGY_DOUBTS = (True,)
 # How far an action's success is doubted by the ensemble's spread (CapabilityMdpConfig.pessimism):
 # one value unless searched (--pessimisms).
 TUNING_PESSIMISMS = (1.0,)
+# What a move near an edge costs (CapabilityMdpConfig.edge_cost): none unless searched (--edge-costs).
+TUNING_EDGE_COSTS = (0.0,)
 
 
 def tune_capplanner(out, *, failure_rewards=TUNING_FAILURE_REWARDS,
                     topology_change_costs=TUNING_TOPOLOGY_CHANGE_COSTS,
                     plan_failure_risks=TUNING_PLAN_FAILURE_RISKS, mission_lengths=TUNING_MISSION_LENGTHS,
                     merge_min_success=TUNING_MERGE_MIN_SUCCESS, topology_doubts=TUNING_TOPOLOGY_DOUBTS,
-                    pessimisms=TUNING_PESSIMISMS, terrains=TERRAINS,
+                    pessimisms=TUNING_PESSIMISMS, edge_costs=TUNING_EDGE_COSTS, terrains=TERRAINS,
                     difficulties=TUNING_DIFFICULTIES, tasks: int = TUNING_TASKS_PER_CELL, workers: int = 1,
                     ray_address: str | None = None, config: ExperimentConfig = ExperimentConfig(),
                     progress: bool = True) -> dict:
@@ -268,13 +270,15 @@ def tune_capplanner(out, *, failure_rewards=TUNING_FAILURE_REWARDS,
                                                                                 "(a diagonal move)")
     _check_numbers("--merge-thresholds", merge_min_success, lambda v: 0 <= v <= 1, "expected numbers in [0, 1]")
     _check_numbers("--pessimisms", pessimisms, lambda v: v >= 0, "expected numbers >= 0")
+    _check_numbers("--edge-costs", edge_costs, lambda v: v >= 0, "expected numbers >= 0")
     if not topology_doubts or not all(isinstance(d, (bool, np.bool_)) for d in topology_doubts):
         raise bad_value("--topology-doubts", list(topology_doubts), "expected true/false values")
     grid = [{"failure_reward": float(f), "topology_change_cost": float(c), "plan_failure_risk": float(r),
              "mission_length": float(m), "merge_min_success": float(s), "topology_doubt": bool(d),
-             "pessimism": float(e)}
+             "pessimism": float(e), "edge_cost": float(g)}
             for d in topology_doubts for r in plan_failure_risks for f in failure_rewards
-            for c in topology_change_costs for m in mission_lengths for s in merge_min_success for e in pessimisms]
+            for c in topology_change_costs for m in mission_lengths for s in merge_min_success for e in pessimisms
+            for g in edge_costs]
     split = MissionSplitConfig()
     # Folders of the settings at the defaults keep the names they had before these were settings.
     return _tune(out, "capplanner", grid, CAPPLANNER_TUNED,
@@ -284,6 +288,7 @@ def tune_capplanner(out, *, failure_rewards=TUNING_FAILURE_REWARDS,
                            + (f"_merge{g['merge_min_success']:g}" if g["merge_min_success"] != split.min_success
                               else "")
                            + ("" if g["topology_doubt"] else "_nodoubt")
-                           + ("" if g["pessimism"] == 1.0 else f"_pessimism{g['pessimism']:g}"),
+                           + ("" if g["pessimism"] == 1.0 else f"_pessimism{g['pessimism']:g}")
+                           + ("" if g["edge_cost"] == 0.0 else f"_edge{g['edge_cost']:g}"),
                  terrains=terrains, difficulties=difficulties, tasks=tasks, workers=workers,
                  ray_address=ray_address, config=config, progress=progress)
