@@ -21,7 +21,8 @@ import threading
 import time
 from multiprocessing.connection import wait
 
-from qz_drake.capability.dataset import CHAINED_PROTOCOLS, TrialStore, fingerprints, settings_dict
+from qz_drake.capability.dataset import (CHAINED_PROTOCOLS, PROVENANCE_SETTINGS, TrialStore, fingerprints,
+                                         settings_dict)
 from qz_drake.capability.trials import TrialConfig, TrialSpec, run_trial, trial_specs
 from qz_drake.errors import bad_value
 
@@ -736,6 +737,8 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
 
     settings = dict(manifest.get("settings", {}))
     protocol = settings.pop("protocol", "moves")
+    for key in PROVENANCE_SETTINGS:  # where the dataset came from, not how its trials run
+        settings.pop(key, None)
     extra = {}
     if hooks is not None and protocol == hooks.protocol:
         extra = {k: settings.pop(k) for k in hooks.extra if k in settings}

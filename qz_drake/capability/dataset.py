@@ -40,6 +40,9 @@ LEARNER_FIELDS = ("patch", "feet", "direction", "success", "blc_success", "scene
 # Protocols whose specs are chains of missions, a record per mission (collect.PROTOCOLS, and
 # "routes": the episodes of the planners' own routes, qz_drake.experiments.route_episodes).
 CHAINED_PROTOCOLS = ("episodes", "plans", "routes")
+# Settings that say where a dataset came from, not how its trials run (TrialConfig's are the
+# rest): a relabelled dataset's source (capability/relabel.py).
+PROVENANCE_SETTINGS = ("relabelled_from",)
 FORMAT = "qz_drake.capability.dataset/1"
 MANIFEST = "manifest.json"
 

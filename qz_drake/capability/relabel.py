@@ -26,8 +26,8 @@ import numpy as np
 
 from qz_drake.capability.collect import (CollectionSummary, LocalPool, RecertifyHooks, _episode_sample,
                                          collect_units, compare_records)
-from qz_drake.capability.dataset import (MANIFEST, TrialStore, fingerprints, load_records, read_manifest,
-                                         settings_dict)
+from qz_drake.capability.dataset import (MANIFEST, PROVENANCE_SETTINGS, TrialStore, fingerprints, load_records,
+                                         read_manifest, settings_dict)
 from qz_drake.capability.trials import TrialConfig
 from qz_drake.errors import ConfigError, bad_value
 
@@ -40,6 +40,8 @@ def _source(source, hooks):
     manifest = read_manifest(source)
     settings = dict(manifest.get("settings", {}))
     protocol = settings.pop("protocol", "moves")
+    for key in PROVENANCE_SETTINGS:  # where the dataset came from, not how its trials run
+        settings.pop(key, None)
     if protocol not in RELABEL_PROTOCOLS:
         raise bad_value("dataset", str(source), f"is a {protocol} dataset; relabelling takes walked episodes "
                                                 f"({', '.join(RELABEL_PROTOCOLS)})")

@@ -160,3 +160,11 @@ def test_an_episode_dataset_relabelled_with_the_ladder(tmp_path):
     assert got["blc_success"][~nominal].all() and got["success"][~nominal].all()
     # Resumed: nothing left to do.
     assert relabel(source, out, blc_ladder="cycles+1,split", progress=False).ran == 0
+    # Recertified like any dataset (its source in the settings is not a trial setting).
+    from qz_drake.capability.collect import recertify
+
+    manifest = json.loads((out / "manifest.json").read_text())
+    manifest["fingerprints"]["blc"] = "0123456789abcdef"
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    result = recertify(out, sample=1)
+    assert result.identical and result.rerun == 1, result.mismatches
