@@ -6,10 +6,13 @@
 Of the episodes walked again so far (qz capability relabel), each mission the source had refused:
 still refused, planned on a rung and walked, or planned and failed walking (with the reason).
 """
-import sys
 import collections
+import sys
+
 import numpy as np
+
 from qz_drake.capability.dataset import load_records
+from qz_drake.capability.relabel import _unchanged
 
 SOURCE, NEW = (sys.argv[1], sys.argv[2]) if len(sys.argv) > 2 else ("data/capability_episodes", "data/capability_episodes_ladder")
 src, _ = load_records(SOURCE)
@@ -18,7 +21,6 @@ key = lambda a, i: (int(a["index"][i]), int(a["heading_sample"][i]))
 srcmap = {key(src, i): i for i in range(len(src["index"]))}
 newmap = {key(new, i): i for i in range(len(new["index"]))}
 refused_src = [k for k, i in srcmap.items() if src["status"][i] == "executed" and not src["blc_success"][i]]
-from qz_drake.capability.relabel import _unchanged
 same, others = _unchanged(src)
 done_new = set(new["index"].tolist())
 rerun_done = others & done_new

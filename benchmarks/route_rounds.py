@@ -54,8 +54,7 @@ def main(argv=None) -> int:
         s = scores(load(name), arrays, rows)
         out.append({"model": name, "missions": s["n"], "counts": s["counts"], "brier": s["model"]["brier"],
                     "base_rate_brier": s["base_rate"]["brier"],
-                    **{f"{o}_auc": s[o]["auc"] for o in B.OUTCOMES}, **{f"{o}_ece": s[o]["ece"] for o in B.OUTCOMES},
-                    "predicted_walked": None, "walked": s["counts"]["walked"] / max(s["n"], 1)})
+                    **{f"{o}_auc": s[o]["auc"] for o in B.OUTCOMES}, **{f"{o}_ece": s[o]["ece"] for o in B.OUTCOMES}})
     if args.json:
         print(json.dumps(out))
         return 0

@@ -740,7 +740,8 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
     for key in PROVENANCE_SETTINGS:  # where the dataset came from, not how its trials run
         settings.pop(key, None)
     extra = {}
-    if hooks is not None and protocol == hooks.protocol:
+    routed = hooks is not None and protocol == hooks.protocol
+    if routed:
         extra = {k: settings.pop(k) for k in hooks.extra if k in settings}
         if reference_code is not None:
             raise bad_value("--reference-code", str(reference_code),
@@ -750,7 +751,7 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
                         f"expected one of {', '.join(PROTOCOLS)}" + ("; a routes dataset is recertified by `qz "
                                                                       "capability recertify`" if protocol == "routes"
                                                                       else ""))
-    episodes = protocol in CHAINED or bool(extra) or (hooks is not None and protocol == hooks.protocol)
+    episodes = protocol in CHAINED
     try:
         config = TrialConfig(**settings)
     except TypeError as e:
@@ -765,7 +766,6 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
     arrays, _ = load_records(path)
     seed = int(manifest["seed"])
     key = before + combined_fingerprint(parts)
-    routed = hooks is not None and protocol == hooks.protocol
     if episodes:
         specs, stored = _episode_sample(arrays, sample, key, seed,
                                         hooks.specs({**settings, **extra}, seed) if routed else None)

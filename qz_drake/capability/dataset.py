@@ -523,11 +523,12 @@ def merge_training_arrays(loaded, field: str = "--dataset") -> tuple[dict[str, n
         settings = manifest.get("settings", {})
         return {k: settings.get(k, defaults[k]) for k in label_keys}
 
+    first_labels = labels(first)
     scenes: dict[int, str] = {}
     for path, arrays, manifest in loaded:
         theirs, ours = manifest.get("fingerprints", {}), first.get("fingerprints", {})
         differ = [k for k in ("robot", "blc", "controller", "verdict") if theirs.get(k) != ours.get(k)]
-        differ += [f"settings.{k}" for k, v in labels(manifest).items() if labels(first)[k] != v]
+        differ += [f"settings.{k}" for k, v in labels(manifest).items() if first_labels[k] != v]
         if differ:
             raise bad_value(field, str(path), f"its {', '.join(differ)} differ from {first_path}'s: labelled by "
                                               "another BLC-robot system (collect it again with this code)")

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from qz_drake.capability.collect import (CollectionSummary, LocalPool, RecertifyHooks, _episode_sample,
-                                         collect_units, compare_records)
+                                         _protocol_functions, collect_units, compare_records)
 from qz_drake.capability.dataset import (MANIFEST, PROVENANCE_SETTINGS, TrialStore, fingerprints, load_records,
                                          read_manifest, settings_dict)
 from qz_drake.capability.trials import TrialConfig
@@ -89,7 +89,7 @@ def relabel(source, out, *, blc_ladder: str, workers: int = 1, shard_size: int =
     settings = settings_dict(config)
     settings.update(protocol=protocol, **extra,
                     relabelled_from={"dataset": str(source), "fingerprint": manifest.get("fingerprint", "")})
-    function, crashed = (hooks.function, hooks.crashed) if protocol == "routes" else _episode_functions()
+    function, crashed = (hooks.function, hooks.crashed) if protocol == "routes" else _protocol_functions("episodes")
     existing = read_manifest(out) if (Path(out) / MANIFEST).is_file() else None
     verified = None
     if existing is None or "relabel_verified" not in existing:  # before anything is written
@@ -113,12 +113,6 @@ def relabel(source, out, *, blc_ladder: str, workers: int = 1, shard_size: int =
     summary.planned += len(same)  # the copies are among its done episodes already
     summary.wall_time_s = time.perf_counter() - clock
     return summary
-
-
-def _episode_functions():
-    from qz_drake.capability.collect import _protocol_functions
-
-    return _protocol_functions("episodes")
 
 
 def _specs(arrays: dict, indices: list[int], seed: int, specs_by_index=None) -> list:

@@ -51,72 +51,77 @@ def _kinds() -> tuple[str, ...]:
     return KINDS
 
 
+def _check_run(args) -> None:
+    """A collection's run options (_run_arguments) and, where it has them, its plant step."""
+    if args.workers < 1:
+        raise bad_value("--workers", args.workers, "must be at least 1")
+    if not args.log_every >= 0:
+        raise bad_value("--log-every", args.log_every, "must be 0 (off) or a number of seconds")
+    if hasattr(args, "time_step") and not args.time_step >= MIN_TIME_STEP:  # NaN too
+        raise bad_value("--time-step", args.time_step, f"must be at least {MIN_TIME_STEP:g} s, a twentieth of the "
+                                                       f"default: finer steps make a trial's seconds millions of steps")
+
+
+def _run_options(args) -> dict:
+    """The keyword arguments every collection takes from _run_arguments and the command line."""
+    return dict(workers=args.workers, shard_size=args.shard_size, limit=args.limit, log_every=args.log_every,
+                progress=not args.json and sys.stderr.isatty() or args.progress,
+                command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
+
+
+def _trial_config(args, **more):
+    """The TrialConfig of _label_arguments' options."""
+    from qz_drake.capability.trials import TrialConfig
+
+    return TrialConfig(control_mode=args.control_mode, time_step=args.time_step,
+                       blc_terminal_stance=args.terminal_stance, blc_ladder=args.blc_ladder, **more)
+
+
+def _protocol_hooks(dataset):
+    """The RecertifyHooks of a dataset whose specs come from walks' records (protocol "routes",
+    qz_drake.experiments.route_episodes), else None."""
+    from qz_drake.capability.dataset import read_manifest
+
+    if read_manifest(dataset).get("settings", {}).get("protocol") != "routes":
+        return None
+    from qz_drake.experiments.route_episodes import recertify_hooks
+
+    return recertify_hooks()
+
+
 def run_collect(args) -> int:
     if args.scenes < 1:
         raise bad_value("--scenes", args.scenes, "must be a positive whole number")
-    if args.workers < 1:
-        raise bad_value("--workers", args.workers, "must be at least 1")
     if args.headings < 1:
         raise bad_value("--headings", args.headings, "must be at least 1")
-    if not args.log_every >= 0:
-        raise bad_value("--log-every", args.log_every, "must be 0 (off) or a number of seconds")
-    if not args.time_step >= MIN_TIME_STEP:  # NaN too
-        raise bad_value("--time-step", args.time_step, f"must be at least {MIN_TIME_STEP:g} s, a twentieth of the "
-                                                       f"default: finer steps make a trial's seconds millions of steps")
+    _check_run(args)
     from qz_drake.capability.collect import collect
-    from qz_drake.capability.trials import TrialConfig
 
-    config = TrialConfig(headings_per_scene=args.headings, control_mode=args.control_mode, time_step=args.time_step,
-                         blc_terminal_stance=args.terminal_stance, blc_ladder=args.blc_ladder)
     summary = collect(args.out, seed=args.seed, scenes=args.scenes,
                       topologies=parse_names(args.topologies, "--topologies", topology_names()),
-                      kinds=parse_names(args.kinds, "--kinds", _kinds()), config=config,
-                      workers=args.workers, ray_address=args.ray_address, shard_size=args.shard_size,
-                      progress=not args.json and sys.stderr.isatty() or args.progress,
-                      command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
-                      limit=args.limit, log_every=args.log_every, protocol=args.protocol)
+                      kinds=parse_names(args.kinds, "--kinds", _kinds()),
+                      config=_trial_config(args, headings_per_scene=args.headings), ray_address=args.ray_address,
+                      protocol=args.protocol, **_run_options(args))
     print(json.dumps(dataclasses.asdict(summary), indent=None if args.json else 2))
     return 0
 
 
 def run_collect_routes(args) -> int:
-    if args.workers < 1:
-        raise bad_value("--workers", args.workers, "must be at least 1")
-    if not args.log_every >= 0:
-        raise bad_value("--log-every", args.log_every, "must be 0 (off) or a number of seconds")
-    if not args.time_step >= MIN_TIME_STEP:  # NaN too
-        raise bad_value("--time-step", args.time_step, f"must be at least {MIN_TIME_STEP:g} s")
-    from qz_drake.capability.trials import TrialConfig
+    _check_run(args)
     from qz_drake.experiments.route_episodes import collect_route_episodes
 
-    config = TrialConfig(control_mode=args.control_mode, time_step=args.time_step,
-                         blc_terminal_stance=args.terminal_stance, blc_ladder=args.blc_ladder)
-    summary = collect_route_episodes(args.out, args.walks, seed=args.seed, config=config, workers=args.workers,
-                                     shard_size=args.shard_size, ray_address=args.ray_address,
-                                     progress=not args.json and sys.stderr.isatty() or args.progress,
-                                     command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
-                                     limit=args.limit, log_every=args.log_every)
+    summary = collect_route_episodes(args.out, args.walks, seed=args.seed, config=_trial_config(args),
+                                     ray_address=args.ray_address, **_run_options(args))
     print(json.dumps(dataclasses.asdict(summary), indent=None if args.json else 2))
     return 0
 
 
 def run_relabel(args) -> int:
-    if args.workers < 1:
-        raise bad_value("--workers", args.workers, "must be at least 1")
-    if not args.log_every >= 0:
-        raise bad_value("--log-every", args.log_every, "must be 0 (off) or a number of seconds")
-    from qz_drake.capability.dataset import read_manifest
+    _check_run(args)
     from qz_drake.capability.relabel import relabel
 
-    hooks = None
-    if read_manifest(args.dataset).get("settings", {}).get("protocol") == "routes":
-        from qz_drake.experiments.route_episodes import recertify_hooks
-
-        hooks = recertify_hooks()
-    summary = relabel(args.dataset, args.out, blc_ladder=args.blc_ladder, workers=args.workers,
-                      shard_size=args.shard_size, progress=not args.json and sys.stderr.isatty() or args.progress,
-                      command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]), limit=args.limit,
-                      log_every=args.log_every, verify=args.verify, hooks=hooks)
+    summary = relabel(args.dataset, args.out, blc_ladder=args.blc_ladder, verify=args.verify,
+                      hooks=_protocol_hooks(args.dataset), **_run_options(args))
     print(json.dumps(dataclasses.asdict(summary), indent=None if args.json else 2))
     return 0
 
@@ -160,19 +165,10 @@ def run_stats(args) -> int:
 
 def run_recertify(args) -> int:
     from qz_drake.capability.collect import recertify
-    from qz_drake.capability.dataset import read_manifest
 
-    # The episodes of the planners' routes are made from walks' records (qz_drake.experiments):
-    # their specs and worker come from there.
-    protocol = read_manifest(args.dataset).get("settings", {}).get("protocol")
-    hooks = None
-    if protocol == "routes":
-        from qz_drake.experiments.route_episodes import recertify_hooks
-
-        hooks = recertify_hooks()
     result = recertify(args.dataset, sample=args.sample, workers=args.workers,
                        command="qz " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
-                       reference_code=args.reference_code, hooks=hooks)
+                       reference_code=args.reference_code, hooks=_protocol_hooks(args.dataset))
     if args.json:
         print(json.dumps(dataclasses.asdict(result)))
     elif not result.changed:

@@ -165,14 +165,29 @@ def _turns(h: int, to: int) -> list[int]:
     return [1] * steps if steps <= 4 else [-1] * (8 - steps)
 
 
-def route_commands(spec: RouteSpec, half_size: float, config=None):
+def _heading(yaw: float) -> int:
+    """The nearest of the planner's eight headings to ``yaw`` (its index)."""
+    from qz_drake.capability.patches import HEADING_STEP
+
+    return int(round(yaw / HEADING_STEP)) % 8
+
+
+def _scene(spec: RouteSpec, heightmap=None):
+    """What a route episode's records say of its scene (capability.episodes._record): the world."""
+    import types
+
+    return types.SimpleNamespace(kind=f"fig9_{spec.terrain}", difficulty=DIFFICULTY_VALUES[spec.difficulty],
+                                 seed=spec.world_seed, heightmap=heightmap)
+
+
+def route_commands(spec: RouteSpec, half_size: float):
     """(start yaw [rad], foot offsets (6, 2) in the base frame from the topology's footholds,
     missions) of a route episode, in the frame moved to its start: the planner's own actions
     towards the recorded target first (turns to face it, moves of one cell, turns to its
     heading; at most EPISODE_MISSIONS moves and turns), then actions drawn as an episode draws
     them (capability.episodes.CommandDraw, from the collection's seed and the spec's index)."""
     from qz_drake.capability.episodes import EPISODE_MISSIONS, CommandDraw, Mission
-    from qz_drake.capability.patches import HEADING_STEP, move_distance
+    from qz_drake.capability.patches import HEADING_STEP, kind_of_heading, move_distance
     from qz_drake.robot.params import DEFAULT_PARAMS
     from qz_drake.robot.topology import get_topology
 
@@ -180,7 +195,7 @@ def route_commands(spec: RouteSpec, half_size: float, config=None):
     c, s = math.cos(yaw), math.sin(yaw)
     feet = np.asarray(spec.feet, dtype=float)[:, :2] - [sx, sy]
     offsets = feet @ np.array([[c, -s], [s, c]]) - get_topology(spec.topology, DEFAULT_PARAMS).footholds_B[:, :2]
-    h = int(round(yaw / HEADING_STEP)) % 8
+    h = _heading(yaw)
     x = y = 0.0
     topology = spec.topology
     missions: list = []
@@ -194,21 +209,21 @@ def route_commands(spec: RouteSpec, half_size: float, config=None):
     dx, dy = tx - sx, ty - sy
     distance = math.hypot(dx, dy)
     if distance >= TURN_IN_PLACE:
-        bearing = int(round(math.atan2(dy, dx) / HEADING_STEP)) % 8
+        bearing = _heading(math.atan2(dy, dx))
         for step in _turns(h, bearing):
             turn(step)
-        kind = "diagonal" if bearing % 2 else "orthogonal"
+        kind = kind_of_heading(bearing)
         d = move_distance(kind)
         for _ in range(max(1, int(round(distance / d)))):
             x, y = x + d * math.cos(h * HEADING_STEP), y + d * math.sin(h * HEADING_STEP)
             missions.append(Mission(kind, -1, (x, y, h * HEADING_STEP), topology))
-    for step in _turns(h, int(round(tyaw / HEADING_STEP)) % 8):
+    for step in _turns(h, _heading(tyaw)):
         turn(step)
     if not missions:  # neither a move nor a whole turn: one turn towards the target's heading
         turn(1 if math.remainder(tyaw - yaw, 2 * math.pi) >= 0 else -1)
     missions = missions[:EPISODE_MISSIONS]
     x, y = missions[-1].target[0], missions[-1].target[1]
-    h = int(round(missions[-1].target[2] / HEADING_STEP)) % 8
+    h = _heading(missions[-1].target[2])
     draw = CommandDraw(np.random.default_rng([spec.seed, spec.index, 0x70E5]), half_size)
     while len(missions) < EPISODE_MISSIONS + sum(m.kind == "switch" for m in missions):
         switch = draw.switch(False, x, y, h, topology)
@@ -227,7 +242,6 @@ def run_route_episode(spec: RouteSpec, config=None, criteria=None) -> list[dict]
     """Walks a route episode (the module docstring) and returns its records, as
     capability.episodes.run_episode does for a scene's episode."""
     import time
-    import types
 
     from qz_drake.capability.episodes import EPISODE_HALF_SIZE, walk_episode
     from qz_drake.capability.trials import TrialConfig
@@ -236,10 +250,8 @@ def run_route_episode(spec: RouteSpec, config=None, criteria=None) -> list[dict]
     config = TrialConfig() if config is None else config
     heightmap = start_window(_world_map(spec.terrain, spec.difficulty, spec.world_seed, spec.scale),
                              spec.start[0], spec.start[1], EPISODE_HALF_SIZE)
-    scene = types.SimpleNamespace(kind=f"fig9_{spec.terrain}", difficulty=DIFFICULTY_VALUES[spec.difficulty],
-                                  seed=spec.world_seed, heightmap=heightmap)
-    yaw, offsets, missions = route_commands(spec, EPISODE_HALF_SIZE, config)
-    return walk_episode(spec, scene, yaw, offsets, missions, config, criteria, clock)
+    yaw, offsets, missions = route_commands(spec, EPISODE_HALF_SIZE)
+    return walk_episode(spec, _scene(spec, heightmap), yaw, offsets, missions, config, criteria, clock)
 
 
 def execute_route_episode(spec: RouteSpec, config) -> list[dict]:
@@ -252,13 +264,9 @@ def execute_route_episode(spec: RouteSpec, config) -> list[dict]:
 
 def crashed_route_episode(spec: RouteSpec, message: str, config) -> list[dict]:
     """The record of a route episode whose worker died (status "error", excluded from training)."""
-    import types
-
     from qz_drake.capability.episodes import Mission, _record
 
-    scene = types.SimpleNamespace(kind=f"fig9_{spec.terrain}", difficulty=DIFFICULTY_VALUES[spec.difficulty],
-                                  seed=spec.world_seed)
-    record = _record(spec, scene, 0, Mission("turn", 0, spec.target, spec.topology))
+    record = _record(spec, _scene(spec), 0, Mission("turn", 0, spec.target, spec.topology))
     record.update(status="error", error=message[:400])
     return [record]
 

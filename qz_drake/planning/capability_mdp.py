@@ -371,10 +371,10 @@ def switchable_cells(heightmap, xs, ys, config: CapabilityMdpConfig | None = Non
 
 
 def edge_clearances(heightmap, xs, ys, config: CapabilityMdpConfig | None = None) -> np.ndarray:
-    """(K, ny, nx) how far [m] each forward move from the cell centres (xs, ys) along heading k
-    passes from the nearest edge (a map cell whose height differs from a neighbour's by more
-    than ``edge_height``), at most ``edge_reach``; a turn's is the distance at the cell centre
-    (index K: turns, so the array is (K + 1, ny, nx))."""
+    """(K + 1, ny, nx): how far [m] each forward move from the cell centres (xs, ys) along
+    heading k < K passes from the nearest edge (a map cell whose height differs from a
+    neighbour's by more than ``edge_height``), at most ``edge_reach``; index K, a turn's: the
+    distance at the cell centre."""
     from scipy.ndimage import distance_transform_edt
 
     config = config or CapabilityMdpConfig()
@@ -389,8 +389,8 @@ def edge_clearances(heightmap, xs, ys, config: CapabilityMdpConfig | None = None
     out = np.full((len(HEADING_STEPS) + 1, *X.shape), float(config.edge_reach))
     if not jump.any():
         return out
-    distance = distance_transform_edt(~jump) * heightmap.resolution
     res = heightmap.resolution
+    distance = distance_transform_edt(~jump) * res
     for k, (sx, sy) in enumerate(HEADING_STEPS):
         n = int(np.ceil(np.hypot(sx, sy) * config.cell_size / res)) + 1
         t = np.linspace(0.0, 1.0, n)
