@@ -56,7 +56,8 @@ def one_walk(scenario: Path, rate: float, servo: str, hardware: Path | None, out
             driver_report = json.loads(driver.communicate(timeout=60)[0].splitlines()[-1])
     finally:
         relay.terminate()
-        relay.communicate(timeout=60)
+        relay_lines = [ln for ln in relay.communicate(timeout=60)[0].splitlines() if ln.startswith("{")]
+    relay_report = json.loads(relay_lines[-1]) if relay_lines else {}
     lines = [ln for ln in run.stdout.splitlines() if ln.startswith("{")]
     if not lines:
         return {"success": False, "reason": f"no result (exit {run.returncode}): {run.stderr[-500:]}"}
@@ -73,7 +74,17 @@ def one_walk(scenario: Path, rate: float, servo: str, hardware: Path | None, out
             "interface": metrics.get("lcm_interface"),
             "driver_loop_delay_periods": driver_report.get("mean_loop_delay_periods"),
             "driver_longest_loop_delay_periods": driver_report.get("longest_loop_delay_periods"),
-            "driver_safe_stop_reason": driver_report.get("safe_stop_reason")}
+            "driver_safe_stop_reason": driver_report.get("safe_stop_reason"),
+            # where statuses stopped: the driver's longest wall time between two it sent, and the
+            # servo's between two it received [ms]
+            "driver_longest_publish_gap_ms": driver_report.get("longest_publish_gap_ms"),
+            "driver_longest_publish_gap_at_s": driver_report.get("longest_publish_gap_at_s"),
+            "driver_longest_publish_gap_cpu_ms": driver_report.get("longest_publish_gap_cpu_ms"),
+            "servo_longest_status_gap_ms": servo_report.get("longest_status_gap_ms"),
+            # the longest pause of Python's garbage collector in each real-time process [ms]
+            "gc_longest_pause_ms": {"servo": servo_report.get("gc_longest_pause_ms"),
+                                    "driver": driver_report.get("gc_longest_pause_ms"),
+                                    "relay": relay_report.get("gc_longest_pause_ms")}}
 
 
 def main() -> None:
@@ -101,7 +112,9 @@ def main() -> None:
                 with args.out.open("a") as f:
                     f.write(json.dumps(result) + "\n")
                 print(json.dumps({key: result[key] for key in ("run", "success", "reason", "late_holds",
-                                                               "latency_p99_ms", "longest_command_gap_ms")
+                                                               "latency_p99_ms", "longest_command_gap_ms",
+                                                               "gc_longest_pause_ms", "driver_longest_publish_gap_ms",
+                                                               "servo_longest_status_gap_ms")
                                   if key in result}), file=sys.stderr, flush=True)
     finally:
         stop.set()

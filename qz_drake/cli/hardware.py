@@ -18,7 +18,8 @@ import signal
 from qz_drake.errors import bad_value
 from qz_drake.hardware.relay import DEFAULT_PORT as DEFAULT_RELAY_PORT
 from qz_drake.hardware.relay import connect_lcm, tcpq_url
-from qz_drake.hardware.scheduling import DEFAULT_PRIORITY, check_priority, realtime_priority
+from qz_drake.hardware.scheduling import (DEFAULT_PRIORITY, DEFAULT_SIMULATOR_NICE, check_nice, check_priority,
+                                         nice_level, realtime_priority, steady_collector)
 
 
 def load_hardware_file(path: str | None):
@@ -50,6 +51,7 @@ def run_robot_sim(args) -> int:
         raise bad_value("--realtime-rate", args.realtime_rate, "must be >= 0 (0: as fast as possible)")
     config = load_hardware_file(args.hardware)
     check_priority(args.realtime_priority)
+    check_nice(args.nice)
     lcm = connect_lcm(args.lcm_url, "--lcm-url")
     meshcat = None
     if args.meshcat:
@@ -65,8 +67,12 @@ def run_robot_sim(args) -> int:
     signal.signal(signal.SIGTERM, _interrupt)
     simulator.Initialize()
     end = math.inf if args.duration is None else args.duration
-    with realtime_priority(args.realtime_priority) as scheduling, \
+    with nice_level(args.nice) as niceness, realtime_priority(args.realtime_priority) as scheduling, \
+            steady_collector() as collector, \
             ProgressReport("robot-sim", args.duration, unit="s simulated", digits=1) as report:
+        if args.realtime_priority == 0:
+            scheduling = niceness
+        collector.start()
         try:
             while simulator.get_context().get_time() < end:
                 simulator.AdvanceTo(min(end, simulator.get_context().get_time() + 1.0))
@@ -79,7 +85,8 @@ def run_robot_sim(args) -> int:
     x = driver.GetOutputPort("true_state").Eval(context)
     print(json.dumps({"sim_time_s": float(context.get_time()), "lcm_url": args.lcm_url,
                       "realtime_factor": simulator.get_actual_realtime_rate(),
-                      "base_position_m": x[BASE_POS].tolist(), "scheduling": scheduling, **driver.counters(context)}))
+                      "base_position_m": x[BASE_POS].tolist(), "scheduling": scheduling, **collector.summary(),
+                      **driver.counters(context)}))
     return 0
 
 
@@ -108,13 +115,14 @@ def run_lcm_relay(args) -> int:
     relay = LcmTcpRelay(args.port)
     # Stopped with Ctrl-C or a plain kill alike, so a script's `kill %1` also prints the counters.
     signal.signal(signal.SIGTERM, lambda *_: relay.close())
-    with realtime_priority(args.realtime_priority) as scheduling:
+    with realtime_priority(args.realtime_priority) as scheduling, steady_collector() as collector:
+        collector.start()
         print(json.dumps({"lcm_url": relay.url, "listening": True, "scheduling": scheduling}), flush=True)
         try:
             relay.serve_forever()
         except KeyboardInterrupt:
             pass
-    print(json.dumps(relay.counters()), flush=True)
+    print(json.dumps({**relay.counters(), **collector.summary()}), flush=True)
     return 0
 
 
@@ -128,9 +136,13 @@ def register(subparsers) -> None:
     p.add_argument("--realtime-rate", type=float, default=1.0, help="pacing (1: real time; 0: unpaced)")
     p.add_argument("--hardware", default=None, help="protocol settings YAML (qz_drake.hardware.config)")
     p.add_argument("--meshcat", action="store_true", help="draw the simulated robot in meshcat")
-    p.add_argument("--realtime-priority", type=int, default=DEFAULT_PRIORITY,
-                   help=f"SCHED_FIFO priority asked for, as a robot's control loop runs (default {DEFAULT_PRIORITY}; "
-                        "0: normal scheduling); without the privilege it runs as a normal process")
+    p.add_argument("--realtime-priority", type=int, default=0,
+                   help="SCHED_FIFO priority asked for (default 0: normal scheduling at --nice; its physics takes "
+                        "most of a core, and a real-time process that does makes the kernel stop every real-time "
+                        "process on that core for 50 ms now and then: docs/hardware.md)")
+    p.add_argument("--nice", type=int, default=DEFAULT_SIMULATOR_NICE,
+                   help=f"nice level under normal scheduling (default {DEFAULT_SIMULATOR_NICE}: the most CPU; "
+                        "without the privilege it keeps its own)")
     p.set_defaults(func=run_robot_sim)
 
     p = subparsers.add_parser("servo", help="the joint PD answering the robot from a planning process's references")

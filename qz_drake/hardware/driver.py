@@ -17,6 +17,8 @@ robot up, sinking only by the hold's compliance, and it can resume walking from 
 from __future__ import annotations
 
 import dataclasses
+import math
+import time
 from typing import Callable
 
 import numpy as np
@@ -210,6 +212,35 @@ class CommandReceiver(LeafSystem):
         output.SetFromVector([float(self.applied(context).holding)])
 
 
+class PublishTiming:
+    """The wall clock of the statuses a driver published: the longest time between two, and at
+    what simulated time it ended. A diagnosis of a driver in another process (a controller's
+    safe stop for statuses that stopped coming: did this driver stop sending them, or did they
+    stop on the way?), kept outside the diagram's state: it is not the simulation's."""
+
+    def __init__(self):
+        self.count = 0
+        self.last_wall = self.last_cpu = math.nan
+        self.longest_gap = self.longest_gap_cpu = 0.0
+        self.longest_gap_time = math.nan
+
+    def published(self, t: float) -> None:
+        now, cpu = time.monotonic(), time.thread_time()
+        if self.count and now - self.last_wall > self.longest_gap:
+            self.longest_gap, self.longest_gap_time = now - self.last_wall, t
+            self.longest_gap_cpu = cpu - self.last_cpu
+        self.count += 1
+        self.last_wall, self.last_cpu = now, cpu
+
+    def summary(self) -> dict:
+        """The longest gap, when it ended (simulated time), and the CPU time this thread spent
+        in it: about the gap, the driver computed for it (a long step); much less, it waited
+        for a core."""
+        return {"statuses_published": self.count, "longest_publish_gap_ms": round(self.longest_gap * 1e3, 3),
+                "longest_publish_gap_cpu_ms": round(self.longest_gap_cpu * 1e3, 3),
+                "longest_publish_gap_at_s": None if math.isnan(self.longest_gap_time) else self.longest_gap_time}
+
+
 class StatusPublisher(LeafSystem):
     """Publishes the station's measurements as qz_status (and the true base pose as qz_pose).
 
@@ -243,6 +274,7 @@ class StatusPublisher(LeafSystem):
         self._config = config
         self._status_filter = status_filter
         self._pose_filter = pose_filter
+        self.timing = PublishTiming()
         self._state = self.DeclareVectorInputPort("state", STATE_SIZE)
         self._tau = self.DeclareVectorInputPort("joint_torque_measured", NUM_JOINTS)
         self._imu = self.DeclareVectorInputPort("imu", IMU_SIZE)
@@ -273,6 +305,7 @@ class StatusPublisher(LeafSystem):
             m = self._status_filter(m)
         if m is not None:
             self._lcm.Publish(self._config.channels.status, m.encode())
+            self.timing.published(t)
 
     def _publish_pose(self, context):
         t = context.get_time()
@@ -339,6 +372,7 @@ class QingzhuiRobotDriver(Diagram):
         publisher = builder.AddSystem(StatusPublisher(lcm=lcm, config=config, status_filter=status_filter,
                                                       pose_filter=pose_filter))
         publisher.set_name("status_publisher")
+        self._publisher = publisher
         builder.Connect(subscriber.get_output_port(), self._receiver.GetInputPort("lcm_command"))
         builder.Connect(station.GetOutputPort("state"), self._receiver.GetInputPort("state"))
         builder.Connect(self._receiver.GetOutputPort("joint_torque"), station.GetInputPort("joint_torque"))
@@ -369,7 +403,7 @@ class QingzhuiRobotDriver(Diagram):
                 "holding": s.holding, "clamped_commands": s.clamped_commands,
                 "clamped_torques": s.clamped_torques, "clamped_positions": s.clamped_positions,
                 "mean_loop_delay_periods": s.loop_delay_sum / s.answered if s.answered else None,
-                "longest_loop_delay_periods": s.loop_delay_max}
+                "longest_loop_delay_periods": s.loop_delay_max, **self._publisher.timing.summary()}
 
     def reset_safe_stop(self, root_context) -> None:
         self._receiver.reset(self._receiver.GetMyMutableContextFromRoot(root_context))

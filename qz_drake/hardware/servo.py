@@ -47,6 +47,7 @@ from qz_drake.hardware.interface import COMMAND_PHASE, RECEIVE_PHASE, make_hardw
 from qz_drake.hardware.qz_lcm import qz_planner, qz_servo
 from qz_drake.hardware.references import (CONTACT, DESIRED_STATE, FORCES, Q_DES, V_DES, ReferenceTable,
                                           decode_table, standing_row)
+from qz_drake.hardware.scheduling import SteadyCollector
 from qz_drake.robot.params import NUM_LEGS
 from qz_drake.scene import GRAVITY
 from qz_drake.state_layout import JOINT_Q
@@ -310,6 +311,7 @@ class Servo:
         self.config = validate_hardware_config(config or HardwareConfig())
         builder = DiagramBuilder()
         self.latency = LatencyRecorder(lcm, self.config.channels.status)
+        self.collector = SteadyCollector()
         self.driver = None
         if with_driver:
             from qz_drake.hardware.driver import QingzhuiRobotDriver
@@ -362,26 +364,30 @@ class Servo:
         ``stop_requested()``; returns the report (also published on qz_servo). ``ready()`` is
         called once the diagram is up."""
         self.simulator.Initialize()
-        if ready is not None:
-            ready()
-        end = math.inf
-        while not stop_requested():
-            t = self.context.get_time()
-            self.simulator.AdvanceTo(t + 0.01)
-            self._sync_safe_stop(parent_pid)
-            s = self.player_state()
-            if math.isinf(end) and (s.finished or self.interface.watchdog(self.context).latched):
-                end = self.context.get_time() + linger
-                self.finish()  # the planning process waits for the report; the robot stands on
-            if self.context.get_time() >= end:
-                break
-        return self.finish()
+        self.collector.start()  # what the setup made is never walked again (SteadyCollector)
+        try:
+            if ready is not None:
+                ready()
+            end = math.inf
+            while not stop_requested():
+                t = self.context.get_time()
+                self.simulator.AdvanceTo(t + 0.01)
+                self._sync_safe_stop(parent_pid)
+                s = self.player_state()
+                if math.isinf(end) and (s.finished or self.interface.watchdog(self.context).latched):
+                    end = self.context.get_time() + linger
+                    self.finish()  # the planning process waits for the report; the robot stands on
+                if self.context.get_time() >= end:
+                    break
+            return self.finish()
+        finally:
+            self.collector.stop()
 
     def report(self) -> dict:
         root = self.context
         link = self.interface.watchdog(root)
         return {"servo": {**self.player_state().counters(root.get_time()), "time_s": root.get_time(),
-                          **self.latency.summary()},
+                          **self.latency.summary(), **self.collector.summary()},
                 "interface": self.interface.counters(root),
                 "safe_stop": (f"at {link.latched_time:.3f} s on the servo: {link.reason}" if link.latched else "")}
 

@@ -135,6 +135,7 @@ def test_a_late_planner_holds_the_stance_and_the_walk_goes_on_when_the_plan_come
     report = servo.report()
     assert report["safe_stop"] == "" and report["servo"]["late_hold_time_s"] > 0.8
     assert report["servo"]["commands_answering_a_status"] > 500 and report["servo"]["latency_p99_ms"] > 0
+    assert report["servo"]["gc_longest_pause_ms"] >= 0  # the servo's collector is reported
     # Walked the first mission, then stood: the base stays put while it holds.
     end = np.array(states[-1])
     assert end[BASE_POS][0] == pytest.approx(0.25, abs=0.03)
@@ -211,3 +212,49 @@ def test_real_time_scheduling_is_undone_when_its_block_ends():
     with pytest.raises(QzError, match="--realtime-priority = 100"):
         with realtime_priority(100):
             pass
+
+
+def test_the_collector_leaves_the_setup_alone_and_times_what_the_loop_makes():
+    # What the setup made (pydrake's modules, the diagram) is frozen out of every collection,
+    # so that none walks it in the control loop; cycles the loop makes are still collected,
+    # each collection timed; the freeze ends with the block (a test's own process).
+    import gc
+    import weakref
+
+    from qz_drake.hardware.scheduling import steady_collector
+
+    class Node:
+        pass
+
+    assert gc.get_freeze_count() == 0
+    with steady_collector() as collector:
+        collector.start()
+        frozen = gc.get_freeze_count()
+        assert frozen > 1000
+        loop = Node()
+        loop.me = loop  # a cycle made in the loop
+        alive = weakref.ref(loop)
+        del loop
+        gc.collect()
+        assert alive() is None and gc.get_freeze_count() == frozen
+        summary = collector.summary()
+        assert summary["gc_collections"] >= 1 and summary["gc_longest_pause_ms"] > 0
+        assert summary["gc_pause_total_ms"] >= summary["gc_longest_pause_ms"]
+    assert gc.get_freeze_count() == 0 and collector._callback not in gc.callbacks
+
+
+def test_the_simulated_robot_runs_at_a_nice_level_that_is_undone_when_its_block_ends():
+    # qz robot-sim's physics takes most of a core: it runs under normal scheduling at nice -20
+    # (docs/hardware.md, why not SCHED_FIFO), and a test's own process gets its level back.
+    from qz_drake.errors import QzError
+    from qz_drake.hardware.scheduling import nice_level
+
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    with nice_level(-20) as got:
+        now = os.getpriority(os.PRIO_PROCESS, 0)
+        assert (got == "normal, nice -20" and now == -20) or ("refused" in got and now == before)
+    assert os.getpriority(os.PRIO_PROCESS, 0) == before
+    for bad in (-21, 20, 1.5):
+        with pytest.raises(QzError, match=f"--nice = {bad}"):
+            with nice_level(bad):
+                pass
