@@ -169,7 +169,12 @@ def _leg_ik_many(trajectory, times, topology, params):
     """_leg_ik at several times (the plan read time by time, the IK once over all of them):
     q (n, 6, 3), ok (n, 6), R_WB (n, 3, 3), p_BF (n, 6, 3)."""
     R_WB = np.stack([RollPitchYaw(trajectory.base_rpy(t)).ToRotationMatrix().matrix() for t in times])
-    p_BF = np.stack([(trajectory.foot_positions(t) - trajectory.base_position(t)) @ R for t, R in zip(times, R_WB)])
+    if hasattr(trajectory, "foot_positions_many"):  # a plan that reads many times at once (the same numbers)
+        feet, base = trajectory.foot_positions_many(times), trajectory.base_positions_many(times)
+        p_BF = np.stack([(feet[k] - base[k]) @ R for k, R in enumerate(R_WB)])
+    else:
+        p_BF = np.stack([(trajectory.foot_positions(t) - trajectory.base_position(t)) @ R
+                         for t, R in zip(times, R_WB)])
     q, ok = kinematics.all_legs_inverse_kinematics(p_BF, topology.bends, params)
     return q, ok, R_WB, p_BF
 

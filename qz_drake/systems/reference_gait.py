@@ -106,16 +106,31 @@ class TripodGaitPlan:
         return x0 + s * (x1 - x0), y0 + s * (y1 - y0), yaw0 + s * dyaw
 
     def _nominal_world(self, t: float) -> np.ndarray:
-        x, y, yaw = self._pose_2d(t)
-        c, s = math.cos(yaw), math.sin(yaw)
-        p = self.topology.footholds_B[:, :2]
-        return np.stack([x + c * p[:, 0] - s * p[:, 1], y + s * p[:, 0] + c * p[:, 1]], axis=1)
+        return self._nominal_world_at(*self._pose_2d(t))
 
     def base_position(self, t: float) -> np.ndarray:
         x, y, _ = self._pose_2d(t)
         xy = self._nominal_world(t)
         ground = float(np.mean(self.heightmap.height(xy[:, 0], xy[:, 1])))
         return np.array([x, y, ground + self.params.standing_height])
+
+    def base_positions_many(self, times) -> np.ndarray:
+        """base_position at each of ``times`` (n, 3), the same numbers, the ground queried once
+        for all of them (the tracker reads a mission's references at hundreds of times)."""
+        ts = np.asarray(times, dtype=float).reshape(-1)
+        poses = [self._pose_2d(float(t)) for t in ts]
+        xy = np.stack([self._nominal_world_at(*pose) for pose in poses]) if poses else np.zeros((0, NUM_LEGS, 2))
+        ground = np.mean(self.heightmap.height(xy[..., 0], xy[..., 1]), axis=1)
+        out = np.empty((ts.size, 3))
+        out[:, 0] = [pose[0] for pose in poses]
+        out[:, 1] = [pose[1] for pose in poses]
+        out[:, 2] = ground + self.params.standing_height
+        return out
+
+    def _nominal_world_at(self, x: float, y: float, yaw: float) -> np.ndarray:
+        c, s = math.cos(yaw), math.sin(yaw)
+        p = self.topology.footholds_B[:, :2]
+        return np.stack([x + c * p[:, 0] - s * p[:, 1], y + s * p[:, 0] + c * p[:, 1]], axis=1)
 
     def base_rpy(self, t: float) -> np.ndarray:
         return np.array([0.0, 0.0, self._pose_2d(t)[2]])
@@ -161,17 +176,52 @@ class TripodGaitPlan:
                     if t >= self._holds[leg][0][0] else self._holds[leg][0][1]
                 continue
             a, b, s = swing
-            # The foot reaches its landing point over the ground before it descends the last
-            # part: a foot that lags its target and touches down early would drag and shove.
-            blend = float(_min_jerk(s / SWING_HORIZONTAL_FRACTION))
-            p = a + blend * (b - a)
-            line = a[None, :2] + np.linspace(0, 1, 9)[:, None] * (b - a)[None, :2]
-            ground = float(np.max(self.heightmap.height(line[:, 0], line[:, 1]))) + self.params.foot_radius
-            apex = max(a[2], b[2], ground) + self.swing_clearance
-            base = a[2] + blend * (b[2] - a[2])
-            p[2] = base + (apex - min(a[2], b[2])) * math.sin(math.pi * s) if s < 1 else b[2]
-            out[leg] = p
+            out[leg] = self._swing_point(a, b, self._swing_apex(a, b), s)
         return out
+
+    def foot_positions_many(self, times) -> np.ndarray:
+        """foot_positions at each of ``times`` (n, 6, 3), the same numbers: a swing's clearance
+        over the ground between its footholds depends on the swing alone, so the ground is
+        queried once a swing instead of once a time."""
+        ts = np.asarray(times, dtype=float).reshape(-1)
+        out = np.empty((ts.size, NUM_LEGS, 3))
+        for leg in range(NUM_LEGS):
+            holds = self._holds[leg]
+            lands = np.array([land for land, _ in holds])
+            points = np.stack([p for _, p in holds])
+            # Standing: the newest foothold landed by t (the first before the plan starts).
+            newest = np.searchsorted(lands, ts + 1e-12, side="right") - 1
+            out[:, leg] = points[np.where(ts >= lands[0], newest, 0)]
+            # Swinging: the first swing whose [lift, land) holds t, as _swing finds it.
+            swing = np.zeros(ts.size, dtype=int)
+            for k in range(len(holds) - 1, 0, -1):
+                lift = lands[k] - self.phase_duration
+                swing[(lift <= ts) & (ts < lands[k])] = k
+            for k in np.unique(swing[swing > 0]):
+                rows = np.flatnonzero(swing == k)
+                a, b = holds[k - 1][1], holds[k][1]
+                apex = self._swing_apex(a, b)
+                lift = lands[k] - self.phase_duration
+                for r in rows:
+                    out[r, leg] = self._swing_point(a, b, apex, (ts[r] - lift) / self.phase_duration)
+        return out
+
+    def _swing_apex(self, a: np.ndarray, b: np.ndarray) -> float:
+        """The apex height of the swing from foothold a to b."""
+        line = a[None, :2] + np.linspace(0, 1, 9)[:, None] * (b - a)[None, :2]
+        ground = float(np.max(self.heightmap.height(line[:, 0], line[:, 1]))) + self.params.foot_radius
+        return max(a[2], b[2], ground) + self.swing_clearance
+
+    @staticmethod
+    def _swing_point(a: np.ndarray, b: np.ndarray, apex: float, s: float) -> np.ndarray:
+        """The foot at phase s of its swing from a to b."""
+        # The foot reaches its landing point over the ground before it descends the last
+        # part: a foot that lags its target and touches down early would drag and shove.
+        blend = float(_min_jerk(s / SWING_HORIZONTAL_FRACTION))
+        p = a + blend * (b - a)
+        base = a[2] + blend * (b[2] - a[2])
+        p[2] = base + (apex - min(a[2], b[2])) * math.sin(math.pi * s) if s < 1 else b[2]
+        return p
 
     def __deepcopy__(self, memo):
         # A plan is immutable once made; Drake copies abstract values (state, outputs) often,

@@ -141,3 +141,20 @@ def test_rotation_vectors_match_scipy():
     vectors = np.random.default_rng(3).normal(size=(10, 3)) * 0.7
     np.testing.assert_allclose(_rotation_vectors(Rotation.from_rotvec(vectors).as_matrix()), vectors, atol=1e-9)
     np.testing.assert_allclose(_rotation_vectors(np.eye(3)), np.zeros(3))
+
+
+@pytest.mark.parametrize("terrain", ["rough", "stairs"])
+def test_a_tripod_plan_read_at_many_times_at_once_is_read_time_by_time(terrain):
+    """The tracker reads a tripod plan's feet and body at all of a mission's times at once (the
+    ground under a swing queried once a swing): the same numbers as one time at a time, to the
+    bit, before the plan, on the phase boundaries, along it and past its end."""
+    plan = TripodGaitPlan(heightmap=make_terrain(terrain), topology=get_topology("front_bend"),
+                          start_xy_yaw=(0.2, -0.1, 0.3), goal_xy_yaw=(1.1, 0.3, 0.6), start_time=0.5, duration=4.0)
+    boundaries = [land for holds in plan._holds for land, _ in holds]
+    times = np.concatenate([[0.0, 0.5], np.arange(0.5, plan.end_time + 0.5, 0.005), boundaries,
+                            np.asarray(boundaries) - plan.phase_duration])
+    np.testing.assert_array_equal(plan.foot_positions_many(times), [plan.foot_positions(t) for t in times])
+    np.testing.assert_array_equal(plan.base_positions_many(times), [plan.base_position(t) for t in times])
+    assert plan.foot_positions_many([]).shape == (0, 6, 3) and plan.base_positions_many([]).shape == (0, 3)
+    q, _ = joint_references(plan, times[:50], plan.topology)
+    np.testing.assert_array_equal(q, [joint_reference(plan, t, plan.topology)[0] for t in times[:50]])
