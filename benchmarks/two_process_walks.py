@@ -10,8 +10,10 @@ process as before the servo existed), all at `--rate`, with the protocol's defau
 unless `--hardware` names another. `--busy` keeps a CPU-bound process running beside them
 for the whole run (a second core's worth of other work on this 2-core machine). One JSON line
 per run goes to OUT.jsonl (success, reason, safe stop, the servo's late holds and latency, the
-driver's loop delay), and the summary is printed as the last line: successes, the worst p99
-latency and the longest gap between two commands.
+driver's loop delay; where statuses stopped: the driver's longest wall time between two it sent
+and the CPU time it spent in it, the servo's longest between two it received; each real-time
+process's longest garbage-collector pause), and the summary is printed as the last line:
+successes, the worst p99 latency and the longest gap between two commands.
 """
 
 from __future__ import annotations
