@@ -157,6 +157,8 @@ CASES = [
      ["--lcm-url = 'udpm://999.1.1.1:1'", "not an IPv4 multicast group"]),
     ("robot_sim_lcm_url_port_0", ["robot-sim", WALK_FLAT, "--lcm-url", "udpm://239.255.76.67:0", "--duration", "1"],
      ["--lcm-url = 'udpm://239.255.76.67:0'", "1..65535"]),
+    ("robot_sim_nice_30", ["robot-sim", WALK_FLAT, "--nice", "30", "--duration", "1"],
+     ["--nice = 30", "-20 (the most CPU) .. 19"]),
     ("static_gait_steps_1e9", ["static-gait", STATIC_GAIT_FLAT, "--steps", "1000000000", "--json", "--out", "{tmp}/o"],
      ["--steps = 1000000000", "at most 544 swings"]),
     ("static_gait_depth_1e9", ["static-gait", STATIC_GAIT_FLAT, "--depth", "1000000000", "--out", "{tmp}/o"],

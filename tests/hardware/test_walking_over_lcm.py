@@ -92,6 +92,10 @@ def test_qz_robot_sim_holds_without_a_controller(tmp_path, capsys):
                  "--realtime-rate", "0"])
     report = json.loads(capsys.readouterr().out)
     assert code == 0 and report["holding"] and report["received"] == 0 and not report["safe_stop_latched"]
+    # It says how it was scheduled (normal, at nice -20 where allowed), what its collector did
+    # after the setup, and the longest wall time between two statuses it sent.
+    assert report["scheduling"].startswith("normal, nice ") and report["gc_collections"] >= 0
+    assert report["statuses_published"] == 250 and report["longest_publish_gap_ms"] > 0
     # Held by the safe-stop PD alone (no gravity compensation): it sinks by millimetres.
     assert 0.535 < report["base_position_m"][2] < 0.551
     assert main(["robot-sim", str(SCENARIOS / "walk_flat.yaml"), "--duration", "-1"]) == 2
