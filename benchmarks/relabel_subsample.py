@@ -21,6 +21,7 @@ import numpy as np
 
 from qz_drake.capability.boosted import BoostedConfig, save_boosted, train_boosted
 from qz_drake.capability.dataset import load_records, load_training_arrays
+from qz_drake.capability.relabel import _unchanged
 
 
 def main() -> None:
@@ -33,13 +34,10 @@ def main() -> None:
     source, source_manifest = load_training_arrays(args.source)
     relabelled, relabelled_manifest = load_training_arrays(args.relabelled)
     raw, _ = load_records(args.source)
-    index, status = np.asarray(raw["index"]), np.asarray(raw["status"]).astype(str)
-    executed = status == "executed"
-    walked_again = set(index[(executed & ~(np.asarray(raw["blc_success"]) & np.asarray(raw["success"])))
-                             | (status == "error")].tolist())
+    copied, walked_again = _unchanged(raw)  # what the relabelling copies, what it walks again
     done = set(np.asarray(relabelled["index"]).tolist()) & walked_again
     fraction = len(done) / len(walked_again)
-    copied = sorted(set(index.tolist()) - walked_again)
+    copied = sorted(copied)
     rng = np.random.default_rng(args.seed)
     chosen = sorted(set(rng.choice(copied, size=round(fraction * len(copied)), replace=False).tolist()) | done)
     summary = {"walked_again_done": len(done), "walked_again": len(walked_again), "fraction": fraction,
