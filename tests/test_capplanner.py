@@ -88,6 +88,27 @@ def test_the_fig9_pipeline_runs_a_tiny_task_per_planner(synthetic_model_dir, tmp
     assert len((tmp_path / "predictions.jsonl").read_text().splitlines()) == 1
 
 
+@pytest.mark.slow
+def test_both_planners_check_their_routes_with_the_walks_blc_when_asked(synthetic_model_dir, tmp_path):
+    """``route_check``: each planner plans its routes ahead with the walk's BLC (the record counts
+    the solves and the refusals foreseen), and the report says so."""
+    from qz_drake.experiments.fig9 import ExperimentConfig, read_results, run_experiment
+    from qz_drake.experiments.fig9.reporting import planner_differences
+
+    config = ExperimentConfig(capability_model=str(synthetic_model_dir), scale=0.3, route_check=2,
+                              blc_ladder="cycles+1")
+    run_experiment(tmp_path, terrains=("obstacles",), difficulties=("simple",), tasks=1, config=config,
+                   progress=False, recordings=0)
+    records = read_results(tmp_path)
+    assert sorted(r["planner"] for r in records) == ["astar", "capplanner"]
+    for r in records:
+        assert r["reason"] != "error", r
+        assert r["route_check_solves"] >= r["missions"] - 1 >= 1 and r["route_check_time_s"] > 0
+        assert r["foreseen"] >= 0
+    settings = json.loads((tmp_path / "settings.json").read_text())
+    assert any("next 2 missions" in line for line in planner_differences(settings))
+
+
 def test_the_claim_is_checked_on_paired_tasks_and_reported_as_tables(tmp_path, capsys):
     """Both planners walk the same worlds: the comparison pairs them by task and tests the
     discordant ones (McNemar's exact test); `qz experiment report` prints the tables of a
@@ -623,7 +644,9 @@ def test_a_walking_scenario_sets_capplanners_mdp_by_name():
     ("tune-capplanner", ["--failure-rewards", "100"], "--failure-rewards"),
     ("tune-capplanner", ["--switch-costs", "-1"], "--switch-costs"),
     ("tune-capplanner", ["--topology-doubts", "on,maybe"], "--topology-doubts"),
-    ("tune-capplanner", ["--tasks", "0"], "--tasks")])
+    ("tune-capplanner", ["--tasks", "0"], "--tasks"),
+    ("tune-capplanner", ["--route-check", "-1"], "--route-check"),
+    ("tune-astar", ["--route-check", "-2"], "--route-check")])
 def test_tuning_bad_input_is_one_line_exit_2(tmp_path, command, args, field):
     run = subprocess.run(QZ + ["experiment", command, "--out", str(tmp_path)] + args,
                          capture_output=True, text=True, timeout=120)

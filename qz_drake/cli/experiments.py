@@ -49,7 +49,7 @@ def run_fig9(args) -> int:
                               capplanner_measured_stance=not args.no_measured_stance,
                               capplanner_refused_in_every_topology=not args.retry_other_topologies,
                               capplanner_hold_margin=_hold_margin(args),
-                              blc_retries=args.blc_retries, blc_ladder=args.blc_ladder,
+                              blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                               blc_terminal_stance=args.terminal_stance,
                               astar_learned_weight=args.astar_learned_weight,
                               astar_learned_veto=args.astar_learned_veto,
@@ -191,6 +191,7 @@ def run_tune_astar(args) -> int:
                         tasks=args.tasks, workers=args.workers, ray_address=args.ray_address,
                         config=ExperimentConfig(scale=args.scale, recovery_back_out=not args.no_back_out,
                                                 blc_retries=args.blc_retries, blc_ladder=args.blc_ladder,
+                                                route_check=args.route_check,
                                                 blc_terminal_stance=args.terminal_stance,
                                                 record_missions=args.record_missions),
                         progress=not args.json)
@@ -224,7 +225,7 @@ def run_tune_capplanner(args) -> int:
                                 capplanner_measured_stance=not args.no_measured_stance,
                                 capplanner_refused_in_every_topology=not args.retry_other_topologies,
                                 capplanner_hold_margin=_hold_margin(args),
-                                blc_retries=args.blc_retries, blc_ladder=args.blc_ladder,
+                                blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                                 blc_terminal_stance=args.terminal_stance,
                                 record_missions=args.record_missions),
         progress=not args.json)
@@ -253,6 +254,10 @@ def _back_out_argument(p) -> None:
     p.add_argument("--blc-retries", type=int, default=0,
                    help="solve a mission the BLC could not plan again up to N times, one tripod cycle longer "
                         "each time, for both planners (default 0: first solves only, as the capability trials)")
+    p.add_argument("--route-check", type=int, default=0, metavar="N",
+                   help="both planners plan the next N missions of every route with the walk's BLC before handing "
+                        "it out and go round a refusal foreseen there (qz_drake.planning.route_check; default 0: "
+                        "none)")
     p.add_argument("--record-missions", action="store_true",
                    help="keep every mission of each walk in its record, a refused one with the start the BLC was "
                         "given (qz experiment score-missions; benchmarks/blc_refusals.py replay)")

@@ -20,6 +20,10 @@ does the same when no way on is left). After ``max_recoveries`` refused missions
 finds no route from there either, the goal is unreachable,
 with the reason, and the robot stands (the refused mission is held on the outputs, so that
 the BLC system, which does not solve one mission twice, leaves it where it is).
+
+With a route check (qz_drake.planning.route_check, as CapPlanner's), the next missions are
+planned ahead by the walk's BLC before they are handed out, and a refusal it foresees is gone
+round the same two ways from where the robot will stand, before the robot walks there.
 """
 
 from __future__ import annotations
@@ -51,6 +55,8 @@ class AStarRecoveryLog(RecoveryLog):
     planning_time_s: float = 0.0
     # Ways back out of a dead end handed out (qz_drake.planning.back_out).
     back_outs: int = 0
+    # Refusals the route check foresaw (time, target (x, y, yaw), topology, index in the route).
+    foreseen: list = dataclasses.field(default_factory=list)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,12 +99,15 @@ class AStarRecoverySequencer(RecoveringSequencer):
         back_out: back out of a dead end (see the module docstring).
         plan_ahead: hand out the next target this long before the current plan ends. [s]
         check_period: how often the plan is looked at. [s]
+        route_check: a RouteCheck (qz_drake.planning.route_check; None: none).
+        check_start: the MissionStart the first route is checked from (None: not checked).
+        params: the robot's parameters (the measured stance after a refusal, for the check).
     """
 
     def __init__(self, *, targets, baseline: AStarBaseline, goal, mission_length: float,
                  split_length: float | None = None, block_radius: float = BLOCK_RADIUS,
                  max_recoveries: int = MAX_RECOVERIES, plan_ahead: float = 0.0, check_period: float = 0.05,
-                 back_out: bool = True):
+                 back_out: bool = True, route_check=None, check_start=None, params=None):
         super().__init__(log=AStarRecoveryLog(), max_recoveries=max_recoveries, plan_ahead=plan_ahead)
         if not mission_length > 0:
             raise bad_value("mission_length", mission_length, "must be positive", ConfigError)
@@ -111,15 +120,66 @@ class AStarRecoverySequencer(RecoveringSequencer):
         self._split_length = 0.5 * self._mission_length if split_length is None else float(split_length)
         self._block_radius = float(block_radius)
         self._back_out = BackOut() if back_out else None
+        self._route_check = route_check
+        self._params = params
+        if route_check is not None and params is None:
+            raise bad_value("params", params, "a route check needs the robot's parameters", ConfigError)
+        if check_start is not None:
+            first = self._checked(0.0, check_start, first)
         self._start(first, first[0].topology, check_period)
 
     def counts(self) -> dict:
         return {"planning_time_s": self.log.planning_time_s, "replans": len(self.log.replans),
                 "unreachable": self.log.unreachable, "tlc_recoveries": len(self.log.recoveries),
-                "tlc_back_outs": self.log.back_outs}
+                "tlc_back_outs": self.log.back_outs, "tlc_foreseen_refusals": len(self.log.foreseen),
+                **({} if self._route_check is None else {"route_check_solves": self._route_check.solves,
+                                                          "route_check_time_s": self._route_check.time_s})}
 
     def _advance(self, context, state, plan, missions, index):
-        return missions[index + 1:] or None
+        rest = list(missions[index + 1:])
+        if rest and self._route_check is not None:
+            from qz_drake.systems.blc_plan import expected_end
+
+            rest = self._checked(context.get_time(), expected_end(plan), rest)
+        return rest or None
+
+    def _checked(self, t: float, start, missions: list) -> list:
+        """``missions`` with the refusals the route check foresees gone round from ``start`` (a
+        MissionStart: where the robot will stand before the first), as a refusal is: a long
+        mission split in two, a short one's target blocked and A* routed again from there;
+        where no route is left, the route as it was (the walk's recovery answers the refusal)."""
+        import time
+
+        from qz_drake.planning.route_check import MAX_FORESEEN
+
+        if self._route_check is None or not missions:
+            return missions
+        here = tuple(float(v) for v in start.xy_yaw[:2])
+        yaw = float(start.xy_yaw[2])
+        for _ in range(MAX_FORESEEN):
+            foreseen = self._route_check.first_refused(start, missions, missions[0].topology)
+            if foreseen is None:
+                return missions
+            self.log.foreseen.append((t, foreseen.target, foreseen.topology, foreseen.index))
+            i = foreseen.index
+            mission = missions[i]
+            before = here if i == 0 else tuple(missions[i - 1].target[:2])
+            fx, fy, _ = mission.target
+            if math.hypot(fx - before[0], fy - before[1]) > self._split_length + 1e-9:
+                middle = AStarMission((0.5 * (before[0] + fx), 0.5 * (before[1] + fy),
+                                       math.atan2(fy - before[1], fx - before[0])), mission.topology)
+                missions = unwrapped_yaws(missions[:i] + [middle] + missions[i:], yaw)
+                continue
+            self._baseline.block((fx, fy), self._block_radius, keep_clear=before)
+            clock = time.perf_counter()
+            route = self._baseline.route(here, self._goal)
+            self.log.planning_time_s += time.perf_counter() - clock
+            self.log.replans.append((t, here, route.found))
+            if not route.found:
+                return missions
+            missions = unwrapped_yaws([AStarMission(tuple(r[:3]), r[3])
+                                       for r in split_route(here, route.waypoints, self._mission_length)], yaw)
+        return missions
 
     def _go_round(self, context, state, failed, missions, index):
         import time
@@ -154,7 +214,12 @@ class AStarRecoverySequencer(RecoveringSequencer):
             self.log.unreachable = f"no route round the mission the BLC could not plan ({route.reason})"
             return [], "blocked"
         targets = split_route(here, route.waypoints, self._mission_length)
-        return unwrapped_yaws([AStarMission(tuple(t[:3]), t[3]) for t in targets], yaw), "blocked"
+        missions = unwrapped_yaws([AStarMission(tuple(t[:3]), t[3]) for t in targets], yaw)
+        if self._route_check is not None:
+            from qz_drake.systems.mission_sequencer import measured_start
+
+            missions = self._checked(context.get_time(), measured_start(x, context.get_time(), self._params), missions)
+        return missions, "blocked"
 
 
 class AStarRoute(FixedRoute):
@@ -175,14 +240,28 @@ class AStarRoute(FixedRoute):
     # the 24 validation walks of session 35 "missed" a heading no task asked for).
     chooses_goal_heading = True
 
-    def __init__(self, baseline: AStarBaseline, goal, max_recoveries: int | None = None, back_out: bool = True):
+    def __init__(self, baseline: AStarBaseline, goal, max_recoveries: int | None = None, back_out: bool = True,
+                 route_check: int = 0, check_ladder=()):
+        from qz_drake.planning.route_check import check_route_check
+        from qz_drake.systems.blc_plan import parse_ladder
+
         self._baseline = baseline
         self._goal = goal
         self._max_recoveries = MAX_RECOVERIES if max_recoveries is None else max_recoveries
         self._back_out = bool(back_out)
+        self.route_check = check_route_check(route_check)
+        self.check_ladder = parse_ladder(check_ladder, "check_ladder")
 
     def make(self, scenario, info, targets, blc_params=None) -> AStarRecoverySequencer:
+        from qz_drake.planning.route_check import route_check_for
+        from qz_drake.systems.mission_sequencer import measured_start
+
         control = scenario.controller
+        check = route_check_for(self.route_check, info.heightmap, info.params, control.timing, blc_params,
+                                self.check_ladder)
         return AStarRecoverySequencer(targets=targets, baseline=self._baseline, goal=self._goal,
                                       mission_length=control.mission_length, plan_ahead=control.plan_ahead,
-                                      max_recoveries=self._max_recoveries, back_out=self._back_out)
+                                      max_recoveries=self._max_recoveries, back_out=self._back_out,
+                                      route_check=check, params=info.params,
+                                      check_start=None if check is None else measured_start(info.initial_state, 0.0,
+                                                                                             info.params))

@@ -88,6 +88,9 @@ class CapabilityPlannerLog(RecoveryLog):
     # "changed" to the replan's; the robot "off route" (its expected end not where the route
     # goes on from); or "new" (no route left to hold, a way back out, no path).
     route_decisions: list = dataclasses.field(default_factory=list)
+    # Refusals the route check foresaw before handing a route out (qz_drake.planning.route_check):
+    # (time, target (x, y, yaw), topology, index of the mission in the route checked).
+    foreseen: list = dataclasses.field(default_factory=list)
 
 
 class CapabilityVIPlanner(RecoveringSequencer):
@@ -170,13 +173,20 @@ class CapabilityVIPlanner(RecoveringSequencer):
             a refused move in another topology were refused again (BENCHMARKS "fig9", session
             39), each costing a refusal, a back-out and a topology change. False: another
             topology may try it again.
+        route_check: a qz_drake.planning.route_check.RouteCheck (None: none): every route is
+            planned ahead by the walk's BLC before it is handed out, from the stance the robot
+            will stand in, and a refusal it foresees is gone round as a refusal is (a mission of
+            several actions split, a single action forbidden, value iteration solved again) from
+            where the robot stands, up to route_check.MAX_FORESEEN times per route.
+        check_start: the MissionStart the first route is checked from (the robot's standing
+            stance); None: the first route is not checked.
     """
 
     def __init__(self, *, model, heightmap, goal, start, initial_topology: str = "nominal", mdp_config=None,
                  split_config: MissionSplitConfig = MissionSplitConfig(), min_route_success: float = 0.05,
                  plan_ahead: float = 0.0, check_period: float = 0.05, max_recoveries: int = 4,
                  back_out: bool = True, measured_stance: bool = True, refused_in_every_topology: bool = True,
-                 hold_margin: float | None = None):
+                 hold_margin: float | None = None, route_check=None, check_start=None):
         super().__init__(log=CapabilityPlannerLog(), max_recoveries=max_recoveries, plan_ahead=plan_ahead)
         from qz_drake.capability.model import predict_map
         from qz_drake.planning.capability_mdp import (CapabilityMdpConfig, build_capability_mdp, cells_on_map,
@@ -188,6 +198,7 @@ class CapabilityVIPlanner(RecoveringSequencer):
         self._back_out = BackOut() if back_out else None
         self._every_topology = bool(refused_in_every_topology)
         self._hold_margin = check_hold_margin(hold_margin)
+        self._route_check = route_check
         # The model and the map for the stance at each replan (measured_stance), and what the
         # last replan's stance replaced in the MDP (capability_mdp.set_stance).
         self._model = model if measured_stance else None
@@ -210,6 +221,8 @@ class CapabilityVIPlanner(RecoveringSequencer):
         # The missions of the latest replan (the first from the start) and the index of the
         # current one are the base class's Context state.
         first = self._replan(0.0, float(start[0]), float(start[1]), float(start[2]), initial_topology)
+        if check_start is not None:
+            first = self._checked(0.0, check_start, initial_topology, first)
         self._start(first, initial_topology, check_period)
         state_only = {self.all_state_ticket()}
         self.DeclareAbstractOutputPort("guidance", lambda: AbstractValue.Make([]), self._calc_guidance,
@@ -276,28 +289,76 @@ class CapabilityVIPlanner(RecoveringSequencer):
         """The current mission ended (or is about to): replan from where it is expected to end."""
         if index + 1 >= len(missions) and not missions[index].back_out:
             return None
+        from qz_drake.systems.blc_plan import expected_end
+
         p = plan.base_position(plan.end_time)
         return self.next_missions(context.get_time(), float(p[0]), float(p[1]), float(plan.base_rpy(plan.end_time)[2]),
                                   missions[index].topology, plan.foot_positions(plan.end_time),
-                                  list(missions[index + 1:])) or None
+                                  list(missions[index + 1:]),
+                                  start=expected_end(plan) if self._route_check is not None else None) or None
 
-    def next_missions(self, t: float, x: float, y: float, yaw: float, topology: str, feet_W, held: list) -> list:
+    def next_missions(self, t: float, x: float, y: float, yaw: float, topology: str, feet_W, held: list,
+                      start=None) -> list:
         """The missions from a mission's expected end (x, y, yaw in ``topology``, standing on
         ``feet_W`` (6, 3)), ``held`` the rest of the current route: the replan's, or ``held``
         where hold_margin keeps it (see the class docstring); [] at the goal or where no path
-        is left."""
+        is left. With a route check, the route handed out is checked from ``start`` (the
+        expected end as a MissionStart; None: not checked)."""
         ix, iy = self.mdp.cell_of(x, y, field="expected end", margin=self.mdp.config.cell_size)
         if (ix, iy) == self.mdp.goal_cell:
             return []
         missions = self._replan(t, x, y, yaw, topology, feet_W)
         decision = self._route_decision(x, y, yaw, topology, held, missions)
         self.log.route_decisions.append((t, decision))
-        if decision != "held":
+        if decision == "held":
+            # The replan's record names the route walked on: the held one.
+            t_, first, _, _ = self.log.replans[-1]
+            self.log.replans[-1] = (t_, first, len(held), float(math.prod(s.success for m in held for s in m.steps)))
+            missions = unwrapped_yaws(held, yaw)
+        return missions if start is None else self._checked(t, start, topology, missions)
+
+    def _checked(self, t: float, start, topology: str, missions: list) -> list:
+        """``missions`` as the route check leaves them (see the class docstring's route_check):
+        each foreseen refusal gone round from ``start`` (a MissionStart, the robot's stance
+        before the first mission) until the check plans the route's first missions, or no
+        route is left (then the route as it was: the walk's recovery answers the refusal), or
+        MAX_FORESEEN refusals were foreseen."""
+        from qz_drake.planning.capability_mdp import solve_capability_mdp, step_state_action
+        from qz_drake.planning.route_check import MAX_FORESEEN
+
+        if self._route_check is None or not missions or missions[0].back_out:
             return missions
-        # The replan's record names the route walked on: the held one.
-        t_, start, _, _ = self.log.replans[-1]
-        self.log.replans[-1] = (t_, start, len(held), float(math.prod(s.success for m in held for s in m.steps)))
-        return unwrapped_yaws(held, yaw)
+        x, y, yaw = (float(v) for v in start.xy_yaw)
+        for _ in range(MAX_FORESEEN):
+            foreseen = self._route_check.first_refused(start, missions, topology)
+            if foreseen is None:
+                return missions
+            self.log.foreseen.append((t, foreseen.target, foreseen.topology, foreseen.index))
+            mission = missions[foreseen.index]
+            if len(mission.steps) > 1:
+                # As a refused mission of several actions: one mission each, the last ending
+                # where it did.
+                single = split_missions(mission.steps, dataclasses.replace(self._split, min_success=1.0))
+                single[-1].target = (mission.target[0], mission.target[1], single[-1].target[2])
+                missions = unwrapped_yaws(missions[:foreseen.index] + single + missions[foreseen.index + 1:], yaw)
+                continue
+            s, a = step_state_action(self.mdp, mission.steps[0])
+            self._forbid_from(s, [a])
+            clock = time.perf_counter()
+            self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
+            self.log.planning_time_s += time.perf_counter() - clock
+            self.log.value_iterations += int(self.solution.iterations)
+            unreachable = self.log.unreachable
+            replanned = self._replan(t, x, y, yaw, topology, start.feet_W)
+            if not replanned:
+                # No way round it from here: walk the route as it was, for the walk's own
+                # recovery to answer the refusal when it comes (the action stays forbidden).
+                self.log.unreachable = unreachable
+                return missions
+            missions = replanned
+            if missions[0].back_out:
+                return missions
+        return missions
 
     def _state_at(self, x: float, y: float, yaw: float, topology: str, field: str) -> int:
         """The grid state of a pose: its cell (up to a cell beyond the grid), the nearest of the 8
@@ -354,8 +415,8 @@ class CapabilityVIPlanner(RecoveringSequencer):
         self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
         self.log.planning_time_s += time.perf_counter() - clock
         self.log.value_iterations += int(self.solution.iterations)
-        feet_W = measured_start(x, 0.0, DEFAULT_PARAMS).feet_W
-        missions = self._replan(context.get_time(), x0, y0, yaw, topology, feet_W)
+        standing = measured_start(x, context.get_time(), DEFAULT_PARAMS)
+        missions = self._replan(context.get_time(), x0, y0, yaw, topology, standing.feet_W)
         if missions and missions[0].back_out:
             return missions, "backed out"
         if not missions:
@@ -365,7 +426,9 @@ class CapabilityVIPlanner(RecoveringSequencer):
             back = self._back_out_missions(x0, y0, yaw, topology)
             if back is not None:
                 return back, "backed out"
-        return missions, "forbade"
+            return missions, "forbade"
+        missions = self._checked(context.get_time(), standing, topology, missions)
+        return missions, "backed out" if missions and missions[0].back_out else "forbade"
 
     def _back_out_missions(self, x: float, y: float, yaw: float, topology: str) -> list | None:
         """[the way back out of a dead end] (qz_drake.planning.back_out), or None."""
@@ -410,7 +473,9 @@ class CapabilityVIPlanner(RecoveringSequencer):
                 "replans": max(len(self.log.replans) - 1, 0), "unreachable": self.log.unreachable,
                 "tlc_recoveries": len(self.log.recoveries), "tlc_most_probable": self.log.most_probable,
                 "tlc_back_outs": self.log.back_outs, "tlc_predicted_dead_ends": self.log.predicted_dead_ends,
-                **route_counts(self.log)}
+                "tlc_foreseen_refusals": len(self.log.foreseen), **route_counts(self.log),
+                **({} if self._route_check is None else {"route_check_solves": self._route_check.solves,
+                                                          "route_check_time_s": self._route_check.time_s})}
 
     # -- outputs -----------------------------------------------------------------------------
     def _calc_guidance(self, context, output):

@@ -65,7 +65,9 @@ class CapPlannerRoute(FixedRoute):
     ``measured_stance`` whether each replan judges the first moves from the robot's stance,
     ``refused_in_every_topology`` whether a refused move is closed in every topology,
     ``hold_margin`` how much more a replan's route must be worth to replace the current one
-    (CapabilityVIPlanner)."""
+    (CapabilityVIPlanner); ``route_check`` how many missions ahead each route is planned by the
+    walk's BLC before it is handed out (qz_drake.planning.route_check; 0: none), a refused one
+    solved again on ``check_ladder`` (the walk's ladder, or its retries' rungs)."""
 
     mission_retries = CAPPLANNER_MISSION_RETRIES
     chooses_goal_heading = True
@@ -73,8 +75,10 @@ class CapPlannerRoute(FixedRoute):
 
     def __init__(self, split_config: MissionSplitConfig | None = None, min_route_success: float = 0.05,
                  back_out: bool = True, measured_stance: bool = True, refused_in_every_topology: bool = True,
-                 hold_margin: float | None = None):
+                 hold_margin: float | None = None, route_check: int = 0, check_ladder=()):
         from qz_drake.errors import bad_value
+        from qz_drake.planning.route_check import check_route_check
+        from qz_drake.systems.blc_plan import parse_ladder
 
         self._split = (split_config or MissionSplitConfig()).check()
         if not 0.0 <= float(min_route_success) <= 1.0:
@@ -84,6 +88,8 @@ class CapPlannerRoute(FixedRoute):
         self.measured_stance = bool(measured_stance)
         self.refused_in_every_topology = bool(refused_in_every_topology)
         self.hold_margin = check_hold_margin(hold_margin)
+        self.route_check = check_route_check(route_check)
+        self.check_ladder = parse_ladder(check_ladder, "check_ladder")
 
     def blc_parameters(self):
         # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt
@@ -92,9 +98,13 @@ class CapPlannerRoute(FixedRoute):
         return trial_blc_parameters(TrialConfig())
 
     def make(self, scenario, info, targets, blc_params=None) -> CapabilityVIPlanner:
+        from qz_drake.planning.route_check import route_check_for
+        from qz_drake.systems.mission_sequencer import measured_start
+
         control = scenario.controller
+        blc_params = blc_params or self.blc_parameters()
         # The map asks about the stance the BLC's missions end in.
-        stance = map_stance((blc_params or self.blc_parameters()).terminal_stance)
+        stance = map_stance(blc_params.terminal_stance)
         model = CapabilityModel.load(control.capability_model or None)
         # The topologies the model knows all three moves of.
         topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
@@ -106,6 +116,8 @@ class CapPlannerRoute(FixedRoute):
         check_standable(info.heightmap, (goal.x, goal.y), info.topology.name,
                         f"scenario.controller.route[{len(control.route) - 1}]")
         start_x, start_y = x0[BASE_XY]
+        check = route_check_for(self.route_check, info.heightmap, info.params, control.timing, blc_params,
+                                self.check_ladder)
         return CapabilityVIPlanner(model=model, heightmap=info.heightmap, goal=(goal.x, goal.y),
                                    start=(float(start_x), float(start_y), float(base_rpy(x0)[2])),
                                    initial_topology=info.topology.name, plan_ahead=control.plan_ahead,
@@ -113,7 +125,8 @@ class CapPlannerRoute(FixedRoute):
                                    split_config=self._split, min_route_success=self.min_route_success,
                                    back_out=self.back_out, measured_stance=self.measured_stance,
                                    refused_in_every_topology=self.refused_in_every_topology,
-                                   hold_margin=self.hold_margin)
+                                   hold_margin=self.hold_margin, route_check=check,
+                                   check_start=None if check is None else measured_start(x0, 0.0, info.params))
 
     def unreachable(self, source) -> str:
         return source.log.unreachable

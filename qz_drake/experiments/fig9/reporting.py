@@ -48,6 +48,10 @@ def planner_differences(settings: dict) -> list[str]:
                                     "; neither backs out of a dead end."))
     else:
         out.append(f"Refusals gone round: CapPlanner {MAX_RECOVERIES}, A* {c['astar_max_recoveries']}.")
+    if c.get("route_check"):
+        out.append(f"Both plan the next {c['route_check']} mission{'s' if c['route_check'] > 1 else ''} of every "
+                   "route with the walk's BLC before handing it out, and go round a refusal foreseen there as round "
+                   "one met.")
     out.append(f"Missions: A* walks its route in missions of at most {c['mission_length']:g} m and plans again "
                f"only after a refusal; CapPlanner merges its path's actions into missions of at most "
                f"{c['capplanner_mission_length']:g} m while their predicted success stays above "

@@ -29,7 +29,8 @@ MODEL_IDENTITY = "capability_model_identity"
 SETTINGS_BEFORE_THEY_EXISTED = {"astar_max_recoveries": 0, "capplanner_min_route_success": 0.05,
                                 "recovery_back_out": False, "capplanner_topology_doubt": False,
                                 "capplanner_measured_stance": False, "capplanner_refused_in_every_topology": False,
-                                "blc_ladder": "", "blc_terminal_stance": "free", "capplanner_edge_cost": 0.0}
+                                "blc_ladder": "", "blc_terminal_stance": "free", "capplanner_edge_cost": 0.0,
+                                "route_check": 0}
 
 
 def read_results(out) -> list[dict]:

@@ -103,6 +103,9 @@ def run_experiment(out, *, planners=EXPERIMENT_PLANNERS, terrains=TERRAINS, diff
     parse_ladder(config.blc_ladder, "--blc-ladder")
     if config.blc_ladder and config.blc_retries:
         raise bad_value("--blc-ladder", config.blc_ladder, "give a ladder or --blc-retries, not both")
+    from qz_drake.planning.route_check import check_route_check
+
+    check_route_check(config.route_check, "--route-check")
     for t in terrains:
         make_task(t, "simple", 0, scale=config.scale)
     for d in difficulties:

@@ -110,6 +110,10 @@ class ExperimentConfig:
     # than this (CapabilityVIPlanner's hold_margin, value units); None: every replan takes the
     # policy's path, as the paper's TLC (and every run before issue 54).
     capplanner_hold_margin: float | None = None
+    # Missions ahead that both planners alike plan with the walk's BLC (its parameters and
+    # ladder) before handing a route out, going round a refusal foreseen there as round one met
+    # (qz_drake.planning.route_check; issue 54). 0: none, as every run before session 51.
+    route_check: int = 0
     # Keep every mission of every walk in its record (``missions``: where it started, its
     # target, its outcome; capability.walk_missions), for scoring a capability model on whole
     # walks (issue 37). Off for the experiment itself (the records stay small).
@@ -149,7 +153,8 @@ def _astar(task, config, learned=None):
     route = baseline.route(task.start, task.goal)
     route = dataclasses.replace(route, planning_time_s=time.perf_counter() - clock)
     return route, "blc", route.waypoints, AStarRoute(baseline, task.goal, config.astar_max_recoveries,
-                                                     back_out=config.recovery_back_out)
+                                                     back_out=config.recovery_back_out,
+                                                     route_check=config.route_check, check_ladder=_walk_ladder(config))
 
 
 def _astar_learned(task, config):
@@ -181,7 +186,15 @@ def _capplanner(task, config):
             CapPlannerRoute(split, min_route_success=config.capplanner_min_route_success,
                             back_out=config.recovery_back_out, measured_stance=config.capplanner_measured_stance,
                             refused_in_every_topology=config.capplanner_refused_in_every_topology,
-                            hold_margin=config.capplanner_hold_margin))
+                            hold_margin=config.capplanner_hold_margin, route_check=config.route_check,
+                            check_ladder=_walk_ladder(config)))
+
+
+def _walk_ladder(config: ExperimentConfig) -> tuple[str, ...]:
+    """The rungs the walks' BLC solves a refused mission again on: the ladder, or the retries'."""
+    from qz_drake.systems.blc_plan import parse_ladder, retry_ladder
+
+    return parse_ladder(config.blc_ladder, "--blc-ladder") if config.blc_ladder else retry_ladder(config.blc_retries)
 
 
 def _mdp_overrides(config: ExperimentConfig) -> dict:
@@ -268,6 +281,11 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
                       replans=int(m.get("replans", 0)), recoveries=int(m.get("tlc_recoveries", 0)),
                       # Ways back out of a dead end (qz_drake.planning.back_out).
                       back_outs=int(m.get("tlc_back_outs", 0)))
+        if config.route_check:
+            # Refusals the route check foresaw and went round, and what its solves cost.
+            record.update(foreseen=int(m.get("tlc_foreseen_refusals", 0)),
+                          route_check_solves=int(m.get("route_check_solves", 0)),
+                          route_check_time_s=float(m.get("route_check_time_s", 0.0)))
         if spec.planner == "capplanner":
             record["planning_time_s"] = float(m.get("planning_time_s", 0.0))
             # Replans that walked the most probable path (the MDP's policy did not reach the goal).
