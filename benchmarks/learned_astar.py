@@ -8,10 +8,11 @@ worlds and settings):
 
     python benchmarks/learned_astar.py OUT [--weight 3] [--veto 0] [--blc-ladder LADDER]
         [--terminal-stance free|canonical] [--workers 2] [--first-seed 1000] [--planner astar|capplanner]
+        [--model DIR] [--route-check N]
     python benchmarks/learned_astar.py --table RUN [RUN ...]
 
 OUT is a Fig. 9 results folder (resumable). ``--table`` prints, per results folder, the tasks
-walked (medium / hard), refusals heard, walks that spent all four, back-outs and the
+walked (medium / hard), refusals heard, refusals the route check foresaw, walks that spent all four, back-outs and the
 displacement ratio, and which tasks each folder alone walked against the first. Worlds of seeds
 50-99 are refused.
 """
@@ -29,7 +30,7 @@ CAPPLANNER_TUNING = "data/capplanner_tuning"
 
 
 def walk(out: Path, weight: float, veto: float, ladder: str, stance: str, workers: int, first_seed: int,
-         planner: str = "astar_learned") -> dict:
+         planner: str = "astar_learned", model: str = "", route_check: int = 0) -> dict:
     from qz_drake.experiments.fig9 import ExperimentConfig, astar_settings, capplanner_settings, run_experiment
     from qz_drake.experiments.fig9.tune import TUNING_DIFFICULTIES, TUNING_TASKS_PER_CELL
     from qz_drake.experiments.worlds import TERRAINS
@@ -37,6 +38,7 @@ def walk(out: Path, weight: float, veto: float, ladder: str, stance: str, worker
     if first_seed <= 99 and first_seed + TUNING_TASKS_PER_CELL > 50:
         raise SystemExit(f"--first-seed {first_seed}: seeds 50-99 are kept for checks outside the project")
     config = ExperimentConfig(blc_ladder=ladder, blc_terminal_stance=stance, record_missions=True,
+                              capability_model=model, route_check=route_check,
                               astar_learned_weight=weight, astar_learned_veto=veto, **astar_settings(ASTAR_TUNING),
                               **capplanner_settings(CAPPLANNER_TUNING))
     return run_experiment(out, planners=(planner,), terrains=TERRAINS, difficulties=TUNING_DIFFICULTIES,
@@ -56,9 +58,9 @@ def _records(run: Path) -> dict:
 
 def table(runs) -> str:
     loaded = [(run, _records(run)) for run in runs]
-    lines = ["| run | planner | walked (medium / hard) | refusals heard | spent all four | back-outs "
+    lines = ["| run | planner | walked (medium / hard) | refusals heard | foreseen | spent all four | back-outs "
              "| displacement medium / hard | walked where the first did not / not where it did |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     first = loaded[0][1]
     for run, records in loaded:
         rs = list(records.values())
@@ -71,7 +73,7 @@ def table(runs) -> str:
         gained = sorted(k for k, r in records.items() if r["success"] and k in first and not first[k]["success"])
         lost = sorted(k for k, r in records.items() if not r["success"] and k in first and first[k]["success"])
         lines.append(f"| {run} | {rs[0]['planner']} | {sum(r['success'] for r in rs)} ({count('medium')} / "
-                     f"{count('hard')}) | {sum(r['recoveries'] for r in rs)} | "
+                     f"{count('hard')}) | {sum(r['recoveries'] for r in rs)} | {sum(r.get('foreseen', 0) for r in rs)} | "
                      f"{sum(1 for r in rs if r['recoveries'] >= 4)} | {sum(r['back_outs'] for r in rs)} | "
                      f"{disp[0]:.3f} / {disp[1]:.3f} | {', '.join(gained) or '-'} / {', '.join(lost) or '-'} |")
     return "\n".join(lines)
@@ -90,6 +92,10 @@ def main(argv=None) -> int:
     parser.add_argument("--planner", choices=("astar_learned", "astar", "capplanner"), default="astar_learned",
                         help="astar, capplanner: the geometric A* or CapPlanner (at its tuned setting) beside it, "
                              "on the same worlds and settings")
+    parser.add_argument("--model", default="", help="the capability model folder (default: the shipped one)")
+    parser.add_argument("--route-check", type=int, default=0, metavar="N",
+                        help="plan the next N missions of every route with the walk's BLC before walking it "
+                             "(qz_drake.planning.route_check; default 0: none)")
     parser.add_argument("--table", nargs="+", type=Path, default=None, metavar="RUN")
     args = parser.parse_args(argv)
     if args.table:
@@ -98,7 +104,7 @@ def main(argv=None) -> int:
     if args.out is None:
         parser.error("give OUT, or --table RUN ...")
     summary = walk(args.out, args.weight, args.veto, args.blc_ladder, args.terminal_stance, args.workers,
-                   args.first_seed, args.planner)
+                   args.first_seed, args.planner, args.model, args.route_check)
     print(json.dumps({k: summary[k] for k in ("ran", "reused", "already_done", "wall_time_s", "out")}))
     print(table([args.out]))
     return 0
