@@ -323,7 +323,6 @@ class CapabilityVIPlanner(RecoveringSequencer):
         before the first mission) until the check plans the route's first missions, or no
         route is left (then the route as it was: the walk's recovery answers the refusal), or
         MAX_FORESEEN refusals were foreseen."""
-        from qz_drake.planning.capability_mdp import solve_capability_mdp, step_state_action
         from qz_drake.planning.route_check import MAX_FORESEEN
 
         if self._route_check is None or not missions or missions[0].back_out:
@@ -338,16 +337,10 @@ class CapabilityVIPlanner(RecoveringSequencer):
             if len(mission.steps) > 1:
                 # As a refused mission of several actions: one mission each, the last ending
                 # where it did.
-                single = split_missions(mission.steps, dataclasses.replace(self._split, min_success=1.0))
-                single[-1].target = (mission.target[0], mission.target[1], single[-1].target[2])
+                single = self._single_actions(mission)
                 missions = unwrapped_yaws(missions[:foreseen.index] + single + missions[foreseen.index + 1:], yaw)
                 continue
-            s, a = step_state_action(self.mdp, mission.steps[0])
-            self._forbid_from(s, [a])
-            clock = time.perf_counter()
-            self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
-            self.log.planning_time_s += time.perf_counter() - clock
-            self.log.value_iterations += int(self.solution.iterations)
+            self._close_and_solve(mission.steps[0])
             unreachable = self.log.unreachable
             replanned = self._replan(t, x, y, yaw, topology, start.feet_W)
             if not replanned:
@@ -386,8 +379,6 @@ class CapabilityVIPlanner(RecoveringSequencer):
 
     def _go_round(self, context, state, failed, missions, index):
         """The BLC could not plan ``failed``: go round it (see the class docstring)."""
-        from qz_drake.planning.capability_mdp import solve_capability_mdp, step_state_action
-
         x = self._state.Eval(context)
         x0, y0 = (float(v) for v in x[BASE_XY])
         yaw = float(base_rpy(x)[2])
@@ -400,21 +391,14 @@ class CapabilityVIPlanner(RecoveringSequencer):
         if len(failed.steps) > 1:
             # Shorter missions are easier for the BLC: the same actions, one mission each, the
             # last ending where the failed one did (the goal itself, if it was the last).
-            single = split_missions(failed.steps, dataclasses.replace(self._split, min_success=1.0))
-            single[-1].target = (failed.target[0], failed.target[1], single[-1].target[2])
-            return unwrapped_yaws(single + list(missions[index + 1:]), yaw), "split"
+            return unwrapped_yaws(self._single_actions(failed) + list(missions[index + 1:]), yaw), "split"
         # The BLC refused the move in the action's topology from this cell and heading; which
         # topology the robot stood in before (a switch first) does not change that, so the
         # move goes from every topology's state there. (Forbidden from one state only, the TLC
         # came back to the refused move from each other topology in turn, a switch and a
         # refusal each time: CapPlanner's walk of obstacles-hard 501, session 36.) With
         # refused_in_every_topology the same move in the other topologies goes too.
-        s, a = step_state_action(self.mdp, failed.steps[0])
-        self._forbid_from(s, [a])
-        clock = time.perf_counter()
-        self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
-        self.log.planning_time_s += time.perf_counter() - clock
-        self.log.value_iterations += int(self.solution.iterations)
+        self._close_and_solve(failed.steps[0])
         standing = measured_start(x, context.get_time(), DEFAULT_PARAMS)
         missions = self._replan(context.get_time(), x0, y0, yaw, topology, standing.feet_W)
         if missions and missions[0].back_out:
@@ -429,6 +413,25 @@ class CapabilityVIPlanner(RecoveringSequencer):
             return missions, "forbade"
         missions = self._checked(context.get_time(), standing, topology, missions)
         return missions, "backed out" if missions and missions[0].back_out else "forbade"
+
+    def _single_actions(self, mission) -> list:
+        """A mission of several actions as one mission each, the last ending where it did (the
+        goal itself, if it was the last)."""
+        single = split_missions(mission.steps, dataclasses.replace(self._split, min_success=1.0))
+        single[-1].target = (mission.target[0], mission.target[1], single[-1].target[2])
+        return single
+
+    def _close_and_solve(self, step) -> None:
+        """Forbids ``step``'s action from its state (refused, or foreseen refused;
+        _forbid_from) and solves value iteration again from the current values."""
+        from qz_drake.planning.capability_mdp import solve_capability_mdp, step_state_action
+
+        s, a = step_state_action(self.mdp, step)
+        self._forbid_from(s, [a])
+        clock = time.perf_counter()
+        self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
+        self.log.planning_time_s += time.perf_counter() - clock
+        self.log.value_iterations += int(self.solution.iterations)
 
     def _back_out_missions(self, x: float, y: float, yaw: float, topology: str) -> list | None:
         """[the way back out of a dead end] (qz_drake.planning.back_out), or None."""
