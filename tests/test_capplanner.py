@@ -593,7 +593,7 @@ def test_the_experiments_capplanner_sets_out_on_any_path_it_has():
     experiment's CapPlanner sets out whatever its path's predicted chance (a setting, recorded
     with the results); a bad threshold names the field."""
     from qz_drake.errors import QzError
-    from qz_drake.experiments.fig9 import PLANNERS, ExperimentConfig
+    from qz_drake.experiments.fig9 import PLANNERS, ExperimentConfig, planner_differences
     from qz_drake.experiments.worlds import make_task
 
     task = make_task("stairs", "hard", 0, scale=0.3)
@@ -606,6 +606,12 @@ def test_the_experiments_capplanner_sets_out_on_any_path_it_has():
     route = PLANNERS["capplanner"](task, ExperimentConfig(recovery_back_out=False, capplanner_measured_stance=False,
                                                           capplanner_refused_in_every_topology=False))[3]
     assert not route.back_out and not route.measured_stance and not route.refused_in_every_topology
+    # Turns in place with the move after them: on unless the run says, and the report says which;
+    # the results of runs before the setting existed read as turning alone.
+    assert PLANNERS["capplanner"](task, ExperimentConfig())[3]._split.turns_with_moves
+    assert not PLANNERS["capplanner"](task, ExperimentConfig(capplanner_turns_with_moves=False))[3]._split.turns_with_moves
+    assert any("a turn in place always with the move after it" in line for line in planner_differences({}))
+    assert not any("turn in place" in line for line in planner_differences({"mission_length": 1.0}))
     with pytest.raises(QzError, match="min_route_success = 1.5"):
         CapPlannerRoute(min_route_success=1.5)
 

@@ -417,7 +417,8 @@ class CapabilityVIPlanner(RecoveringSequencer):
     def _single_actions(self, mission) -> list:
         """A mission of several actions as one mission each, the last ending where it did (the
         goal itself, if it was the last)."""
-        single = split_missions(mission.steps, dataclasses.replace(self._split, min_success=1.0))
+        single = split_missions(mission.steps, dataclasses.replace(self._split, min_success=1.0,
+                                                                   turns_with_moves=False))
         single[-1].target = (mission.target[0], mission.target[1], single[-1].target[2])
         return single
 

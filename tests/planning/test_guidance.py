@@ -56,6 +56,27 @@ def test_a_diagonal_move_counts_its_length():
     assert missions[0].length == pytest.approx(math.sqrt(2))
 
 
+def test_turns_with_moves_never_leaves_a_turn_in_place_alone():
+    # Two turns and a move whose product falls below the threshold, then a risky move.
+    steps = _path([("turn_left", "nominal", 0.97), ("turn_left", "nominal", 0.97), ("forward", "nominal", 0.97),
+                   ("forward", "nominal", 0.5), ("turn_right", "nominal", 0.97)])
+    alone = MissionSplitConfig(min_success=0.95, turns_with_moves=False)
+    assert [len(m.steps) for m in split_missions(steps, alone)] == [1, 1, 1, 1, 1]
+    config = MissionSplitConfig(min_success=0.95)
+    assert config.turns_with_moves  # the default
+    missions = split_missions(steps, config)
+    # The turns go with the move after them; the risky move stays alone; a turn with no move
+    # after it (the route's end) is still a turn in place.
+    assert [len(m.steps) for m in missions] == [3, 1, 1]
+    assert missions[0].target == pytest.approx((0.0, 1.0, math.pi / 2))
+    assert missions[0].success == pytest.approx(0.97 ** 3)
+    # Not across a topology change, nor past the BLC's reach of turning.
+    switch = _path([("turn_left", "nominal", 0.97), ("forward", "hind_bend", 0.97)])
+    assert [len(m.steps) for m in split_missions(switch, config)] == [1, 1]
+    about = _path([("turn_left", "nominal", 0.97)] * 3 + [("forward", "nominal", 0.97)])
+    assert [len(m.steps) for m in split_missions(about, config)] == [2, 2]
+
+
 def test_bad_settings_name_the_field():
     with pytest.raises(QzError, match="missions.max_length"):
         split_missions([], MissionSplitConfig(max_length=1.0))

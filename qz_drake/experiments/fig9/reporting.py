@@ -55,7 +55,9 @@ def planner_differences(settings: dict) -> list[str]:
     out.append(f"Missions: A* walks its route in missions of at most {c['mission_length']:g} m and plans again "
                f"only after a refusal; CapPlanner merges its path's actions into missions of at most "
                f"{c['capplanner_mission_length']:g} m while their predicted success stays above "
-               f"{c['capplanner_merge_min_success']:g}, and plans again at every mission start"
+               f"{c['capplanner_merge_min_success']:g}"
+               + (" (a turn in place always with the move after it)" if c.get("capplanner_turns_with_moves") else "")
+               + ", and plans again at every mission start"
                + (f", keeping its route unless the new one is worth more than {c['capplanner_hold_margin']:g}."
                   if c.get("capplanner_hold_margin") is not None else "."))
     out.append("Topology: A* walks in the nominal topology; CapPlanner may change topology"

@@ -102,6 +102,9 @@ class ExperimentConfig:
     # longest mission [m] and the least predicted success of a merged mission.
     capplanner_mission_length: float = 2.0
     capplanner_merge_min_success: float = 0.8
+    # Whether a turn in place that the merge threshold would leave alone goes with the move
+    # after it (guidance.MissionSplitConfig.turns_with_moves; session 52). False: as before.
+    capplanner_turns_with_moves: bool = True
     # The least predicted chance of arriving without a fall for which CapPlanner sets out
     # (CapabilityVIPlanner's min_route_success). 0: it never declines a task it has a path for,
     # as A* never declines one it has a route for; a declined task is a failed one here.
@@ -181,7 +184,8 @@ def _capplanner(task, config):
     from qz_drake.planning.guidance import MissionSplitConfig
 
     split = MissionSplitConfig(max_length=config.capplanner_mission_length,
-                               min_success=config.capplanner_merge_min_success)
+                               min_success=config.capplanner_merge_min_success,
+                               turns_with_moves=config.capplanner_turns_with_moves)
     return (Route(True, "", [], 0.0, np.zeros((0, 2))), "capplanner", [(*task.goal, 0.0, "nominal")],
             CapPlannerRoute(split, min_route_success=config.capplanner_min_route_success,
                             back_out=config.recovery_back_out, measured_stance=config.capplanner_measured_stance,
