@@ -612,6 +612,13 @@ def test_the_experiments_capplanner_sets_out_on_any_path_it_has():
     assert not PLANNERS["capplanner"](task, ExperimentConfig(capplanner_turns_with_moves=False))[3]._split.turns_with_moves
     assert any("a turn in place always with the move after it" in line for line in planner_differences({}))
     assert not any("turn in place" in line for line in planner_differences({"mission_length": 1.0}))
+    # Planning in the nominal topology alone (what switching buys is measured against it).
+    assert PLANNERS["capplanner"](task, ExperimentConfig())[3].topologies == ()
+    route = PLANNERS["capplanner"](task, ExperimentConfig(capplanner_topologies="nominal,front_bend"))[3]
+    assert route.topologies == ("nominal", "front_bend")
+    assert "both walk in the nominal topology" in " ".join(planner_differences({"capplanner_topologies": "nominal"}))
+    with pytest.raises(QzError, match="topologies = 'wings': not a topology"):
+        CapPlannerRoute(topologies=("nominal", "wings"))
     with pytest.raises(QzError, match="min_route_success = 1.5"):
         CapPlannerRoute(min_route_success=1.5)
 
@@ -652,7 +659,8 @@ def test_a_walking_scenario_sets_capplanners_mdp_by_name():
     ("tune-capplanner", ["--topology-doubts", "on,maybe"], "--topology-doubts"),
     ("tune-capplanner", ["--tasks", "0"], "--tasks"),
     ("tune-capplanner", ["--route-check", "-1"], "--route-check"),
-    ("tune-astar", ["--route-check", "-2"], "--route-check")])
+    ("tune-astar", ["--route-check", "-2"], "--route-check"),
+    ("tune-capplanner", ["--capplanner-topologies", "nominal,wings"], "--capplanner-topologies")])
 def test_tuning_bad_input_is_one_line_exit_2(tmp_path, command, args, field):
     run = subprocess.run(QZ + ["experiment", command, "--out", str(tmp_path)] + args,
                          capture_output=True, text=True, timeout=120)

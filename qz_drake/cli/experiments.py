@@ -50,6 +50,7 @@ def run_fig9(args) -> int:
                               capplanner_refused_in_every_topology=not args.retry_other_topologies,
                               capplanner_hold_margin=_hold_margin(args),
                               capplanner_turns_with_moves=not args.turns_alone,
+                              capplanner_topologies=_topologies(args),
                               blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                               blc_terminal_stance=args.terminal_stance,
                               astar_learned_weight=args.astar_learned_weight,
@@ -227,6 +228,7 @@ def run_tune_capplanner(args) -> int:
                                 capplanner_refused_in_every_topology=not args.retry_other_topologies,
                                 capplanner_hold_margin=_hold_margin(args),
                                 capplanner_turns_with_moves=not args.turns_alone,
+                                capplanner_topologies=_topologies(args),
                                 blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                                 blc_terminal_stance=args.terminal_stance,
                                 record_missions=args.record_missions),
@@ -285,10 +287,20 @@ def _stance_argument(p) -> None:
                    help="a replan at a mission's end keeps CapPlanner's route unless the new one is worth more "
                         "than this (value units: the goal 100, an action 1); default: every replan takes the "
                         "policy's path")
+    p.add_argument("--capplanner-topologies", default=None,
+                   help="comma-separated topologies CapPlanner may plan in (default: every one its model knows; "
+                        "nominal: it never changes topology)")
     p.add_argument("--turns-alone", action="store_true",
                    help="CapPlanner sends a turn in place as a mission of its own where the merge threshold "
                         "says so (walks as before session 52; default: a turn goes with the move after it, "
                         "guidance.MissionSplitConfig.turns_with_moves)")
+
+
+def _topologies(args) -> str:
+    from qz_drake.cli.arguments import parse_names
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+    return ",".join(parse_names(args.capplanner_topologies, "--capplanner-topologies", TOPOLOGY_NAMES) or ())
 
 
 def _hold_margin(args) -> float | None:

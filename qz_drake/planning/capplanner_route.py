@@ -67,7 +67,9 @@ class CapPlannerRoute(FixedRoute):
     ``hold_margin`` how much more a replan's route must be worth to replace the current one
     (CapabilityVIPlanner); ``route_check`` how many missions ahead each route is planned by the
     walk's BLC before it is handed out (qz_drake.planning.route_check; 0: none), a refused one
-    solved again on ``check_ladder`` (the walk's ladder, or its retries' rungs)."""
+    solved again on ``check_ladder`` (the walk's ladder, or its retries' rungs); ``topologies``
+    the topologies it may plan in (empty: every one the model knows; ``("nominal",)``: the
+    robot never changes topology, what switching buys is measured against)."""
 
     mission_retries = CAPPLANNER_MISSION_RETRIES
     chooses_goal_heading = True
@@ -75,7 +77,7 @@ class CapPlannerRoute(FixedRoute):
 
     def __init__(self, split_config: MissionSplitConfig | None = None, min_route_success: float = 0.05,
                  back_out: bool = True, measured_stance: bool = True, refused_in_every_topology: bool = True,
-                 hold_margin: float | None = None, route_check: int = 0, check_ladder=()):
+                 hold_margin: float | None = None, route_check: int = 0, check_ladder=(), topologies=()):
         from qz_drake.errors import bad_value
         from qz_drake.planning.route_check import check_route_check
         from qz_drake.systems.blc_plan import parse_ladder
@@ -90,6 +92,10 @@ class CapPlannerRoute(FixedRoute):
         self.hold_margin = check_hold_margin(hold_margin)
         self.route_check = check_route_check(route_check)
         self.check_ladder = parse_ladder(check_ladder, "check_ladder")
+        self.topologies = tuple(topologies)
+        for name in self.topologies:
+            if name not in TOPOLOGY_NAMES:
+                raise bad_value("topologies", name, f"not a topology (valid: {', '.join(TOPOLOGY_NAMES)})")
 
     def blc_parameters(self):
         # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt
@@ -106,11 +112,13 @@ class CapPlannerRoute(FixedRoute):
         # The map asks about the stance the BLC's missions end in.
         stance = map_stance(blc_params.terminal_stance)
         model = CapabilityModel.load(control.capability_model or None)
-        # The topologies the model knows all three moves of.
-        topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)]
+        # The topologies the model knows all three moves of (of those the route may use).
+        topologies = [t for t in TOPOLOGY_NAMES if all(model.has_network(t, k) for k in KINDS)
+                      and (not self.topologies or t in self.topologies)]
         if info.topology.name not in topologies:
             raise bad_value("scenario.robot.topology", info.topology.name,
-                            f"the capability model has no networks for it (it has {', '.join(topologies) or 'none'})")
+                            f"the capability model has no networks for it or the route may not use it (it may "
+                            f"use {', '.join(topologies) or 'none'})")
         x0 = info.initial_state
         goal = control.route[-1]
         check_standable(info.heightmap, (goal.x, goal.y), info.topology.name,

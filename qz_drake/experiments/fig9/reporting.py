@@ -60,8 +60,13 @@ def planner_differences(settings: dict) -> list[str]:
                + ", and plans again at every mission start"
                + (f", keeping its route unless the new one is worth more than {c['capplanner_hold_margin']:g}."
                   if c.get("capplanner_hold_margin") is not None else "."))
-    out.append("Topology: A* walks in the nominal topology; CapPlanner may change topology"
-               + (" where the gain exceeds its ensemble's doubt about it." if c["capplanner_topology_doubt"] else "."))
+    if c.get("capplanner_topologies") == "nominal":
+        out.append("Topology: both walk in the nominal topology.")
+    else:
+        out.append("Topology: A* walks in the nominal topology; CapPlanner may change topology"
+                   + (f" (to {c['capplanner_topologies'].replace(',', ', ')})" if c.get("capplanner_topologies") else "")
+                   + (" where the gain exceeds its ensemble's doubt about it." if c["capplanner_topology_doubt"]
+                      else "."))
     if c.get("capplanner_edge_cost"):
         out.append(f"CapPlanner charges a move or turn up to {c['capplanner_edge_cost']:g} for passing within 0.5 m "
                    f"of an edge; A*'s cost map keeps its body disc ({c['astar_body_radius']:g} m) off obstacles.")

@@ -30,7 +30,8 @@ SETTINGS_BEFORE_THEY_EXISTED = {"astar_max_recoveries": 0, "capplanner_min_route
                                 "recovery_back_out": False, "capplanner_topology_doubt": False,
                                 "capplanner_measured_stance": False, "capplanner_refused_in_every_topology": False,
                                 "blc_ladder": "", "blc_terminal_stance": "free", "capplanner_edge_cost": 0.0,
-                                "route_check": 0, "capplanner_turns_with_moves": False}
+                                "route_check": 0, "capplanner_turns_with_moves": False,
+                                "capplanner_topologies": ""}
 
 
 def read_results(out) -> list[dict]:

@@ -106,6 +106,11 @@ def run_experiment(out, *, planners=EXPERIMENT_PLANNERS, terrains=TERRAINS, diff
     from qz_drake.planning.route_check import check_route_check
 
     check_route_check(config.route_check, "--route-check")
+    from qz_drake.robot.topology import TOPOLOGY_NAMES
+
+    for name in config.capplanner_topologies.split(","):
+        if name and name not in TOPOLOGY_NAMES:
+            raise bad_value("--capplanner-topologies", name, f"not a topology (valid: {', '.join(TOPOLOGY_NAMES)})")
     for t in terrains:
         make_task(t, "simple", 0, scale=config.scale)
     for d in difficulties:

@@ -105,6 +105,10 @@ class ExperimentConfig:
     # Whether a turn in place that the merge threshold would leave alone goes with the move
     # after it (guidance.MissionSplitConfig.turns_with_moves; session 52). False: as before.
     capplanner_turns_with_moves: bool = True
+    # The topologies CapPlanner may plan in, comma-separated (CapPlannerRoute's topologies);
+    # empty: every one the model knows, as every run before session 52; "nominal": it never
+    # changes topology (what switching buys, issue 54).
+    capplanner_topologies: str = ""
     # The least predicted chance of arriving without a fall for which CapPlanner sets out
     # (CapabilityVIPlanner's min_route_success). 0: it never declines a task it has a path for,
     # as A* never declines one it has a route for; a declined task is a failed one here.
@@ -191,7 +195,8 @@ def _capplanner(task, config):
                             back_out=config.recovery_back_out, measured_stance=config.capplanner_measured_stance,
                             refused_in_every_topology=config.capplanner_refused_in_every_topology,
                             hold_margin=config.capplanner_hold_margin, route_check=config.route_check,
-                            check_ladder=_walk_ladder(config)))
+                            check_ladder=_walk_ladder(config),
+                            topologies=tuple(t for t in config.capplanner_topologies.split(",") if t)))
 
 
 def _walk_ladder(config: ExperimentConfig) -> tuple[str, ...]:
