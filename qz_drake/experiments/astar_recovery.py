@@ -31,8 +31,10 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
+
 from qz_drake.errors import ConfigError, bad_value
-from qz_drake.experiments.astar_baseline import AStarBaseline
+from qz_drake.experiments.astar_baseline import AStarBaseline, Route
 from qz_drake.planning.back_out import BackOut
 from qz_drake.simulation import FixedRoute
 from qz_drake.state_layout import BASE_XY, base_rpy
@@ -172,7 +174,7 @@ class AStarRecoverySequencer(RecoveringSequencer):
                 continue
             self._baseline.block((fx, fy), self._block_radius, keep_clear=before)
             clock = time.perf_counter()
-            route = self._baseline.route(here, self._goal)
+            route = self._route_from(here)
             self.log.planning_time_s += time.perf_counter() - clock
             self.log.replans.append((t, here, route.found))
             if not route.found:
@@ -180,6 +182,17 @@ class AStarRecoverySequencer(RecoveringSequencer):
             missions = unwrapped_yaws([AStarMission(tuple(r[:3]), r[3])
                                        for r in split_route(here, route.waypoints, self._mission_length)], yaw)
         return missions
+
+    def _route_from(self, here):
+        """A*'s route from ``here`` to the goal round the blocked cells; from a point off the map
+        (a robot that walked past its edge, or a mission expected to end there) no route, with
+        the reason, as a route that is not found: the walk reports it, it does not crash."""
+        try:
+            return self._baseline.route(here, self._goal)
+        except ConfigError as e:
+            if "off the map" not in str(e):
+                raise
+            return Route(False, f"A*: {e}", [], 0.0, np.zeros((0, 2)))
 
     def _go_round(self, context, state, failed, missions, index):
         import time
@@ -195,7 +208,7 @@ class AStarRecoverySequencer(RecoveringSequencer):
             return unwrapped_yaws([middle, failed] + list(missions[index + 1:]), yaw), "split"
         self._baseline.block((fx, fy), self._block_radius, keep_clear=here)
         clock = time.perf_counter()
-        route = self._baseline.route(here, self._goal)
+        route = self._route_from(here)
         self.log.planning_time_s += time.perf_counter() - clock
         self.log.replans.append((context.get_time(), here, route.found))
         if not route.found:
@@ -203,7 +216,7 @@ class AStarRecoverySequencer(RecoveringSequencer):
             # started, and on from there round the blocked cells, as CapPlanner does.
             back = None if self._back_out is None else self._back_out.target(self.log, here)
             if back is not None:
-                route = self._baseline.route(back[:2], self._goal)
+                route = self._route_from(back[:2])
                 self.log.replans.append((context.get_time(), back[:2], route.found))
                 if route.found:
                     self.log.back_outs += 1

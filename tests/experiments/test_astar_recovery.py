@@ -80,6 +80,15 @@ def test_a_refused_long_mission_is_split_then_its_target_blocked_and_a_route_fou
     assert counts["tlc_recoveries"] == 2 and counts["unreachable"] == ""
 
 
+def test_a_refusal_with_the_robot_off_the_map_is_a_reported_dead_end_not_a_crash():
+    """A robot that walked past the map's edge (a Fig. 9 validation walk, session 52) has no A*
+    route from where it stands: the walk is told why, as for a dead end."""
+    loop = _Loop()
+    route = loop.system._route_from((3.0, -0.6))  # 0.6 m beyond the map's lower edge
+    assert not route.found and "start = (3.0, -0.6): off the map" in route.reason
+    assert loop.system._route_from(START).found
+
+
 def test_after_the_limit_the_goal_is_unreachable_and_the_robot_stands():
     loop = _Loop(max_recoveries=1)
     loop.refuse()  # the first is gone round (split)
