@@ -12,8 +12,9 @@ BLC mission while
   system then switches the robot's topology before solving it).
 
 With ``turns_with_moves`` the success threshold never leaves a turn in place alone: turns
-that would start a mission of their own go with the forward move after them (within the reach),
-and the BLC turns while it walks. Walks measured why (session 52, CapPlanner's recorded missions
+that would start a mission of their own take the turns and the forward move after them (within
+the reach), and the BLC turns while it walks; a turn alone is left only where no move of the
+same topology follows within 90 deg. Walks measured why (session 52, CapPlanner's recorded missions
 of the tuning and validation walks): on box fields, 24 of 169 turns in place failed executing
 (14 %: slips, a leg on a box, a missed heading) and 20 more were refused, against 4 of 365
 missions that moved and turned (1 %); the turn network predicted 0.2 % for them.
