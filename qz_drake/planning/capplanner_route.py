@@ -52,6 +52,16 @@ def mdp_config(overrides: dict, topologies, stance: str = "nominal") -> Capabili
     return CapabilityMdpConfig(topologies=list(topologies), stance=stance, **values).check()
 
 
+def check_topologies(names, field: str) -> tuple[str, ...]:
+    """``names`` (a tuple, or a comma-separated string) as a tuple of topology names; a name
+    that is none names ``field``."""
+    names = tuple(n for n in names.split(",") if n) if isinstance(names, str) else tuple(names)
+    for name in names:
+        if name not in TOPOLOGY_NAMES:
+            raise bad_value(field, name, f"not a topology (valid: {', '.join(TOPOLOGY_NAMES)})")
+    return names
+
+
 class CapPlannerRoute(FixedRoute):
     """CapPlanner's top-level controller as a walk's route source: the capability model of
     ``controller.capability_model`` (empty: the shipped one), the goal at the route's last
@@ -92,10 +102,7 @@ class CapPlannerRoute(FixedRoute):
         self.hold_margin = check_hold_margin(hold_margin)
         self.route_check = check_route_check(route_check)
         self.check_ladder = parse_ladder(check_ladder, "check_ladder")
-        self.topologies = tuple(topologies)
-        for name in self.topologies:
-            if name not in TOPOLOGY_NAMES:
-                raise bad_value("topologies", name, f"not a topology (valid: {', '.join(TOPOLOGY_NAMES)})")
+        self.topologies = check_topologies(topologies, "topologies")
 
     def blc_parameters(self):
         # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt

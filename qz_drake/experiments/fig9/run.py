@@ -106,11 +106,9 @@ def run_experiment(out, *, planners=EXPERIMENT_PLANNERS, terrains=TERRAINS, diff
     from qz_drake.planning.route_check import check_route_check
 
     check_route_check(config.route_check, "--route-check")
-    from qz_drake.robot.topology import TOPOLOGY_NAMES
+    from qz_drake.planning.capplanner_route import check_topologies
 
-    for name in config.capplanner_topologies.split(","):
-        if name and name not in TOPOLOGY_NAMES:
-            raise bad_value("--capplanner-topologies", name, f"not a topology (valid: {', '.join(TOPOLOGY_NAMES)})")
+    check_topologies(config.capplanner_topologies, "--capplanner-topologies")
     for t in terrains:
         make_task(t, "simple", 0, scale=config.scale)
     for d in difficulties:

@@ -196,7 +196,7 @@ def _capplanner(task, config):
                             refused_in_every_topology=config.capplanner_refused_in_every_topology,
                             hold_margin=config.capplanner_hold_margin, route_check=config.route_check,
                             check_ladder=_walk_ladder(config),
-                            topologies=tuple(t for t in config.capplanner_topologies.split(",") if t)))
+                            topologies=config.capplanner_topologies))
 
 
 def _walk_ladder(config: ExperimentConfig) -> tuple[str, ...]:
