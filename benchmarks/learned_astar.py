@@ -8,7 +8,7 @@ worlds and settings):
 
     python benchmarks/learned_astar.py OUT [--weight 3] [--veto 0] [--blc-ladder LADDER]
         [--terminal-stance free|canonical] [--workers 2] [--first-seed 1000] [--planner astar|capplanner]
-        [--model DIR] [--route-check N] [--turns-alone]
+        [--model DIR] [--route-check N] [--turns-alone] [--turn-edge-risk R]
     python benchmarks/learned_astar.py --table RUN [RUN ...]
 
 OUT is a Fig. 9 results folder (resumable). ``--table`` prints, per results folder, the tasks
@@ -31,7 +31,7 @@ CAPPLANNER_TUNING = "data/capplanner_tuning"
 
 def walk(out: Path, weight: float, veto: float, ladder: str, stance: str, workers: int, first_seed: int,
          planner: str = "astar_learned", model: str = "", route_check: int = 0,
-         turns_with_moves: bool = True) -> dict:
+         turns_with_moves: bool = True, turn_edge_risk: float = 0.0) -> dict:
     from qz_drake.experiments.fig9 import ExperimentConfig, astar_settings, capplanner_settings, run_experiment
     from qz_drake.experiments.fig9.tune import TUNING_DIFFICULTIES, TUNING_TASKS_PER_CELL
     from qz_drake.experiments.worlds import TERRAINS
@@ -40,7 +40,7 @@ def walk(out: Path, weight: float, veto: float, ladder: str, stance: str, worker
         raise SystemExit(f"--first-seed {first_seed}: seeds 50-99 are kept for checks outside the project")
     config = ExperimentConfig(blc_ladder=ladder, blc_terminal_stance=stance, record_missions=True,
                               capability_model=model, route_check=route_check,
-                              capplanner_turns_with_moves=turns_with_moves,
+                              capplanner_turns_with_moves=turns_with_moves, capplanner_turn_edge_risk=turn_edge_risk,
                               astar_learned_weight=weight, astar_learned_veto=veto, **astar_settings(ASTAR_TUNING),
                               **capplanner_settings(CAPPLANNER_TUNING))
     return run_experiment(out, planners=(planner,), terrains=TERRAINS, difficulties=TUNING_DIFFICULTIES,
@@ -101,6 +101,9 @@ def main(argv=None) -> int:
     parser.add_argument("--turns-alone", action="store_true",
                         help="CapPlanner sends turns in place alone where its merge threshold says so (as "
                              "before session 52; guidance.MissionSplitConfig.turns_with_moves)")
+    parser.add_argument("--turn-edge-risk", type=float, default=0.0, metavar="R",
+                        help="CapPlanner counts a turn beside an edge as failing up to R of the time "
+                             "(CapabilityMdpConfig.turn_edge_risk; default 0: the model's turns)")
     parser.add_argument("--table", nargs="+", type=Path, default=None, metavar="RUN")
     args = parser.parse_args(argv)
     if args.table:
@@ -109,7 +112,8 @@ def main(argv=None) -> int:
     if args.out is None:
         parser.error("give OUT, or --table RUN ...")
     summary = walk(args.out, args.weight, args.veto, args.blc_ladder, args.terminal_stance, args.workers,
-                   args.first_seed, args.planner, args.model, args.route_check, not args.turns_alone)
+                   args.first_seed, args.planner, args.model, args.route_check, not args.turns_alone,
+                   args.turn_edge_risk)
     print(json.dumps({k: summary[k] for k in ("ran", "reused", "already_done", "wall_time_s", "out")}))
     print(table([args.out]))
     return 0

@@ -292,7 +292,8 @@ def test_route_calibration_sets_predicted_against_walked_and_counts_declined_tas
     records = [record(s, "capplanner", s < 2) for s in range(6)] + [record(s, "astar", s == 5) for s in range(6)]
     predictions = [{"key": f"obstacles-hard-{s}-capplanner", "terrain": "obstacles", "difficulty": "hard", "seed": s,
                     "reaches": s < 4, "fall_free": [0.9, 0.7, 0.5, 0.3, 0.0, 0.0][s],
-                    "success": 0.5, "actions": 9, "topology_changes": 0} for s in range(6)]
+                    "success": 0.5, "expected_fall_free": [0.95, 0.85, 0.75, 0.65, 0.0, 0.0][s], "actions": 9,
+                    "topology_changes": 0} for s in range(6)]
     cell, by_difficulty, overall = route_calibration(records, predictions)
     assert (cell["terrain"], cell["difficulty"], cell["tasks"], cell["started"]) == ("obstacles", "hard", 6, 4)
     assert cell["predicted_fall_free"] == pytest.approx(0.6) and cell["walked_rate"] == pytest.approx(0.5)
@@ -303,7 +304,12 @@ def test_route_calibration_sets_predicted_against_walked_and_counts_declined_tas
     (tmp_path / PREDICTIONS).write_text("".join(json.dumps(p) + "\n" for p in predictions))
     assert main(["experiment", "report", str(tmp_path)]) == 0
     assert cell["predicted_success"] == pytest.approx(0.5)
-    assert "| obstacles | hard | 4/6 | 0.60 | 0.50 | 0.50 | 2 | 1 |" in capsys.readouterr().out
+    assert cell["expected_fall_free"] == pytest.approx(0.8)
+    assert "| obstacles | hard | 4/6 | 0.60 | 0.50 | 0.80 | 0.50 | 2 | 1 |" in capsys.readouterr().out
+    # Predictions from before the model's expectation was kept show none.
+    for p in predictions:
+        del p["expected_fall_free"]
+    assert route_calibration(records, predictions)[0]["expected_fall_free"] is None
     assert main(["experiment", "report", str(tmp_path / "nothing"), "--predict"]) == 2
     assert "results" in capsys.readouterr().err
 
@@ -612,6 +618,15 @@ def test_the_experiments_capplanner_sets_out_on_any_path_it_has():
     assert not PLANNERS["capplanner"](task, ExperimentConfig(capplanner_turns_with_moves=False))[3]._split.turns_with_moves
     assert any("a turn in place always with the move after it" in line for line in planner_differences({}))
     assert not any("turn in place" in line for line in planner_differences({"mission_length": 1.0}))
+    # The risk of a turn beside an edge reaches the MDP the walk plans with, and the report.
+    from qz_drake.experiments.fig9.tasks import _mdp_overrides
+    from qz_drake.planning.capplanner_route import mdp_config
+
+    overrides = _mdp_overrides(ExperimentConfig(capplanner_turn_edge_risk=0.5))
+    assert mdp_config(overrides, ["nominal"]).turn_edge_risk == 0.5
+    assert any("turn within 0.4 m of an edge as failing up to 0.5" in line
+               for line in planner_differences({"capplanner_turn_edge_risk": 0.5}))
+    assert not any("of an edge as failing" in line for line in planner_differences({}))
     # Planning in the nominal topology alone (what switching buys is measured against it).
     assert PLANNERS["capplanner"](task, ExperimentConfig())[3].topologies == ()
     route = PLANNERS["capplanner"](task, ExperimentConfig(capplanner_topologies="nominal,front_bend"))[3]

@@ -50,6 +50,7 @@ def run_fig9(args) -> int:
                               capplanner_refused_in_every_topology=not args.retry_other_topologies,
                               capplanner_hold_margin=_hold_margin(args),
                               capplanner_turns_with_moves=not args.turns_alone,
+                              capplanner_turn_edge_risk=_turn_edge_risk(args),
                               capplanner_topologies=_topologies(args),
                               blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                               blc_terminal_stance=args.terminal_stance,
@@ -228,6 +229,7 @@ def run_tune_capplanner(args) -> int:
                                 capplanner_refused_in_every_topology=not args.retry_other_topologies,
                                 capplanner_hold_margin=_hold_margin(args),
                                 capplanner_turns_with_moves=not args.turns_alone,
+                                capplanner_turn_edge_risk=_turn_edge_risk(args),
                                 capplanner_topologies=_topologies(args),
                                 blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                                 blc_terminal_stance=args.terminal_stance,
@@ -294,6 +296,21 @@ def _stance_argument(p) -> None:
                    help="CapPlanner sends a turn in place as a mission of its own where the merge threshold "
                         "says so (walks as before session 52; default: a turn goes with the move after it, "
                         "guidance.MissionSplitConfig.turns_with_moves)")
+    p.add_argument("--turn-edge-risk", type=float, default=None, metavar="R",
+                   help="CapPlanner counts a turn from within 0.4 m of an edge as failing up to R of the time (on "
+                        "the edge, falling to 0 at 0.4 m), whatever its model says "
+                        "(CapabilityMdpConfig.turn_edge_risk; default: ExperimentConfig's)")
+
+
+def _turn_edge_risk(args) -> float:
+    from qz_drake.errors import bad_value
+    from qz_drake.experiments.fig9 import ExperimentConfig
+
+    if args.turn_edge_risk is None:
+        return ExperimentConfig().capplanner_turn_edge_risk
+    if not 0.0 <= args.turn_edge_risk <= 1.0:  # NaN too
+        raise bad_value("--turn-edge-risk", args.turn_edge_risk, "must be in [0, 1]")
+    return float(args.turn_edge_risk)
 
 
 def _topologies(args) -> str:

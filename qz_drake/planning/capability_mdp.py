@@ -142,6 +142,17 @@ class CapabilityMdpConfig:
     edge_cost: float = 0.0
     edge_reach: float = 0.5
     edge_height: float = 0.05
+    # Risk of a turn from a cell whose centre is within ``turn_edge_reach`` of an edge (as for
+    # ``edge_cost``), rising linearly from 0 there to ``turn_edge_risk`` on the edge: that share
+    # of the turn's success goes to the failure state. The model cannot see it: its trials
+    # rarely turn the robot beside a box, and it predicts such turns fail 0.2 % of the time.
+    # What the walks met (session 53, CapPlanner's and A*'s recorded missions of the 24 tuning
+    # tasks, 21 runs; ``python benchmarks/turn_risk.py``): on box fields a turn in place from
+    # within 0.2 m of an edge failed walking 41 times in 96 (0.2-0.3 m: 11 in 57; 0.3-0.4 m: 1
+    # in 30; further: 6 in 290), a move that turned there 5 in 113, on stairs none of 6. 0: the
+    # model's turns as they are (the paper's TLC, every run before). [probability], [m]
+    turn_edge_risk: float = 0.0
+    turn_edge_reach: float = 0.4
     # Extra cost of switching to another topology: a reconfiguration is a BLC mission of its
     # own on the robot (feet moved one by one), worth about two ordinary actions; the robot
     # changes topology only where the new one is clearly more capable.
@@ -208,7 +219,9 @@ class CapabilityMdpConfig:
                      "switch_max_roughness", "switch_max_step", "plan_failure_cost", "pessimism", "edge_cost"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise bad_value(f"capability_mdp.{name}", getattr(self, name), "must be finite and >= 0")
-        for name in ("edge_reach", "edge_height"):
+        if not (np.isfinite(self.turn_edge_risk) and 0.0 <= self.turn_edge_risk <= 1.0):
+            raise bad_value("capability_mdp.turn_edge_risk", self.turn_edge_risk, "must be in [0, 1]")
+        for name in ("edge_reach", "edge_height", "turn_edge_reach"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise bad_value(f"capability_mdp.{name}", getattr(self, name), "must be finite and > 0 [m]")
         if not (np.isfinite(self.failure_reward) and self.failure_reward <= 0):
@@ -260,6 +273,9 @@ class CapabilityMdp:
     # Where the planning failures' probabilities came from: "model, per state" (a factored
     # model), "model cards' shares" (plan_failure_share above) or "config".
     plan_failure_source: str = ""
+    # (ny, nx) the share of a turn's success lost near an edge (CapabilityMdpConfig.turn_edge_risk);
+    # None: none.
+    turn_risk: np.ndarray | None = None
 
     @property
     def P(self) -> list:
@@ -372,33 +388,42 @@ def switchable_cells(heightmap, xs, ys, config: CapabilityMdpConfig | None = Non
 
 def edge_clearances(heightmap, xs, ys, config: CapabilityMdpConfig | None = None) -> np.ndarray:
     """(K + 1, ny, nx): how far [m] each forward move from the cell centres (xs, ys) along
-    heading k < K passes from the nearest edge (a map cell whose height differs from a
-    neighbour's by more than ``edge_height``), at most ``edge_reach``; index K, a turn's: the
-    distance at the cell centre."""
-    from scipy.ndimage import distance_transform_edt
-
+    heading k < K passes from the nearest edge (:func:`edge_distances`), at most ``edge_reach``
+    (or ``turn_edge_reach``, the larger); index K, a turn's: the distance at the cell centre."""
     config = config or CapabilityMdpConfig()
-    h = np.asarray(heightmap.heights, dtype=float)
-    jump = np.zeros(h.shape, dtype=bool)
-    dy, dx = np.abs(np.diff(h, axis=0)) > config.edge_height, np.abs(np.diff(h, axis=1)) > config.edge_height
-    jump[:-1] |= dy
-    jump[1:] |= dy
-    jump[:, :-1] |= dx
-    jump[:, 1:] |= dx
     X, Y = np.meshgrid(np.asarray(xs, dtype=float), np.asarray(ys, dtype=float))
-    out = np.full((len(HEADING_STEPS) + 1, *X.shape), float(config.edge_reach))
-    if not jump.any():
+    reach = float(max(config.edge_reach, config.turn_edge_reach))
+    out = np.full((len(HEADING_STEPS) + 1, *X.shape), reach)
+    distance = edge_distances(heightmap, config.edge_height)
+    if distance is None:
         return out
     res = heightmap.resolution
-    distance = distance_transform_edt(~jump) * res
     for k, (sx, sy) in enumerate(HEADING_STEPS):
         n = int(np.ceil(np.hypot(sx, sy) * config.cell_size / res)) + 1
         t = np.linspace(0.0, 1.0, n)
         ix, iy = heightmap.index(X[..., None] + t * sx * config.cell_size, Y[..., None] + t * sy * config.cell_size)
-        out[k] = np.minimum(distance[iy, ix].min(axis=-1), config.edge_reach)
+        out[k] = np.minimum(distance[iy, ix].min(axis=-1), reach)
     ix, iy = heightmap.index(X, Y)
-    out[-1] = np.minimum(distance[iy, ix], config.edge_reach)
+    out[-1] = np.minimum(distance[iy, ix], reach)
     return out
+
+
+def edge_distances(heightmap, edge_height: float) -> np.ndarray | None:
+    """(rows, cols) of the heightmap: each map cell's distance [m] from the nearest edge (a map
+    cell whose height differs from a neighbour's by more than ``edge_height``); None where the
+    map has no edge."""
+    from scipy.ndimage import distance_transform_edt
+
+    h = np.asarray(heightmap.heights, dtype=float)
+    jump = np.zeros(h.shape, dtype=bool)
+    dy, dx = np.abs(np.diff(h, axis=0)) > edge_height, np.abs(np.diff(h, axis=1)) > edge_height
+    jump[:-1] |= dy
+    jump[1:] |= dy
+    jump[:, :-1] |= dx
+    jump[:, 1:] |= dx
+    if not jump.any():
+        return None
+    return distance_transform_edt(~jump) * heightmap.resolution
 
 
 def cells_on_map(heightmap, xs, ys) -> np.ndarray:
@@ -454,16 +479,20 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
                                "model, per state" if getattr(capability_map, "forward_plan", None) is not None
                                else "model cards' shares")
     reference = _reference_motions(capability_map, config, topologies, k, iy, ix, allowed)
-    near_edge = None
-    if config.edge_cost > 0:
+    near_edge = turn_kept = None
+    if config.edge_cost > 0 or config.turn_edge_risk > 0:
         if edge_clearance is None:
-            raise bad_value("edge_clearance", None, "needed with capability_mdp.edge_cost > 0 (edge_clearances of "
-                                                    "the map)")
+            raise bad_value("edge_clearance", None, "needed with capability_mdp.edge_cost or turn_edge_risk > 0 "
+                                                    "(edge_clearances of the map)")
         clearance = np.asarray(edge_clearance, dtype=float)
         if clearance.shape != (K + 1, ny, nx):
             raise bad_value("edge_clearance", f"array of shape {clearance.shape}", f"expected ({K + 1}, {ny}, {nx})")
-        closeness = np.clip(1.0 - clearance / config.edge_reach, 0.0, 1.0)
-        near_edge = (closeness[k, iy, ix], closeness[K, iy, ix], closeness[K, iy, ix])
+        if config.edge_cost > 0:
+            closeness = np.clip(1.0 - clearance / config.edge_reach, 0.0, 1.0)
+            near_edge = (closeness[k, iy, ix], closeness[K, iy, ix], closeness[K, iy, ix])
+        if config.turn_edge_risk > 0:
+            mdp.turn_risk = config.turn_edge_risk * np.clip(1.0 - clearance[K] / config.turn_edge_reach, 0.0, 1.0)
+            turn_kept = 1.0 - mdp.turn_risk[iy, ix]
     for t in range(T):
         # Grid state of the same cell and heading in topology t (the action's).
         same = np.ravel_multi_index((np.full(grid, t), k, iy, ix), (T, K, ny, nx))
@@ -492,6 +521,8 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
                     doubted = np.where(gain > 0.0, base + np.maximum(gain - doubt, 0.0), np.minimum(doubted, base))
                 p = doubted
             p = np.clip(np.asarray(p, dtype=float), 0.0, 1.0)
+            if turn_kept is not None and m > 0:  # a turn beside an edge: the walks' risk the model misses
+                p = p * turn_kept
             # What the BLC could not plan leaves the robot standing; a forward move off the grid
             # and a refused topology change are not the BLC's and fail outright.
             if planned is not None:  # the factored model's own P(no plan) of this state and action
@@ -631,7 +662,8 @@ def set_stance(mdp: CapabilityMdp, state: int, outcomes: np.ndarray) -> dict:
     same moves from every other state, and the policy turned back and forth: in TLC-only walks of
     the 24 tuning tasks at risk 0, 11 never reached the goal in 80 missions.) Actions already
     forbidden (forbid_action) stay forbidden. The success is doubted by the spread as the map's
-    is (``pessimism``); ``topology_doubt``'s comparison with nominal is not made here (the
+    is (``pessimism``), and a turn beside an edge loses the map's share (``turn_edge_risk``);
+    ``topology_doubt``'s comparison with nominal is not made here (the
     robot's own topology's moves, nominal's nearly always). Returns what it replaced, for
     :func:`restore_actions`."""
     if not (0 <= state < mdp.goal_state):
@@ -650,6 +682,8 @@ def set_stance(mdp: CapabilityMdp, state: int, outcomes: np.ndarray) -> dict:
         saved[a] = (float(mdp.success[a, state]), None if mdp.stand is None else float(mdp.stand[a, state]),
                     float(mdp.R[state, a]))
         p = float(np.clip(outcomes[m, 0] - config.pessimism * outcomes[m, 2], 0.0, 1.0))
+        if mdp.turn_risk is not None and m > 0:
+            p *= 1.0 - float(mdp.turn_risk[iy, ix])
         q = 0.0
         if mdp.stand is not None:
             q = float(np.clip(1.0 - outcomes[m, 1], 0.0, 1.0 - p)) * (1.0 - config.plan_failure_risk)
@@ -716,6 +750,10 @@ class CapabilityPlan:
     reaches_goal: bool
     # Product of the steps' success probabilities.
     success_probability: float
+    # The map the MDP was built from and its edge clearances (None where none were needed):
+    # what expected_fall_free rebuilds the MDP from.
+    capability_map: object | None = None
+    edge_clearance: np.ndarray | None = None
 
     def utility_map(self, topology: str | None = None) -> np.ndarray:
         """(ny, nx) best V over headings (and topologies, or of one topology)."""
@@ -743,6 +781,27 @@ class CapabilityPlan:
         """Predicted chance that no action of the path ends the walk, the TLC going round what
         the BLC cannot plan: the product of the steps' 1 - fall."""
         return fall_free_probability(self.steps)
+
+    def expected_fall_free(self) -> float:
+        """The model's own estimate that the path walks without an action ending the walk, the
+        TLC going round what the BLC cannot plan: :attr:`fall_free_probability` of the same
+        steps with the map's mean success (``pessimism`` 0: no ensemble doubt) and its planning
+        failures as they are (``plan_failure_risk`` 0); the turns' ``turn_edge_risk`` stays. The
+        plan itself is chosen on the doubted values; this is what it predicts of its walk.
+        Needs the plan's ``capability_map`` (plan, plan_on_map keep it)."""
+        if self.capability_map is None:
+            raise bad_value("capability_map", None, "the plan keeps no map to judge its steps by (plan_on_map's "
+                                                    "plans do)")
+        if not self.steps:
+            return 1.0
+        config = dataclasses.replace(self.mdp.config, pessimism=0.0, plan_failure_risk=0.0)
+        gx, gy = self.mdp.goal_cell
+        mean = build_capability_mdp(self.capability_map, (float(self.mdp.xs[gx]), float(self.mdp.ys[gy])), config,
+                                    edge_clearance=self.edge_clearance)
+        stand = np.zeros_like(mean.success) if mean.stand is None else mean.stand
+        kept = [1.0 - max(0.0, 1.0 - mean.success[a, s] - stand[a, s])
+                for s, a in (step_state_action(mean, step) for step in self.steps)]
+        return float(np.prod(kept))
 
 
 def fall_free_probability(steps) -> float:
@@ -1073,7 +1132,7 @@ def plan_on_map(capability_map, start_xy, start_heading: int, goal_xy, *, start_
     ix, iy = mdp.cell_of(*start_xy, field="start")
     solution = solve_capability_mdp(mdp)
     steps, reaches, probability = most_likely_path(mdp, solution, mdp.state(ix, iy, start_heading, start_topology))
-    return CapabilityPlan(mdp, solution, steps, reaches, probability)
+    return CapabilityPlan(mdp, solution, steps, reaches, probability, capability_map, edge_clearance)
 
 
 def plan(model, heightmap, start_xy, start_heading: int, goal_xy, *, start_topology: str = "nominal",
@@ -1098,4 +1157,4 @@ def plan(model, heightmap, start_xy, start_heading: int, goal_xy, *, start_topol
                                                                   capability_map.ys, config),
                        on_map=cells_on_map(heightmap, capability_map.xs, capability_map.ys),
                        edge_clearance=edge_clearances(heightmap, capability_map.xs, capability_map.ys, config)
-                       if config.edge_cost > 0 else None)
+                       if config.edge_cost > 0 or config.turn_edge_risk > 0 else None)

@@ -211,9 +211,10 @@ class CapabilityVIPlanner(RecoveringSequencer):
         self.capability_map = predict_map(model, heightmap, config.topologies or None, cell_size=config.cell_size,
                                           anchor=start[:2], stance=config.stance)
         xs, ys = self.capability_map.xs, self.capability_map.ys
+        self._edge_clearance = (edge_clearances(heightmap, xs, ys, config)
+                                if config.edge_cost > 0 or config.turn_edge_risk > 0 else None)
         self.mdp = build_capability_mdp(self.capability_map, goal, config, switchable_cells(heightmap, xs, ys, config),
-                                        cells_on_map(heightmap, xs, ys),
-                                        edge_clearances(heightmap, xs, ys, config) if config.edge_cost > 0 else None)
+                                        cells_on_map(heightmap, xs, ys), self._edge_clearance)
         self.solution = solve_capability_mdp(self.mdp)
         self.log.planning_time_s = time.perf_counter() - clock
         self.log.value_iterations = int(self.solution.iterations)
@@ -268,7 +269,8 @@ class CapabilityVIPlanner(RecoveringSequencer):
             steps, reaches, probability = most_probable_path(self.mdp, start)
             self.log.most_probable += int(reaches)
         if self.first_plan is None:
-            self.first_plan = CapabilityPlan(self.mdp, self.solution, steps, reaches, probability)
+            self.first_plan = CapabilityPlan(self.mdp, self.solution, steps, reaches, probability,
+                                             self.capability_map, self._edge_clearance)
         missions = split_missions(steps, self._split, start_yaw=yaw) if reaches else []
         if missions:
             # The path ends at the goal cell's centre; the last mission goes to the goal itself

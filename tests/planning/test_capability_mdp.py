@@ -518,6 +518,14 @@ def test_a_start_or_goal_off_the_map_is_named_before_any_planning(start, goal, n
         plan(None, heightmap, start, 0, goal)  # refused before the model is asked anything
 
 
+def _flat_map_with_box(x_range, y_range):
+    """14 m x 12 m of flat ground at 5 cm cells with one 0.15 m box over x_range x y_range."""
+    res = 0.05
+    X, Y = np.meshgrid(0.025 + res * np.arange(280), 0.025 + res * np.arange(240))
+    inside = (X > x_range[0]) & (X < x_range[1]) & (Y > y_range[0]) & (Y < y_range[1])
+    return HeightMap(np.where(inside, 0.15, 0.0), res, (0.025, 0.025))
+
+
 def test_a_move_near_an_edge_costs_what_edge_cost_says_and_routes_keep_their_distance():
     """Issue 54 (session 49): the BLC refuses at edges; CapPlanner may charge a move for passing
     near one. A flat 14 m x 12 m map with a low box (0.15 m, which the stub model walks over
@@ -525,11 +533,7 @@ def test_a_move_near_an_edge_costs_what_edge_cost_says_and_routes_keep_their_dis
     from qz_drake.planning.capability_mdp import HEADING_STEPS, edge_clearances
 
     res = 0.05
-    x = 0.025 + res * np.arange(280)
-    y = 0.025 + res * np.arange(240)
-    X, Y = np.meshgrid(x, y)
-    h = np.where((X > 6.2) & (X < 6.8) & (Y > 5.8) & (Y < 7.0), 0.15, 0.0)
-    hm = HeightMap(h, res, (0.025, 0.025))
+    hm = _flat_map_with_box((6.2, 6.8), (5.8, 7.0))
     config = CapabilityMdpConfig(topologies=["nominal"], edge_cost=5.0)
     cm = predict_map(StubModel(default=1.0), hm, ["nominal"], anchor=START)
     clearance = edge_clearances(hm, cm.xs, cm.ys, config)
@@ -557,3 +561,70 @@ def test_a_move_near_an_edge_costs_what_edge_cost_says_and_routes_keep_their_dis
     assert straight.reaches_goal and kept.reaches_goal
     assert np.allclose(straight.cells[:, 1], 5.5)
     assert not np.any(np.isclose(kept.cells[:, 1], 5.5) & np.isclose(kept.cells[:, 0], 6.5))
+
+
+def test_a_turn_beside_an_edge_fails_as_often_as_turn_edge_risk_says_and_routes_turn_away_from_it():
+    """Issue 54 (session 53): the walks' turns in place beside a box failed 43 % of the time,
+    the model said 0.2 %. A flat map with a low box (0.15 m) 0.1 m south-west of the start
+    cell's centre; the goal 5 m north of the start, the robot facing east."""
+    from qz_drake.planning.capability_mdp import edge_clearances, restore_actions, set_stance
+
+    hm = _flat_map_with_box((0.9, 1.4), (4.7, 5.4))
+    goal = (1.5, 10.5)
+    config = CapabilityMdpConfig(topologies=["nominal"], turn_edge_risk=0.6)
+    cm = predict_map(StubModel(default=1.0), hm, ["nominal"], anchor=START)
+    clearance = edge_clearances(hm, cm.xs, cm.ys, config)
+    ix, iy = int(np.argmin(np.abs(cm.xs - 1.5))), int(np.argmin(np.abs(cm.ys - 5.5)))
+    plain = build_capability_mdp(cm, goal, dataclasses.replace(config, turn_edge_risk=0.0))
+    risky = build_capability_mdp(cm, goal, config, edge_clearance=clearance)
+    start = risky.state(ix, iy, 0, "nominal")
+    kept = 1.0 - 0.6 * (1.0 - clearance[-1, iy, ix] / config.turn_edge_reach)
+    assert 0.0 < clearance[-1, iy, ix] < 0.2
+    # The turns from the start lose the risk's share (to a fall); its forward move loses nothing.
+    assert risky.success[1, start] == pytest.approx(plain.success[1, start] * kept)
+    assert risky.success[2, start] == pytest.approx(plain.success[2, start] * kept)
+    assert risky.success[0, start] == plain.success[0, start]
+    far = risky.state(ix, int(np.argmin(np.abs(cm.ys - 8.5))), 0, "nominal")
+    assert risky.success[1, far] == plain.success[1, far]
+    # From the stance the robot stands in (set_stance), the same share goes.
+    saved = set_stance(risky, start, np.array([[1.0, 1.0, 0.0]] * 3))
+    assert risky.success[1, start] == pytest.approx(kept) and risky.success[0, start] == 1.0
+    restore_actions(risky, saved)
+    with pytest.raises(QzError, match="edge_clearance"):
+        build_capability_mdp(cm, goal, config)
+    with pytest.raises(QzError, match="turn_edge_risk"):
+        CapabilityMdpConfig(turn_edge_risk=1.5).check()
+    # The route: without the risk it turns north where it stands; with it, it steps away first.
+    turned_here = plan(StubModel(default=1.0), hm, START, 0, goal, config=dataclasses.replace(config, turn_edge_risk=0))
+    away = plan(StubModel(default=1.0), hm, START, 0, goal, config=config)
+    assert turned_here.reaches_goal and away.reaches_goal
+    assert turned_here.steps[0].motion != "forward"
+    assert away.steps[0].motion == "forward"
+    assert all(s.motion == "forward" for s in away.steps if np.hypot(s.x - 1.5, s.y - 5.5) < 0.5)
+
+
+def test_a_plan_expects_its_walk_by_the_models_mean_with_refusals_gone_round():
+    """What a plan predicts of its walk (issue 54's route calibration): the plan weighs each move
+    as p - spread with the tuned share of refusals counted as failures; its expectation of the
+    walk is the model's mean, a refusal leaving the robot standing (the TLC goes round it)."""
+    from qz_drake.capability.model import CapabilityMap
+
+    nx, ny = 12, 3
+    shape = (1, 8, ny, nx)
+    walked, planned = np.full(shape, 0.9), np.full(shape, 0.95)  # 0.05 refused, 0.05 failed walking
+    turn, spread = np.full(shape, 0.99), np.full(shape, 0.04)
+    capability_map = CapabilityMap(xs=0.5 + np.arange(nx), ys=0.5 + np.arange(ny), topologies=("nominal",),
+                                   forward=walked, turn_left=turn, turn_right=turn.copy(), forward_plan=planned,
+                                   turn_left_plan=np.ones(shape), turn_right_plan=np.ones(shape),
+                                   forward_spread=spread, turn_left_spread=np.zeros(shape),
+                                   turn_right_spread=np.zeros(shape))
+    result = plan_on_map(capability_map, (0.5, 1.5), 0, (11.5, 1.5),
+                         config=CapabilityMdpConfig(plan_failure_risk=1.0))
+    moves = [s for s in result.steps if s.motion == "forward"]
+    assert result.reaches_goal and len(moves) == 11 and len(result.steps) == 11
+    # As planned: 0.86 a move, every failure a fall. Expected: 0.95 a move.
+    assert result.fall_free_probability == pytest.approx(0.86 ** 11)
+    assert result.expected_fall_free() == pytest.approx(0.95 ** 11)
+    bare = dataclasses.replace(result, capability_map=None)
+    with pytest.raises(QzError, match="capability_map"):
+        bare.expected_fall_free()

@@ -22,7 +22,10 @@ def predict_route(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig(),
     """What CapPlanner's model expected of a task before walking it: the plan from the start
     (the walk's first plan: same model, MDP settings, start cell and heading), its predicted
     chance that no action ends the walk (fall_free), the product of the actions' success
-    (success), the actions and topology changes; reaches False where it found no path."""
+    (success), both as the plan weighs them (the ensemble's doubt, the tuned share of refusals
+    counted as failures), the model's own estimate of the same route walking without an
+    action ending it, refusals gone round (expected_fall_free: CapabilityPlan.expected_fall_free),
+    the actions and topology changes; reaches False where it found no path."""
     from qz_drake.capability.model import CapabilityModel
     from qz_drake.capability.patches import KINDS, map_stance
     from qz_drake.planning.capability_mdp import plan
@@ -39,6 +42,7 @@ def predict_route(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig(),
             "reaches": bool(result.reaches_goal),
             "fall_free": result.fall_free_probability if result.reaches_goal else 0.0,
             "success": result.success_probability if result.reaches_goal else 0.0,
+            "expected_fall_free": result.expected_fall_free() if result.reaches_goal else 0.0,
             "actions": len(result.steps), "topology_changes": result.topology_changes}
 
 
@@ -64,7 +68,8 @@ def predict_routes(out, config: ExperimentConfig | None = None, model=None, prog
     path = out / PREDICTIONS
     done = {p["key"]: p for p in (json.loads(line) for line in path.read_text().splitlines() if line.strip())} \
         if path.is_file() else {}
-    todo = [r for r in records if r["key"] not in done]
+    # A prediction from before expected_fall_free existed is made again.
+    todo = [r for r in records if "expected_fall_free" not in done.get(r["key"], {})]
     with path.open("a") as f, ProgressReport("predicting routes", len(records), unit="routes",
                                              completed=len(records) - len(todo), enabled=progress) as report:
         for r in todo:
@@ -81,11 +86,13 @@ def route_calibration(records: list[dict], predictions: list[dict]) -> list[dict
     over all: of the tasks it set out on (a path found), the mean predicted chance of no fall
     along the first plan (and the mean product of its actions' success, counting a planning
     failure as a failure too) against the share walked to the goal, and the share of tasks it
-    declined (no path: the goal predicted unreachable) with how many of those A* walked."""
+    declined (no path: the goal predicted unreachable) with how many of those A* walked; a
+    task's last prediction counts."""
     walked = {r["key"]: bool(r["success"]) for r in records if r["reason"] != "error"}
     astar = {(r["terrain"], r["difficulty"], r["seed"]): bool(r["success"])
              for r in records if r["planner"] == "astar" and r["reason"] != "error"}
-    usable = [p for p in predictions if p["key"] in walked]
+    # A task predicted again (a prediction from before a field existed) counts by its last one.
+    usable = [p for p in {p["key"]: p for p in predictions}.values() if p["key"] in walked]
 
     def row(terrain, difficulty, cell):
         started = [p for p in cell if p["reaches"]]
@@ -93,6 +100,8 @@ def route_calibration(records: list[dict], predictions: list[dict]) -> list[dict
         return {"terrain": terrain, "difficulty": difficulty, "tasks": len(cell), "started": len(started),
                 "predicted_fall_free": float(np.mean([p["fall_free"] for p in started])) if started else None,
                 "predicted_success": float(np.mean([p["success"] for p in started])) if started else None,
+                "expected_fall_free": float(np.mean([p["expected_fall_free"] for p in started]))
+                if started and all("expected_fall_free" in p for p in started) else None,
                 "walked_rate": float(np.mean([walked[p["key"]] for p in started])) if started else None,
                 "declined": len(declined),
                 "declined_walked_by_astar": sum(astar.get((p["terrain"], p["difficulty"], p["seed"]), False)

@@ -70,6 +70,10 @@ def planner_differences(settings: dict) -> list[str]:
     if c.get("capplanner_edge_cost"):
         out.append(f"CapPlanner charges a move or turn up to {c['capplanner_edge_cost']:g} for passing within 0.5 m "
                    f"of an edge; A*'s cost map keeps its body disc ({c['astar_body_radius']:g} m) off obstacles.")
+    if c.get("capplanner_turn_edge_risk"):
+        out.append(f"CapPlanner counts a turn within 0.4 m of an edge as failing up to "
+                   f"{c['capplanner_turn_edge_risk']:g} of the time (its walks' turns beside boxes), whatever its "
+                   "model says.")
     if c["capplanner_measured_stance"]:
         out.append("CapPlanner judges its next moves from the stance the robot stands in and backs out of a "
                    "stance its model foretells as a dead end; A* has no model of the BLC to do so.")
@@ -225,9 +229,13 @@ def report_markdown(summary: dict) -> str:
             lines.append(f"| {name} | {row['difficulty']} | {row['walks']} | {shown} | {row['back_outs_per_walk']:.2f} "
                          f"| {row['recoveries_per_walk']:.2f} | {row['replans_per_walk']:.1f} | {changed} |")
     if summary.get("route_calibration"):
-        lines += ["", "| terrain | difficulty | CapPlanner set out | predicted no-fall | predicted success "
-                      "| walked | declined (no path) | of those, A* walked |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        lines += ["", "CapPlanner's first plans: the chance of no fall and of every action walking as the plan "
+                      "weighs them (the ensemble's doubt, refusals counted as it is tuned to), and the model's own "
+                      "estimate of no fall along the same route, its mean without doubt, refusals gone round "
+                      "(expected), against the share walked.", "",
+                  "| terrain | difficulty | CapPlanner set out | predicted no-fall | predicted success | expected "
+                  "no-fall | walked | declined (no path) | of those, A* walked |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
 
         def num(v):
             return "-" if v is None else f"{v:.2f}"
@@ -235,7 +243,7 @@ def report_markdown(summary: dict) -> str:
         for c in summary["route_calibration"]:
             lines.append(f"| {c['terrain']} | {c['difficulty']} | {c['started']}/{c['tasks']} "
                          f"| {num(c['predicted_fall_free'])} | {num(c.get('predicted_success'))} "
-                         f"| {num(c['walked_rate'])} | {c['declined']} | {c['declined_walked_by_astar']} |")
+                         f"| {num(c.get('expected_fall_free'))} | {num(c['walked_rate'])} | {c['declined']} | {c['declined_walked_by_astar']} |")
     if summary.get("against"):
         other = summary["against"]
         changed = ", ".join(f"{k} {v[0]} (there {v[1]})" for k, v in other["changed_settings"].items())

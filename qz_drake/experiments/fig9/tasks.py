@@ -91,6 +91,10 @@ class ExperimentConfig:
     # What CapPlanner's MDP charges a move or turn for passing near an edge
     # (capability_mdp.CapabilityMdpConfig.edge_cost; session 49): 0, none, as every run before.
     capplanner_edge_cost: float = 0.0
+    # The risk of a turn beside an edge that CapPlanner's MDP adds to the model's
+    # (capability_mdp.CapabilityMdpConfig.turn_edge_risk: at most this on the edge, none beyond
+    # 0.4 m; session 53, measured on the tuning walks' recorded turns). 0: the model's turns.
+    capplanner_turn_edge_risk: float = 0.0
     # Whether CapPlanner judges the first moves of each replan from the stance the robot stands
     # in, and backs out of a dead end the model foretells (CapabilityVIPlanner's measured_stance).
     capplanner_measured_stance: bool = True
@@ -212,7 +216,7 @@ def _mdp_overrides(config: ExperimentConfig) -> dict:
                 topology_change_cost=config.capplanner_topology_change_cost,
                 plan_failure_risk=config.capplanner_plan_failure_risk,
                 topology_doubt=float(config.capplanner_topology_doubt), pessimism=config.capplanner_pessimism,
-                edge_cost=config.capplanner_edge_cost)
+                edge_cost=config.capplanner_edge_cost, turn_edge_risk=config.capplanner_turn_edge_risk)
 
 
 # Top-level controllers: name -> (task, config) -> (Route, walking planner, waypoints, route
