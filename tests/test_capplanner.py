@@ -627,6 +627,12 @@ def test_the_experiments_capplanner_sets_out_on_any_path_it_has():
     assert any("turn within 0.4 m of an edge as failing up to 0.5" in line
                for line in planner_differences({"capplanner_turn_edge_risk": 0.5}))
     assert not any("of an edge as failing" in line for line in planner_differences({}))
+    # So does the cost of going back where a mission ended.
+    assert PLANNERS["capplanner"](task, ExperimentConfig(capplanner_revisit_cost=3.0))[3].revisit_cost == 3.0
+    assert any("costs CapPlanner 3 more for each mission that ended there" in line
+               for line in planner_differences({"capplanner_revisit_cost": 3.0}))
+    with pytest.raises(QzError, match="revisit_cost = -1"):
+        CapPlannerRoute(revisit_cost=-1.0)
     # Planning in the nominal topology alone (what switching buys is measured against it).
     assert PLANNERS["capplanner"](task, ExperimentConfig())[3].topologies == ()
     route = PLANNERS["capplanner"](task, ExperimentConfig(capplanner_topologies="nominal,front_bend"))[3]

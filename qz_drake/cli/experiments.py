@@ -51,6 +51,7 @@ def run_fig9(args) -> int:
                               capplanner_hold_margin=_hold_margin(args),
                               capplanner_turns_with_moves=not args.turns_alone,
                               capplanner_turn_edge_risk=_turn_edge_risk(args),
+                              capplanner_revisit_cost=_revisit_cost(args),
                               capplanner_topologies=_topologies(args),
                               blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                               blc_terminal_stance=args.terminal_stance,
@@ -230,6 +231,7 @@ def run_tune_capplanner(args) -> int:
                                 capplanner_hold_margin=_hold_margin(args),
                                 capplanner_turns_with_moves=not args.turns_alone,
                                 capplanner_turn_edge_risk=_turn_edge_risk(args),
+                                capplanner_revisit_cost=_revisit_cost(args),
                                 capplanner_topologies=_topologies(args),
                                 blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                                 blc_terminal_stance=args.terminal_stance,
@@ -300,6 +302,10 @@ def _stance_argument(p) -> None:
                    help="CapPlanner counts a turn from within 0.4 m of an edge as failing up to R of the time (on "
                         "the edge, falling to 0 at 0.4 m), whatever its model says "
                         "(CapabilityMdpConfig.turn_edge_risk; default: ExperimentConfig's)")
+    p.add_argument("--revisit-cost", type=float, default=None, metavar="C",
+                   help="a move into a cell costs CapPlanner C more (value units: the goal 100, an action 1) for "
+                        "each mission that ended there (CapabilityVIPlanner's revisit_cost; default: "
+                        "ExperimentConfig's)")
 
 
 def _turn_edge_risk(args) -> float:
@@ -311,6 +317,15 @@ def _turn_edge_risk(args) -> float:
     if not 0.0 <= args.turn_edge_risk <= 1.0:  # NaN too
         raise bad_value("--turn-edge-risk", args.turn_edge_risk, "must be in [0, 1]")
     return float(args.turn_edge_risk)
+
+
+def _revisit_cost(args) -> float:
+    from qz_drake.experiments.fig9 import ExperimentConfig
+    from qz_drake.planning.capability_planner import check_revisit_cost
+
+    if args.revisit_cost is None:
+        return ExperimentConfig().capplanner_revisit_cost
+    return check_revisit_cost(args.revisit_cost, "--revisit-cost")
 
 
 def _topologies(args) -> str:

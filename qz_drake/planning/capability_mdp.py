@@ -681,6 +681,8 @@ def set_stance(mdp: CapabilityMdp, state: int, outcomes: np.ndarray) -> dict:
             continue
         saved[a] = (float(mdp.success[a, state]), None if mdp.stand is None else float(mdp.stand[a, state]),
                     float(mdp.R[state, a]))
+        # What the reward holds beyond the outcomes' (an edge's cost, an arrival's: charge_arrivals) stays.
+        extra = saved[a][2] - action_reward(config, saved[a][0], saved[a][1] or 0.0, nxt == mdp.goal_state, False)
         p = float(np.clip(outcomes[m, 0] - config.pessimism * outcomes[m, 2], 0.0, 1.0))
         if mdp.turn_risk is not None and m > 0:
             p *= 1.0 - float(mdp.turn_risk[iy, ix])
@@ -689,8 +691,28 @@ def set_stance(mdp: CapabilityMdp, state: int, outcomes: np.ndarray) -> dict:
             q = float(np.clip(1.0 - outcomes[m, 1], 0.0, 1.0 - p)) * (1.0 - config.plan_failure_risk)
             mdp.stand[a, state] = q
         mdp.success[a, state] = p
-        mdp.R[state, a] = action_reward(config, p, q, nxt == mdp.goal_state, False)
+        mdp.R[state, a] = action_reward(config, p, q, nxt == mdp.goal_state, False) + extra
     return {state: saved}
+
+
+def charge_arrivals(mdp: CapabilityMdp, ix: int, iy: int, cost: float) -> int:
+    """Charges, in place, every forward move into cell (ix, iy) ``cost`` more (times its
+    success: the arrival's expected cost), from every cell, heading and topology; returns how
+    many moves it charged. What CapabilityVIPlanner's ``revisit_cost`` charges for each time
+    the robot arrived in a cell, so that a replan goes on elsewhere rather than back and forth."""
+    T, K, ny, nx = mdp.grid_shape
+    if not (0 <= ix < nx and 0 <= iy < ny):
+        raise bad_value("cell", [ix, iy], f"off the planning grid of {nx} x {ny} cells")
+    grid = mdp.goal_state
+    into = [mdp.state(ix, iy, k, t) for t in mdp.topologies for k in range(K)]
+    charged = 0
+    for t in range(T):
+        a = t * len(MOTIONS)  # the forward move of topology t
+        nxt = mdp.next_state[a, :grid]
+        hits = np.flatnonzero(np.isin(nxt, into))
+        mdp.R[hits, a] -= cost * mdp.success[a, hits]
+        charged += len(hits)
+    return charged
 
 
 def restore_actions(mdp: CapabilityMdp, saved: dict) -> None:

@@ -51,6 +51,16 @@ def check_hold_margin(value, field: str = "hold_margin") -> float | None:
     return float(value)
 
 
+def check_revisit_cost(value, field: str = "revisit_cost") -> float:
+    """A revisit cost (CapabilityVIPlanner's ``revisit_cost``) as a float; anything but a finite
+    number >= 0 is a QzError naming ``field``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
+        from qz_drake.errors import bad_value
+
+        raise bad_value(field, value, "must be a finite number >= 0 (value units)")
+    return float(value)
+
+
 def route_counts(log) -> dict[str, int]:
     """A planner log's route decisions counted, as the walk's metrics name them (tlc_routes_*)."""
     return {route_count_key(d): sum(1 for _, x in log.route_decisions if x == d) for d in ROUTE_DECISIONS}
@@ -180,13 +190,18 @@ class CapabilityVIPlanner(RecoveringSequencer):
             where the robot stands, up to route_check.MAX_FORESEEN times per route.
         check_start: the MissionStart the first route is checked from (the robot's standing
             stance); None: the first route is not checked.
+        revisit_cost: each time a mission ends in a cell, every forward move into that cell
+            costs this much more (value units; capability_mdp.charge_arrivals), so that after
+            going round refusals the robot goes on somewhere new instead of back and forth
+            between the same cells (validation walks on box fields went round one block of
+            cells for 100 s until their time ran out). 0: none (the paper's TLC).
     """
 
     def __init__(self, *, model, heightmap, goal, start, initial_topology: str = "nominal", mdp_config=None,
                  split_config: MissionSplitConfig = MissionSplitConfig(), min_route_success: float = 0.05,
                  plan_ahead: float = 0.0, check_period: float = 0.05, max_recoveries: int = 4,
                  back_out: bool = True, measured_stance: bool = True, refused_in_every_topology: bool = True,
-                 hold_margin: float | None = None, route_check=None, check_start=None):
+                 hold_margin: float | None = None, route_check=None, check_start=None, revisit_cost: float = 0.0):
         super().__init__(log=CapabilityPlannerLog(), max_recoveries=max_recoveries, plan_ahead=plan_ahead)
         from qz_drake.capability.model import predict_map
         from qz_drake.planning.capability_mdp import (CapabilityMdpConfig, build_capability_mdp, cells_on_map,
@@ -199,6 +214,9 @@ class CapabilityVIPlanner(RecoveringSequencer):
         self._every_topology = bool(refused_in_every_topology)
         self._hold_margin = check_hold_margin(hold_margin)
         self._route_check = route_check
+        self._revisit_cost = check_revisit_cost(revisit_cost)
+        # Cells missions ended in whose arrival is not charged yet (charge_arrivals, at the next replan).
+        self._arrivals: list[tuple[int, int]] = []
         # The model and the map for the stance at each replan (measured_stance), and what the
         # last replan's stance replaced in the MDP (capability_mdp.set_stance).
         self._model = model if measured_stance else None
@@ -233,15 +251,21 @@ class CapabilityVIPlanner(RecoveringSequencer):
 
     # -- planning ------------------------------------------------------------------------------
     def _replan(self, t: float, x: float, y: float, yaw: float, topology: str, feet_W=None) -> list:
-        from qz_drake.planning.capability_mdp import (CapabilityPlan, fall_free_probability, most_likely_path,
-                                                      most_probable_path, restore_actions, set_stance,
-                                                      solve_capability_mdp, stance_outcomes)
+        from qz_drake.planning.capability_mdp import (CapabilityPlan, charge_arrivals, fall_free_probability,
+                                                      most_likely_path, most_probable_path, restore_actions,
+                                                      set_stance, solve_capability_mdp, stance_outcomes)
 
         clock = time.perf_counter()
         start = self._state_at(x, y, yaw, topology, "start")
         ix, iy, k, _ = self.mdp.unravel(start)
         restore_actions(self.mdp, self._stance_saved)
         self._stance_saved = {}
+        # After the restore, which would undo a charge on the last start's moves.
+        charged = sum(charge_arrivals(self.mdp, cx, cy, self._revisit_cost) for cx, cy in self._arrivals)
+        self._arrivals = []
+        if charged and (feet_W is None or self._model is None):
+            self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
+            self.log.value_iterations += int(self.solution.iterations)
         if feet_W is not None and self._model is not None:
             # The first moves from the stance the robot stands in (the map assumed the nominal
             # footholds): a refusal predicted from it is a dead end.
@@ -309,6 +333,8 @@ class CapabilityVIPlanner(RecoveringSequencer):
         ix, iy = self.mdp.cell_of(x, y, field="expected end", margin=self.mdp.config.cell_size)
         if (ix, iy) == self.mdp.goal_cell:
             return []
+        if self._revisit_cost > 0:
+            self._arrivals.append((ix, iy))
         missions = self._replan(t, x, y, yaw, topology, feet_W)
         decision = self._route_decision(x, y, yaw, topology, held, missions)
         self.log.route_decisions.append((t, decision))

@@ -628,3 +628,29 @@ def test_a_plan_expects_its_walk_by_the_models_mean_with_refusals_gone_round():
     bare = dataclasses.replace(result, capability_map=None)
     with pytest.raises(QzError, match="capability_map"):
         bare.expected_fall_free()
+
+
+def test_an_arrivals_charge_routes_round_the_cell_and_outlasts_the_robots_stance():
+    """charge_arrivals (CapabilityVIPlanner's revisit_cost): every forward move into a cell costs
+    more, so the route goes round it; set_stance, which recomputes the start's moves from the
+    robot's stance, keeps the charge, and restore_actions gives it back as it was."""
+    from qz_drake.planning.capability_mdp import (charge_arrivals, most_likely_path, restore_actions, set_stance,
+                                                  solve_capability_mdp)
+
+    result = _open_ground_route(0.97, 0.97, np.zeros((2, 8, 3, 12)), topologies=["nominal"])
+    assert np.allclose(result.cells[:, 1], 1.5)  # straight along the middle row
+    mdp = result.mdp
+    before = mdp.R.copy()
+    # Cell (5, 1): from each of its 8 neighbours one heading leads into it, in either of the map's
+    # two topologies from a state of either: 8 x 2 x 2 moves.
+    assert charge_arrivals(mdp, 5, 1, 30.0) == 32
+    into = mdp.state(4, 1, 0, "nominal")
+    assert mdp.R[into, 0] == pytest.approx(before[into, 0] - 30.0 * mdp.success[0, into])
+    saved = set_stance(mdp, into, np.array([[0.97, 1.0, 0.0], [0.99, 1.0, 0.0], [0.99, 1.0, 0.0]]))
+    assert mdp.R[into, 0] == pytest.approx(before[into, 0] - 30.0 * 0.97)
+    restore_actions(mdp, saved)
+    solution = solve_capability_mdp(mdp)
+    steps, reaches, _ = most_likely_path(mdp, solution, mdp.state(0, 1, 0, "nominal"))
+    assert reaches and not any(np.isclose(s.x, 5.5) and np.isclose(s.y, 1.5) for s in steps)
+    with pytest.raises(QzError, match="cell"):
+        charge_arrivals(mdp, 12, 1, 1.0)

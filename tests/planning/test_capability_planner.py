@@ -505,3 +505,24 @@ def test_a_refusal_foretold_from_the_stance_is_weighed_as_the_map_weighs_refusal
     restore_actions(mdp, saved)
     for was, now in zip(before, (mdp.success[:, s], mdp.stand[:, s], mdp.R[s])):
         np.testing.assert_array_equal(was, now)
+
+
+@pytest.mark.parametrize("cost", [0.0, 20.0])
+def test_with_a_revisit_cost_a_replan_goes_on_somewhere_new_rather_than_back(cost):
+    """Issue 54's routes that hold (session 53): validation walks on box fields went round the
+    same few cells after each foreseen refusal until their time ran out. On open ground from
+    x = -3 m to the goal at x = 3 m, a mission ended in the cell at (0, 0) and the next one back
+    at (-1, 0): with a revisit cost the route from there goes round the cell it has been in; without,
+    straight through it again."""
+    from qz_drake.planning.guidance import route_ahead
+
+    heightmap = HeightMap(np.zeros((140, 160)), 0.05, (-3.975, -2.975))
+    planner = CapabilityVIPlanner(model=WallModel(), heightmap=heightmap, goal=GOAL, start=(*START, 0.0),
+                                  mdp_config=CapabilityMdpConfig(topologies=["nominal"]), revisit_cost=cost)
+    planner.next_missions(1.0, 0.0, 0.0, np.pi, "nominal", None, [])  # a mission ended at (0, 0), facing west
+    ahead = route_ahead(planner.next_missions(2.0, -1.0, 0.0, 0.0, "nominal", None, []), 2.5)
+    assert ahead[0] == (-1.0, 0.0)
+    assert ((0.0, 0.0) in ahead) == (cost == 0.0)
+    with pytest.raises(QzError, match="revisit_cost"):
+        CapabilityVIPlanner(model=WallModel(), heightmap=heightmap, goal=GOAL, start=(*START, 0.0),
+                            mdp_config=CapabilityMdpConfig(topologies=["nominal"]), revisit_cost=-1.0)

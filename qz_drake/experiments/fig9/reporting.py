@@ -74,6 +74,10 @@ def planner_differences(settings: dict) -> list[str]:
         out.append(f"CapPlanner counts a turn within 0.4 m of an edge as failing up to "
                    f"{c['capplanner_turn_edge_risk']:g} of the time (its walks' turns beside boxes), whatever its "
                    "model says.")
+    if c.get("capplanner_revisit_cost"):
+        out.append(f"A move into a cell costs CapPlanner {c['capplanner_revisit_cost']:g} more for each mission that "
+                   "ended there (it goes on somewhere new rather than back and forth); A* plans again only after a "
+                   "refusal.")
     if c["capplanner_measured_stance"]:
         out.append("CapPlanner judges its next moves from the stance the robot stands in and backs out of a "
                    "stance its model foretells as a dead end; A* has no model of the BLC to do so.")

@@ -95,6 +95,9 @@ class ExperimentConfig:
     # (capability_mdp.CapabilityMdpConfig.turn_edge_risk: at most this on the edge, none beyond
     # 0.4 m; session 53, measured on the tuning walks' recorded turns). 0: the model's turns.
     capplanner_turn_edge_risk: float = 0.0
+    # What a move into a cell costs CapPlanner more for each mission that ended there
+    # (CapabilityVIPlanner's revisit_cost; session 53). 0: none, as every run before.
+    capplanner_revisit_cost: float = 0.0
     # Whether CapPlanner judges the first moves of each replan from the stance the robot stands
     # in, and backs out of a dead end the model foretells (CapabilityVIPlanner's measured_stance).
     capplanner_measured_stance: bool = True
@@ -200,7 +203,8 @@ def _capplanner(task, config):
                             refused_in_every_topology=config.capplanner_refused_in_every_topology,
                             hold_margin=config.capplanner_hold_margin, route_check=config.route_check,
                             check_ladder=_walk_ladder(config),
-                            topologies=config.capplanner_topologies))
+                            topologies=config.capplanner_topologies,
+                            revisit_cost=config.capplanner_revisit_cost))
 
 
 def _walk_ladder(config: ExperimentConfig) -> tuple[str, ...]:
