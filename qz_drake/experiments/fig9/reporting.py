@@ -247,7 +247,8 @@ def report_markdown(summary: dict) -> str:
         for c in summary["route_calibration"]:
             lines.append(f"| {c['terrain']} | {c['difficulty']} | {c['started']}/{c['tasks']} "
                          f"| {num(c['predicted_fall_free'])} | {num(c.get('predicted_success'))} "
-                         f"| {num(c.get('expected_fall_free'))} | {num(c['walked_rate'])} | {c['declined']} | {c['declined_walked_by_astar']} |")
+                         f"| {num(c.get('expected_fall_free'))} | {num(c['walked_rate'])} | {c['declined']} "
+                         f"| {c['declined_walked_by_astar']} |")
     if summary.get("against"):
         other = summary["against"]
         changed = ", ".join(f"{k} {v[0]} (there {v[1]})" for k, v in other["changed_settings"].items())
