@@ -309,14 +309,12 @@ def _stance_argument(p) -> None:
 
 
 def _turn_edge_risk(args) -> float:
-    from qz_drake.errors import bad_value
     from qz_drake.experiments.fig9 import ExperimentConfig
+    from qz_drake.planning.capability_mdp import check_turn_edge_risk
 
     if args.turn_edge_risk is None:
         return ExperimentConfig().capplanner_turn_edge_risk
-    if not 0.0 <= args.turn_edge_risk <= 1.0:  # NaN too
-        raise bad_value("--turn-edge-risk", args.turn_edge_risk, "must be in [0, 1]")
-    return float(args.turn_edge_risk)
+    return check_turn_edge_risk(args.turn_edge_risk, "--turn-edge-risk")
 
 
 def _revisit_cost(args) -> float:

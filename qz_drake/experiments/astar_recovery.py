@@ -187,12 +187,13 @@ class AStarRecoverySequencer(RecoveringSequencer):
         """A*'s route from ``here`` to the goal round the blocked cells; from a point off the map
         (a robot that walked past its edge, or a mission expected to end there) no route, with
         the reason, as a route that is not found: the walk reports it, it does not crash."""
-        try:
-            return self._baseline.route(here, self._goal)
-        except ConfigError as e:
-            if "off the map" not in str(e):
-                raise
-            return Route(False, f"A*: {e}", [], 0.0, np.zeros((0, 2)))
+        from qz_drake.planning.astar import off_map
+
+        x, y = float(here[0]), float(here[1])
+        reason = off_map(self._baseline.cost_map, x, y)
+        if reason:
+            return Route(False, f"A*: start = {(x, y)}: {reason}", [], 0.0, np.zeros((0, 2)))
+        return self._baseline.route(here, self._goal)
 
     def _go_round(self, context, state, failed, missions, index):
         import time

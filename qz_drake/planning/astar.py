@@ -124,14 +124,24 @@ def astar(cost_map: CostMap, start_xy, goal_xy, *, config: AStarConfig | None = 
             x, y = (float(v) for v in point)
         except (TypeError, ValueError):
             raise bad_value(name, point, "expected a world point (x, y) in metres") from None
-        row, col = cost_map.cell(x, y)
-        if not (0 <= row < H and 0 <= col < W):
-            x0, y0 = cost_map.origin
-            x1, y1 = x0 + (W - 1) * cost_map.resolution, y0 + (H - 1) * cost_map.resolution
-            raise bad_value(name, (x, y), f"off the map (x in [{x0:g}, {x1:g}], y in [{y0:g}, {y1:g}])")
-        cells.append((row, col))
+        reason = off_map(cost_map, x, y)
+        if reason:
+            raise bad_value(name, (x, y), reason)
+        cells.append(cost_map.cell(x, y))
     return astar_grid(cost_map.heading_cost(), cells[0], cells[1], resolution=cost_map.resolution,
                       origin=cost_map.origin, config=config)
+
+
+def off_map(cost_map: CostMap, x: float, y: float) -> str:
+    """Why the world point (x, y) [m] is off the cost map ("off the map (x in [..], y in [..])"),
+    or "" where its nearest cell is on it."""
+    H, W = cost_map.shape
+    row, col = cost_map.cell(x, y)
+    if 0 <= row < H and 0 <= col < W:
+        return ""
+    x0, y0 = cost_map.origin
+    x1, y1 = x0 + (W - 1) * cost_map.resolution, y0 + (H - 1) * cost_map.resolution
+    return f"off the map (x in [{x0:g}, {x1:g}], y in [{y0:g}, {y1:g}])"
 
 
 def _result(path: GridPath, costs: np.ndarray, resolution: float, origin, config: AStarConfig) -> AStarResult:

@@ -76,6 +76,14 @@ GREEDY_PASSES = 2
 HEADING_STEPS = np.array([(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1)])
 
 
+def check_turn_edge_risk(value, field: str = "turn_edge_risk") -> float:
+    """A turn's risk beside an edge (CapabilityMdpConfig.turn_edge_risk) as a float; anything but
+    a number in [0, 1] is a QzError naming ``field``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:  # NaN too
+        raise bad_value(field, value, "must be in [0, 1]")
+    return float(value)
+
+
 @dataclasses.dataclass
 class CapabilityMdpConfig:
     """Rewards and solver settings of the capability MDP; each default with its reason."""
@@ -204,6 +212,12 @@ class CapabilityMdpConfig:
     # ends in when the BLC's terminal_stance is "canonical" (trajopt/stance.py; issue 54).
     stance: str = "nominal"
 
+    @property
+    def needs_edge_clearance(self) -> bool:
+        """Whether the MDP is built with the map's edge clearances (edge_clearances): for
+        ``edge_cost`` or ``turn_edge_risk``."""
+        return self.edge_cost > 0 or self.turn_edge_risk > 0
+
     def for_grid(self, nx: int, ny: int) -> "CapabilityMdpConfig":
         """The config a grid of nx x ny cells is planned with (``scale_to_grid``)."""
         k = (nx + ny) / 40.0
@@ -219,8 +233,7 @@ class CapabilityMdpConfig:
                      "switch_max_roughness", "switch_max_step", "plan_failure_cost", "pessimism", "edge_cost"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise bad_value(f"capability_mdp.{name}", getattr(self, name), "must be finite and >= 0")
-        if not (np.isfinite(self.turn_edge_risk) and 0.0 <= self.turn_edge_risk <= 1.0):
-            raise bad_value("capability_mdp.turn_edge_risk", self.turn_edge_risk, "must be in [0, 1]")
+        check_turn_edge_risk(self.turn_edge_risk, "capability_mdp.turn_edge_risk")
         for name in ("edge_reach", "edge_height", "turn_edge_reach"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise bad_value(f"capability_mdp.{name}", getattr(self, name), "must be finite and > 0 [m]")
@@ -480,7 +493,7 @@ def build_capability_mdp(capability_map, goal_xy, config: CapabilityMdpConfig | 
                                else "model cards' shares")
     reference = _reference_motions(capability_map, config, topologies, k, iy, ix, allowed)
     near_edge = turn_kept = None
-    if config.edge_cost > 0 or config.turn_edge_risk > 0:
+    if config.needs_edge_clearance:
         if edge_clearance is None:
             raise bad_value("edge_clearance", None, "needed with capability_mdp.edge_cost or turn_edge_risk > 0 "
                                                     "(edge_clearances of the map)")
@@ -1179,4 +1192,4 @@ def plan(model, heightmap, start_xy, start_heading: int, goal_xy, *, start_topol
                                                                   capability_map.ys, config),
                        on_map=cells_on_map(heightmap, capability_map.xs, capability_map.ys),
                        edge_clearance=edge_clearances(heightmap, capability_map.xs, capability_map.ys, config)
-                       if config.edge_cost > 0 or config.turn_edge_risk > 0 else None)
+                       if config.needs_edge_clearance else None)

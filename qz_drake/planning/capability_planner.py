@@ -229,8 +229,7 @@ class CapabilityVIPlanner(RecoveringSequencer):
         self.capability_map = predict_map(model, heightmap, config.topologies or None, cell_size=config.cell_size,
                                           anchor=start[:2], stance=config.stance)
         xs, ys = self.capability_map.xs, self.capability_map.ys
-        self._edge_clearance = (edge_clearances(heightmap, xs, ys, config)
-                                if config.edge_cost > 0 or config.turn_edge_risk > 0 else None)
+        self._edge_clearance = edge_clearances(heightmap, xs, ys, config) if config.needs_edge_clearance else None
         self.mdp = build_capability_mdp(self.capability_map, goal, config, switchable_cells(heightmap, xs, ys, config),
                                         cells_on_map(heightmap, xs, ys), self._edge_clearance)
         self.solution = solve_capability_mdp(self.mdp)
@@ -263,10 +262,11 @@ class CapabilityVIPlanner(RecoveringSequencer):
         # After the restore, which would undo a charge on the last start's moves.
         charged = sum(charge_arrivals(self.mdp, cx, cy, self._revisit_cost) for cx, cy in self._arrivals)
         self._arrivals = []
-        if charged and (feet_W is None or self._model is None):
+        from_stance = feet_W is not None and self._model is not None
+        if charged and not from_stance:  # (from the stance, value iteration is solved below)
             self.solution = solve_capability_mdp(self.mdp, V0=self.solution.V)
             self.log.value_iterations += int(self.solution.iterations)
-        if feet_W is not None and self._model is not None:
+        if from_stance:
             # The first moves from the stance the robot stands in (the map assumed the nominal
             # footholds): a refusal predicted from it is a dead end.
             outcomes = stance_outcomes(self._model, self._heightmap, x, y, k, topology, feet_W)
