@@ -9,7 +9,7 @@ worlds and settings):
     python benchmarks/learned_astar.py OUT [--weight 3] [--veto 0] [--blc-ladder LADDER]
         [--terminal-stance free|canonical] [--workers 2] [--first-seed 1000] [--planner astar|capplanner]
         [--model DIR] [--route-check N] [--turns-alone] [--turn-edge-risk R]
-        [--revisit-cost C]
+        [--revisit-cost C] [--target-shift D]
     python benchmarks/learned_astar.py --table RUN [RUN ...]
 
 OUT is a Fig. 9 results folder (resumable). ``--table`` prints, per results folder, the tasks
@@ -32,7 +32,8 @@ CAPPLANNER_TUNING = "data/capplanner_tuning"
 
 def walk(out: Path, weight: float, veto: float, ladder: str, stance: str, workers: int, first_seed: int,
          planner: str = "astar_learned", model: str = "", route_check: int = 0,
-         turns_with_moves: bool = True, turn_edge_risk: float = 0.0, revisit_cost: float = 0.0) -> dict:
+         turns_with_moves: bool = True, turn_edge_risk: float = 0.0, revisit_cost: float = 0.0,
+         target_shift: float = 0.0) -> dict:
     from qz_drake.experiments.fig9 import ExperimentConfig, astar_settings, capplanner_settings, run_experiment
     from qz_drake.experiments.fig9.tune import TUNING_DIFFICULTIES, TUNING_TASKS_PER_CELL
     from qz_drake.experiments.worlds import TERRAINS
@@ -42,7 +43,7 @@ def walk(out: Path, weight: float, veto: float, ladder: str, stance: str, worker
     config = ExperimentConfig(blc_ladder=ladder, blc_terminal_stance=stance, record_missions=True,
                               capability_model=model, route_check=route_check,
                               capplanner_turns_with_moves=turns_with_moves, capplanner_turn_edge_risk=turn_edge_risk,
-                              capplanner_revisit_cost=revisit_cost,
+                              capplanner_revisit_cost=revisit_cost, capplanner_target_shift=target_shift,
                               astar_learned_weight=weight, astar_learned_veto=veto, **astar_settings(ASTAR_TUNING),
                               **capplanner_settings(CAPPLANNER_TUNING))
     return run_experiment(out, planners=(planner,), terrains=TERRAINS, difficulties=TUNING_DIFFICULTIES,
@@ -109,6 +110,9 @@ def main(argv=None) -> int:
     parser.add_argument("--revisit-cost", type=float, default=0.0, metavar="C",
                         help="a move into a cell costs CapPlanner C more for each mission that ended there "
                              "(CapabilityVIPlanner's revisit_cost; default 0: none)")
+    parser.add_argument("--target-shift", type=float, default=0.0, metavar="D",
+                        help="CapPlanner's mission targets move up to D m from their cell's centre, away from "
+                             "edges (CapabilityVIPlanner's target_shift; default 0: the centres)")
     parser.add_argument("--table", nargs="+", type=Path, default=None, metavar="RUN")
     args = parser.parse_args(argv)
     if args.table:
@@ -118,7 +122,7 @@ def main(argv=None) -> int:
         parser.error("give OUT, or --table RUN ...")
     summary = walk(args.out, args.weight, args.veto, args.blc_ladder, args.terminal_stance, args.workers,
                    args.first_seed, args.planner, args.model, args.route_check, not args.turns_alone,
-                   args.turn_edge_risk, args.revisit_cost)
+                   args.turn_edge_risk, args.revisit_cost, args.target_shift)
     print(json.dumps({k: summary[k] for k in ("ran", "reused", "already_done", "wall_time_s", "out")}))
     print(table([args.out]))
     return 0

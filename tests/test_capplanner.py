@@ -635,6 +635,13 @@ def test_the_experiments_capplanner_sets_out_on_any_path_it_has():
                for line in planner_differences({"capplanner_revisit_cost": 3.0}))
     with pytest.raises(QzError, match="revisit_cost = -1"):
         CapPlannerRoute(revisit_cost=-1.0)
+    # And the targets' shift away from edges.
+    assert PLANNERS["capplanner"](task, ExperimentConfig(capplanner_target_shift=0.3))[3].target_shift == 0.3
+    assert any("move up to 0.3 m from their cell's centre" in line
+               for line in planner_differences({"capplanner_target_shift": 0.3}))
+    assert not any("from their cell's centre" in line for line in planner_differences({}))
+    with pytest.raises(QzError, match="target_shift = 0.7"):
+        CapPlannerRoute(target_shift=0.7)
     # Planning in the nominal topology alone (what switching buys is measured against it).
     assert PLANNERS["capplanner"](task, ExperimentConfig())[3].topologies == ()
     route = PLANNERS["capplanner"](task, ExperimentConfig(capplanner_topologies="nominal,front_bend"))[3]

@@ -52,6 +52,7 @@ def run_fig9(args) -> int:
                               capplanner_turns_with_moves=not args.turns_alone,
                               capplanner_turn_edge_risk=_turn_edge_risk(args),
                               capplanner_revisit_cost=_revisit_cost(args),
+                              capplanner_target_shift=_target_shift(args),
                               capplanner_topologies=_topologies(args),
                               blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                               blc_terminal_stance=args.terminal_stance,
@@ -232,6 +233,7 @@ def run_tune_capplanner(args) -> int:
                                 capplanner_turns_with_moves=not args.turns_alone,
                                 capplanner_turn_edge_risk=_turn_edge_risk(args),
                                 capplanner_revisit_cost=_revisit_cost(args),
+                                capplanner_target_shift=_target_shift(args),
                                 capplanner_topologies=_topologies(args),
                                 blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                                 blc_terminal_stance=args.terminal_stance,
@@ -306,6 +308,9 @@ def _stance_argument(p) -> None:
                    help="a move into a cell costs CapPlanner C more (value units: the goal 100, an action 1) for "
                         "each mission that ended there (CapabilityVIPlanner's revisit_cost; default: "
                         "ExperimentConfig's)")
+    p.add_argument("--target-shift", type=float, default=None, metavar="D",
+                   help="CapPlanner's mission targets but the goal move up to D m from their cell's centre to the "
+                        "point of its level clearest of edges (guidance.place_targets; default: ExperimentConfig's)")
 
 
 def _turn_edge_risk(args) -> float:
@@ -324,6 +329,15 @@ def _revisit_cost(args) -> float:
     if args.revisit_cost is None:
         return ExperimentConfig().capplanner_revisit_cost
     return check_revisit_cost(args.revisit_cost, "--revisit-cost")
+
+
+def _target_shift(args) -> float:
+    from qz_drake.experiments.fig9 import ExperimentConfig
+    from qz_drake.planning.guidance import check_target_shift
+
+    if args.target_shift is None:
+        return ExperimentConfig().capplanner_target_shift
+    return check_target_shift(args.target_shift, "--target-shift")
 
 
 def _topologies(args) -> str:

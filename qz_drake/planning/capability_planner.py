@@ -27,7 +27,8 @@ from pydrake.common.value import AbstractValue
 
 from qz_drake.capability.patches import HEADING_STEP
 from qz_drake.planning.back_out import BackOut
-from qz_drake.planning.guidance import GuidedMission, MissionSplitConfig, route_ahead, split_missions
+from qz_drake.planning.guidance import (GuidedMission, MissionSplitConfig, check_target_shift, place_targets,
+                                        route_ahead, split_missions)
 from qz_drake.robot.params import DEFAULT_PARAMS
 from qz_drake.systems.mission_sequencer import RecoveringSequencer, RecoveryLog, measured_start, unwrapped_yaws
 from qz_drake.state_layout import BASE_XY, base_rpy
@@ -195,17 +196,24 @@ class CapabilityVIPlanner(RecoveringSequencer):
             going round refusals the robot goes on somewhere new instead of back and forth
             between the same cells (validation walks on box fields went round one block of
             cells for 100 s until their time ran out). 0: none (the paper's TLC).
+        target_shift: each mission's target but the goal moves up to this far from its cell's
+            centre, to the point of the centre's level clearest of edges
+            (qz_drake.planning.guidance.place_targets): the robot does not stand, turn or
+            start its next mission a few centimetres from a box's side because a cell's centre
+            fell there. 0: the cell centres (the paper's TLC). [m]
     """
 
     def __init__(self, *, model, heightmap, goal, start, initial_topology: str = "nominal", mdp_config=None,
                  split_config: MissionSplitConfig = MissionSplitConfig(), min_route_success: float = 0.05,
                  plan_ahead: float = 0.0, check_period: float = 0.05, max_recoveries: int = 4,
                  back_out: bool = True, measured_stance: bool = True, refused_in_every_topology: bool = True,
-                 hold_margin: float | None = None, route_check=None, check_start=None, revisit_cost: float = 0.0):
+                 hold_margin: float | None = None, route_check=None, check_start=None, revisit_cost: float = 0.0,
+                 target_shift: float = 0.0):
         super().__init__(log=CapabilityPlannerLog(), max_recoveries=max_recoveries, plan_ahead=plan_ahead)
         from qz_drake.capability.model import predict_map
         from qz_drake.planning.capability_mdp import (CapabilityMdpConfig, build_capability_mdp, cells_on_map,
-                                                      edge_clearances, solve_capability_mdp, switchable_cells)
+                                                      edge_clearances, edge_distances, solve_capability_mdp,
+                                                      switchable_cells)
 
         # The plan from the start (a CapabilityPlan, for drawing: capability.plots.plot_plan).
         self.first_plan = None
@@ -215,6 +223,7 @@ class CapabilityVIPlanner(RecoveringSequencer):
         self._hold_margin = check_hold_margin(hold_margin)
         self._route_check = route_check
         self._revisit_cost = check_revisit_cost(revisit_cost)
+        self._target_shift = check_target_shift(target_shift)
         # Cells missions ended in whose arrival is not charged yet (charge_arrivals, at the next replan).
         self._arrivals: list[tuple[int, int]] = []
         # The model and the map for the stance at each replan (measured_stance), and what the
@@ -230,6 +239,8 @@ class CapabilityVIPlanner(RecoveringSequencer):
                                           anchor=start[:2], stance=config.stance)
         xs, ys = self.capability_map.xs, self.capability_map.ys
         self._edge_clearance = edge_clearances(heightmap, xs, ys, config) if config.needs_edge_clearance else None
+        # The heightmap's distance from edges where targets move away from them (target_shift).
+        self._edge_distance = edge_distances(heightmap, config.edge_height) if self._target_shift > 0 else None
         self.mdp = build_capability_mdp(self.capability_map, goal, config, switchable_cells(heightmap, xs, ys, config),
                                         cells_on_map(heightmap, xs, ys), self._edge_clearance)
         self.solution = solve_capability_mdp(self.mdp)
@@ -301,6 +312,7 @@ class CapabilityVIPlanner(RecoveringSequencer):
             # (within half a cell of it).
             last = missions[-1]
             last.target = (self._goal[0], self._goal[1], last.target[2])
+            self._placed(missions, keep_last=True)
         self.log.replans.append((t, (x, y, k, topology), len(missions), probability))
         self.log.planning_time_s += time.perf_counter() - clock
         fall_free = fall_free_probability(steps)
@@ -448,7 +460,15 @@ class CapabilityVIPlanner(RecoveringSequencer):
         single = split_missions(mission.steps, dataclasses.replace(self._split, min_success=1.0,
                                                                    turns_with_moves=False))
         single[-1].target = (mission.target[0], mission.target[1], single[-1].target[2])
-        return single
+        return self._placed(single, keep_last=True)
+
+    def _placed(self, missions: list, keep_last: bool) -> list:
+        """``missions`` with their targets moved away from edges (target_shift; the last one's
+        kept with ``keep_last``)."""
+        if self._edge_distance is not None:
+            place_targets(missions, self._heightmap, self._edge_distance, self._target_shift,
+                          self.mdp.config.edge_height, keep_last=keep_last)
+        return missions
 
     def _close_and_solve(self, step) -> None:
         """Forbids ``step``'s action from its state (refused, or foreseen refused;

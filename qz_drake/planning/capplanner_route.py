@@ -16,7 +16,7 @@ from qz_drake.capability.trials import TrialConfig, trial_blc_parameters
 from qz_drake.errors import bad_value
 from qz_drake.planning.capability_mdp import CapabilityMdpConfig
 from qz_drake.planning.capability_planner import CapabilityVIPlanner, check_hold_margin, check_revisit_cost
-from qz_drake.planning.guidance import MissionSplitConfig
+from qz_drake.planning.guidance import MissionSplitConfig, check_target_shift
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 from qz_drake.scene import check_standable
 from qz_drake.simulation import FixedRoute
@@ -80,7 +80,8 @@ class CapPlannerRoute(FixedRoute):
     solved again on ``check_ladder`` (the walk's ladder, or its retries' rungs); ``topologies``
     the topologies it may plan in (empty: every one the model knows; ``("nominal",)``: the
     robot never changes topology, what switching buys is measured against); ``revisit_cost``
-    what a move into a cell costs more for each mission that ended there (CapabilityVIPlanner)."""
+    what a move into a cell costs more for each mission that ended there, ``target_shift`` how
+    far a mission's target may move from its cell's centre away from edges (CapabilityVIPlanner)."""
 
     mission_retries = CAPPLANNER_MISSION_RETRIES
     chooses_goal_heading = True
@@ -89,7 +90,7 @@ class CapPlannerRoute(FixedRoute):
     def __init__(self, split_config: MissionSplitConfig | None = None, min_route_success: float = 0.05,
                  back_out: bool = True, measured_stance: bool = True, refused_in_every_topology: bool = True,
                  hold_margin: float | None = None, route_check: int = 0, check_ladder=(), topologies=(),
-                 revisit_cost: float = 0.0):
+                 revisit_cost: float = 0.0, target_shift: float = 0.0):
         from qz_drake.errors import bad_value
         from qz_drake.planning.route_check import check_route_check
         from qz_drake.systems.blc_plan import parse_ladder
@@ -106,6 +107,7 @@ class CapPlannerRoute(FixedRoute):
         self.check_ladder = parse_ladder(check_ladder, "check_ladder")
         self.topologies = check_topologies(topologies, "topologies")
         self.revisit_cost = check_revisit_cost(revisit_cost)
+        self.target_shift = check_target_shift(target_shift)
 
     def blc_parameters(self):
         # The BLC the capability model learned: the trials' deterministic budget (30 Ipopt
@@ -144,7 +146,8 @@ class CapPlannerRoute(FixedRoute):
                                    back_out=self.back_out, measured_stance=self.measured_stance,
                                    refused_in_every_topology=self.refused_in_every_topology,
                                    hold_margin=self.hold_margin, route_check=check, revisit_cost=self.revisit_cost,
-                                   check_start=None if check is None else measured_start(x0, 0.0, info.params))
+                                   check_start=None if check is None else measured_start(x0, 0.0, info.params),
+                                   target_shift=self.target_shift)
 
     def unreachable(self, source) -> str:
         return source.log.unreachable

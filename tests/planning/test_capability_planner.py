@@ -2,6 +2,7 @@
 impossible, hands out missions one by one, replans at each mission start, says when the goal
 is unreachable; and (slow) the whole CapPlanner walks a world in Drake."""
 
+import math
 import re
 
 import numpy as np
@@ -526,3 +527,32 @@ def test_with_a_revisit_cost_a_replan_goes_on_somewhere_new_rather_than_back(cos
     with pytest.raises(QzError, match="revisit_cost"):
         CapabilityVIPlanner(model=WallModel(), heightmap=heightmap, goal=GOAL, start=(*START, 0.0),
                             mdp_config=CapabilityMdpConfig(topologies=["nominal"]), revisit_cost=-1.0)
+
+
+@pytest.mark.parametrize("shift", [0.0, 0.3])
+def test_with_a_target_shift_a_mission_ends_clear_of_a_box_in_its_cell_and_the_last_at_the_goal(shift):
+    """Issue 54 (session 54): the grid is anchored at the start, so a mission's cell centre may
+    fall a few centimetres from a box's side. A 0.1 m box (the stub model walks over it) 5 cm
+    north of the centre (-1, 0) on the straight route: with a shift the mission ending there
+    ends south of it, in the same cell; the goal stays the goal."""
+    res = 0.05
+    c = -4.0 + res / 2 + res * np.arange(160)
+    r = -3.0 + res / 2 + res * np.arange(140)
+    gx, gy = np.meshgrid(c, r)
+    heights = np.where((gx >= -1.3) & (gx < -0.7) & (gy >= 0.05) & (gy < 0.6), 0.1, 0.0)
+    planner = CapabilityVIPlanner(model=WallModel(), heightmap=HeightMap(heights, res, (float(c[0]), float(r[0]))),
+                                  goal=GOAL, start=(*START, 0.0),
+                                  mdp_config=CapabilityMdpConfig(topologies=["nominal"]), target_shift=shift)
+    missions = planner.next_missions(0.5, -3.0, 0.0, 0.0, "nominal", None, [])
+    first = [m for m in missions if m.steps and m.steps[-1].x == -2.0][0]  # the move ending in cell (-1, 0)
+    x, y, yaw = first.target
+    assert yaw == 0.0 and planner.mdp.cell_of(x, y) == planner.mdp.cell_of(-1.0, 0.0)
+    if shift:
+        assert y < -0.2 and math.hypot(x + 1.0, y) <= shift + 1e-9
+    else:
+        assert (x, y) == (-1.0, 0.0)
+    assert missions[-1].target[:2] == GOAL
+    with pytest.raises(QzError, match="target_shift"):
+        CapabilityVIPlanner(model=WallModel(), heightmap=HeightMap(heights, res, (float(c[0]), float(r[0]))),
+                            goal=GOAL, start=(*START, 0.0), mdp_config=CapabilityMdpConfig(topologies=["nominal"]),
+                            target_shift=0.6)

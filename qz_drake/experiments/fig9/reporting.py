@@ -78,6 +78,9 @@ def planner_differences(settings: dict) -> list[str]:
         out.append(f"A move into a cell costs CapPlanner {c['capplanner_revisit_cost']:g} more for each mission that "
                    "ended there (it goes on somewhere new rather than back and forth); A* plans again only after a "
                    "refusal.")
+    if c.get("capplanner_target_shift"):
+        out.append(f"CapPlanner's mission targets move up to {c['capplanner_target_shift']:g} m from their cell's "
+                   "centre, away from edges; A*'s waypoints keep its body disc off obstacles.")
     if c["capplanner_measured_stance"]:
         out.append("CapPlanner judges its next moves from the stance the robot stands in and backs out of a "
                    "stance its model foretells as a dead end; A* has no model of the BLC to do so.")

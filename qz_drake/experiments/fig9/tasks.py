@@ -101,6 +101,9 @@ class ExperimentConfig:
     # What a move into a cell costs CapPlanner more for each mission that ended there
     # (CapabilityVIPlanner's revisit_cost; session 53). 0: none, as every run before.
     capplanner_revisit_cost: float = 0.0
+    # How far CapPlanner's mission targets but the goal move from their cell's centre, away from
+    # edges (CapabilityVIPlanner's target_shift; session 54). 0: the cell centres, as every run before.
+    capplanner_target_shift: float = 0.0
     # Whether CapPlanner judges the first moves of each replan from the stance the robot stands
     # in, and backs out of a dead end the model foretells (CapabilityVIPlanner's measured_stance).
     capplanner_measured_stance: bool = True
@@ -207,7 +210,8 @@ def _capplanner(task, config):
                             hold_margin=config.capplanner_hold_margin, route_check=config.route_check,
                             check_ladder=_walk_ladder(config),
                             topologies=config.capplanner_topologies,
-                            revisit_cost=config.capplanner_revisit_cost))
+                            revisit_cost=config.capplanner_revisit_cost,
+                            target_shift=config.capplanner_target_shift))
 
 
 def _walk_ladder(config: ExperimentConfig) -> tuple[str, ...]:
