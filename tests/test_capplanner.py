@@ -851,3 +851,56 @@ def test_the_report_says_how_each_planners_routes_held(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "| CapPlanner | hard | 2 | 1.100 | 1.50 | 3.00 | 20.0 | 3 (7.5 %) |" in text
     assert "| A* | hard | 1 | 1.100 | 0.00 | 0.00 | 0.0 | - |" in text
+
+
+@pytest.mark.slow
+def test_a_run_on_a_local_ray_instance_walks_what_local_workers_walk_and_resumes(tmp_path, monkeypatch):
+    """Issue 55: the experiment on Ray, a 2-worker instance the command starts on this machine
+    (``--ray-address local``) and stops at its end: the same records as local workers; resumed,
+    nothing is walked again; its workers are recycled as local ones are (RayPool's max_calls)."""
+    from qz_drake.capability import collect
+    from qz_drake.experiments.fig9 import ExperimentConfig, read_results, run_experiment
+    from qz_drake.experiments.fig9.run import WALKS_PER_WORKER
+
+    monkeypatch.setenv("RAY_USAGE_STATS_ENABLED", "0")
+    made = []
+
+    class Recorded(collect.RayPool):
+        def __init__(self, *args, **kwargs):
+            made.append(kwargs)
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(collect, "RayPool", Recorded)
+    kwargs = dict(planners=("astar",), terrains=("obstacles",), difficulties=("simple",), tasks=2,
+                  config=ExperimentConfig(scale=0.3, astar_max_recoveries=0), progress=False)
+    run_experiment(tmp_path / "local", workers=1, **kwargs)
+    summary = run_experiment(tmp_path / "ray", workers=2, ray_address="local", **kwargs)
+    assert summary["ran"] == 2 and made == [{"function": made[0]["function"], "crashed": made[0]["crashed"],
+                                             "max_calls": WALKS_PER_WORKER, "workers": 2}]
+
+    def outcomes(folder):
+        return sorted((r["key"], r["success"], r["reason"], round(r["walked_m"], 6)) for r in read_results(folder))
+
+    assert outcomes(tmp_path / "ray") == outcomes(tmp_path / "local")
+    again = run_experiment(tmp_path / "ray", workers=2, ray_address="local", **kwargs)
+    assert again["ran"] == 0 and again["already_done"] == 2 and len(made) == 1
+    import ray
+
+    assert not ray.is_initialized()
+
+
+@pytest.mark.slow
+def test_a_ray_worker_that_ran_max_calls_specs_is_replaced():
+    from qz_drake.capability.collect import LOCAL_RAY, RayPool
+    from qz_drake.errors import QzError
+
+    pool = RayPool(LOCAL_RAY, None, 0, function=lambda spec, config: __import__("os").getpid(), max_calls=2,
+                   workers=1)
+    pids = []
+    try:
+        pool.run(list(range(6)), pids.append)
+    finally:
+        pool.close()
+    assert len(pids) == 6 and len(set(pids)) == 3
+    with pytest.raises(QzError, match="max_calls"):
+        RayPool(LOCAL_RAY, None, 0, max_calls=0)

@@ -242,12 +242,18 @@ class LocalPool:
                 w["process"].kill()
 
 
+# The Ray address that starts a Ray instance on this machine for one run (RayPool), with as many
+# CPUs as the run's workers, and stops it when the run ends.
+LOCAL_RAY = "local"
+
+
 def check_ray_address(address: str, timeout: float = 5.0) -> None:
     """Raises QzError naming --ray-address unless a Ray head answers at host:port ("auto" and
-    "ray://" client addresses are left to Ray). ray.init itself retries for minutes."""
+    "ray://" client addresses are left to Ray; LOCAL_RAY starts one). ray.init itself retries
+    for minutes."""
     import socket
 
-    if address == "auto" or address.startswith("ray://"):
+    if address in ("auto", LOCAL_RAY) or address.startswith("ray://"):
         return
     host, sep, port = address.rpartition(":")
     if not sep or not host or not port.isdigit():
@@ -299,10 +305,19 @@ def _crashed(spec: TrialSpec, message: str, config: TrialConfig) -> dict:
 
 
 class RayPool:
-    """The same specs as Ray tasks on an existing cluster (``ray.init(address=...)``)."""
+    """The same specs as Ray tasks on an existing cluster (``ray.init(address=...)``), or, with
+    the address LOCAL_RAY, on a Ray instance started here with ``workers`` CPUs for this pool
+    and stopped by :meth:`close`.
+
+    ``max_calls``: a Ray worker process that has run this many specs exits and Ray starts a
+    fresh one (None: workers live as long as the cluster), as LocalPool's ``max_tasks``: a
+    Drake diagram built in a process stays there (see LocalPool)."""
 
     def __init__(self, address: str, config, max_retries: int, window: int | None = None,
-                 function=None, crashed=None):
+                 function=None, crashed=None, max_calls: int | None = None, workers: int = 2):
+        if max_calls is not None and (isinstance(max_calls, bool) or not isinstance(max_calls, int)
+                                      or max_calls < 1):
+            raise bad_value("max_calls", max_calls, "must be a whole number >= 1 or None")
         try:
             import ray
         except ImportError:
@@ -310,15 +325,20 @@ class RayPool:
         self._ray = ray
         # The fault-injection hook reaches the cluster's workers through the job's environment.
         env = {CRASH_ENV: os.environ[CRASH_ENV]} if os.environ.get(CRASH_ENV) else {}
+        runtime_env = {"env_vars": env} if env else None
+        if address == LOCAL_RAY:
+            check_workers(workers)
         try:
-            ray.init(address=address, ignore_reinit_error=True, log_to_driver=False,
-                     runtime_env={"env_vars": env} if env else None)
+            if address == LOCAL_RAY:
+                ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, runtime_env=runtime_env)
+            else:
+                ray.init(address=address, ignore_reinit_error=True, log_to_driver=False, runtime_env=runtime_env)
         except Exception as e:  # ConnectionError, ValueError, RuntimeError, depending on the address
             raise bad_value("--ray-address", address, f"no Ray cluster reachable ({type(e).__name__}: "
                                                        f"{str(e).splitlines()[0] if str(e) else ''})") from None
         self._config = config
         self._crashed = crashed or _crashed
-        self._remote = ray.remote(max_retries=max_retries, num_cpus=1)(function or execute)
+        self._remote = ray.remote(max_retries=max_retries, num_cpus=1, max_calls=max_calls or 0)(function or execute)
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self._window = window or max(2 * cpus, 2)
         self.retries = 0
@@ -464,7 +484,8 @@ def collect_units(out, specs, *, seed: int, settings: dict, config: TrialConfig,
         previous = _raise_on_sigterm()
         try:
             if todo:
-                pool = RayPool(ray_address, config, max_retries, function=function, crashed=crashed) \
+                pool = RayPool(ray_address, config, max_retries, function=function, crashed=crashed,
+                               workers=workers) \
                     if ray_address else LocalPool(min(workers, len(todo)), config, max_retries,
                                                   function=function, crashed=crashed)
                 pool.run(todo, on_record)

@@ -241,7 +241,9 @@ def register(subparsers) -> None:
                         "and topology a chain of such actions planned by the BLC one after the other and "
                         "never walked, a record per mission labelled by the BLC alone (status blc_only)")
     _label_arguments(p)
-    p.add_argument("--ray-address", default=None, help="run the trials on this Ray cluster (host:port)")
+    p.add_argument("--ray-address", default=None,
+                   help="run the trials on this Ray cluster (host:port), or on a Ray instance of --workers CPUs "
+                        "that the command starts on this machine and stops at its end (local)")
     p.add_argument("--seed", type=int, default=0)
     _run_arguments(p, "trials")
     p.set_defaults(func=run_collect)
@@ -253,7 +255,9 @@ def register(subparsers) -> None:
                         "2^24); every mission start they recorded starts an episode")
     p.add_argument("--out", required=True, help="dataset folder (manifest.json + shards)")
     _label_arguments(p)
-    p.add_argument("--ray-address", default=None, help="run the episodes on this Ray cluster (host:port)")
+    p.add_argument("--ray-address", default=None,
+                   help="run the episodes on this Ray cluster (host:port), or on a Ray instance of --workers CPUs "
+                        "that the command starts on this machine and stops at its end (local)")
     p.add_argument("--seed", type=int, default=0, help="draws the actions after each route's own")
     _run_arguments(p, "episodes")
     p.set_defaults(func=run_collect_routes)

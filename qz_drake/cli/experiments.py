@@ -252,7 +252,9 @@ def _tuning_arguments(p) -> None:
                    help="comma-separated: simple,medium,hard (default medium,hard: fig9.TUNING_DIFFICULTIES)")
     p.add_argument("--scale", type=float, default=1.0, help="world scale (1: the experiment's worlds)")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
-    p.add_argument("--ray-address", default=None, help="run the tasks on this Ray cluster (host:port)")
+    p.add_argument("--ray-address", default=None,
+                   help="run the tasks on this Ray cluster (host:port), or on a Ray instance of --workers CPUs "
+                        "that the command starts on this machine and stops at its end (local)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     _back_out_argument(p)
 
@@ -387,7 +389,9 @@ def register(subparsers) -> None:
     p.add_argument("--recordings", type=int, default=1,
                    help="record the first N tasks of every terrain, difficulty and planner (out/recordings/)")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
-    p.add_argument("--ray-address", default=None, help="run the tasks on this Ray cluster (host:port)")
+    p.add_argument("--ray-address", default=None,
+                   help="run the tasks on this Ray cluster (host:port), or on a Ray instance of --workers CPUs "
+                        "that the command starts on this machine and stops at its end (local)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     _back_out_argument(p)
     _stance_argument(p)

@@ -367,3 +367,13 @@ def test_a_text_longer_than_its_field_is_refused_not_cut():
     width = int(RECORD_FIELDS["topology"][1:])
     with pytest.raises(ConfigError, match=r"record.topology.*longer than its field"):
         records_to_arrays([dict(blank_record(), topology="x" * (width + 1))])
+
+
+def test_a_local_ray_address_is_one_the_command_starts_and_a_bad_one_is_named():
+    from qz_drake.capability.collect import LOCAL_RAY, check_ray_address
+    from qz_drake.errors import QzError
+
+    check_ray_address(LOCAL_RAY)  # nothing to reach: the run starts it
+    for bad in ("localhost", "127.0.0.1:", ":8265"):
+        with pytest.raises(QzError, match="--ray-address"):
+            check_ray_address(bad)

@@ -29,8 +29,8 @@ MAX_TASKS_PER_CELL = 20 * TASKS_PER_CELL
 MAX_BLC_RETRIES = 10
 
 
-# Walks a local worker process makes before a fresh one takes its place: every walk's diagram
-# stays in the process that built it (LocalPool), about 200 MB a full-size walk; with 20 the
+# Walks a worker process (local or Ray's) makes before a fresh one takes its place: every walk's
+# diagram stays in the process that built it (LocalPool), about 200 MB a full-size walk; with 20 the
 # decisive run's workers held at most 3.0 GB, and a fresh worker's start (a few seconds) is small
 # beside 20 walks (15-30 minutes).
 WALKS_PER_WORKER = 20
@@ -196,7 +196,8 @@ def run_experiment(out, *, planners=EXPERIMENT_PLANNERS, terrains=TERRAINS, diff
                     reused += 1
             todo = walk
         if todo:
-            pool = RayPool(ray_address, config, 1, function=run_task, crashed=_crashed) if ray_address else \
+            pool = RayPool(ray_address, config, 1, function=run_task, crashed=_crashed, max_calls=WALKS_PER_WORKER,
+                           workers=workers) if ray_address else \
                 LocalPool(min(workers, len(todo)), config, 1, function=run_task, crashed=_crashed,
                           max_tasks=WALKS_PER_WORKER)
             try:
