@@ -157,6 +157,21 @@ def test_the_claim_is_checked_on_paired_tasks_and_reported_as_tables(tmp_path, c
     assert claim["discordant_share"] == pytest.approx(7 / 9) and 0 < claim["power"] < 0.8
     assert claim["tasks_per_cell_for_power"] > 9
     assert "The aim on medium + hard (9 paired tasks): CapPlanner 88.9 %, A* 33.3 %, difference +55.6 points" in text
+    assert claim["aims"]["issue"] == 38 and "medium 89 % (aim 80 %: met)" in text and "Simple:" not in text
+    # The same walks on issue 55's fresh worlds (seeds 100-149) are judged by its aims, simple
+    # included (both planners at least 98 %); topology changes per walk are tabulated.
+    fresh = [dict(r, seed=r["seed"] + 100, key=r["key"].replace(f"-{r['seed']}-", f"-{r['seed'] + 100}-"))
+             for r in records]
+    fresh += [record("simple", 100 + s, p, True) for s in range(3) for p in ("capplanner", "astar")]
+    fresh[0]["topology_changes"] = 3
+    (tmp_path / "fresh").mkdir()
+    (tmp_path / "fresh" / RESULTS).write_text("".join(json.dumps(r) + "\n" for r in fresh))
+    assert main(["experiment", "report", str(tmp_path / "fresh")]) == 0
+    fresh_text = capsys.readouterr().out
+    assert claim_check(fresh)["aims"] == {"issue": 55, "rates": {"medium": 0.95, "hard": 0.60}, "simple": 0.98}
+    assert "medium 89 % (aim 95 %: missed)" in fresh_text and "(The aims of issue 55.)" in fresh_text
+    assert "Simple: CapPlanner 100 %, A* 100 % (aim at least 98 % each: met)." in fresh_text
+    assert "| CapPlanner | medium | 9 | 1.100 | 0.00 | 0.00 | 0.0 | - | 0.33 |" in fresh_text
     # Every difference between the planners' walks that remains is stated, from the settings.
     assert "What differs between the planners' walks besides their plans:" in text
     assert "- Both go round up to 4 missions the BLC refuses" in text and "back out of a dead end." in text

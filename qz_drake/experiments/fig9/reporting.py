@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from qz_drake.errors import bad_value
-from qz_drake.experiments.fig9.comparison import (CLAIM_ALPHA, CLAIM_DIFFERENCE, CLAIM_POWER, CLAIM_RATES,
+from qz_drake.experiments.fig9.comparison import (CLAIM_ALPHA, CLAIM_DIFFERENCE, CLAIM_POWER,
                                                   claim_check, compare_planners, compare_runs, summarise)
 from qz_drake.experiments.fig9.predict import route_calibration
 from qz_drake.experiments.fig9.results import (PREDICTIONS, RESULTS, SETTINGS_BEFORE_THEY_EXISTED, read_results,
@@ -99,9 +99,9 @@ def route_rows(records: list[dict]) -> list[dict]:
     """Per planner and difficulty, how the walks' routes held (issue 54's aims: the displacement
     ratio, back-outs per walk, and the replans that changed the next 2 m of route without a
     refusal or a lost route): walks (errors left out), mean displacement ratio of the
-    successful ones, back-outs and refusals gone round per walk, replans per walk, and, for
-    walks that logged their replans' decisions (CapPlanner since session 47), the changed
-    replans and their share of those walks' replans (None without any)."""
+    successful ones, back-outs and refusals gone round per walk, replans and topology changes
+    per walk, and, for walks that logged their replans' decisions (CapPlanner since session
+    47), the changed replans and their share of those walks' replans (None without any)."""
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in records:
         if r.get("reason") != "error":
@@ -118,6 +118,7 @@ def route_rows(records: list[dict]) -> list[dict]:
                      "back_outs_per_walk": float(np.mean([int(r.get("back_outs", 0)) for r in walks])),
                      "recoveries_per_walk": float(np.mean([int(r.get("recoveries", 0)) for r in walks])),
                      "replans_per_walk": float(np.mean([int(r.get("replans", 0)) for r in walks])),
+                     "topology_changes_per_walk": float(np.mean([int(r.get("topology_changes", 0)) for r in walks])),
                      "logged_walks": len(logged), "changed_replans": changed,
                      "changed_share": changed / replans if replans else None})
     return rows
@@ -208,7 +209,7 @@ def report_markdown(summary: dict) -> str:
     claim = summary.get("claim")
     if claim:
         lo, hi = claim["difference_ci95"]
-        rates = ", ".join(f"{d} {100 * r:.0f} % (aim {100 * CLAIM_RATES[d]:.0f} %: "
+        rates = ", ".join(f"{d} {100 * r:.0f} % (aim {100 * claim['aims']['rates'][d]:.0f} %: "
                           f"{'met' if claim['rates_hold'][d] else 'missed'})"
                           for d, r in claim["capplanner_rates"].items() if r is not None)
         power = "-" if claim["power"] is None else f"{100 * claim['power']:.0f} %"
@@ -222,19 +223,26 @@ def report_markdown(summary: dict) -> str:
                       f"{100 * CLAIM_DIFFERENCE:.0f} points at p < {CLAIM_ALPHA:g}: {power}; "
                       + ("" if claim["tasks_per_cell_for_power"] is None else
                          f"{claim['tasks_per_cell_for_power']} tasks per cell would give "
-                         f"{100 * CLAIM_POWER:.0f} %.")]
+                         f"{100 * CLAIM_POWER:.0f} %.")
+                      + f" (The aims of issue {claim['aims']['issue']}.)"]
+        if claim.get("simple_rates"):
+            simple = claim["simple_rates"]
+            lines += ["", f"Simple: CapPlanner {100 * simple['capplanner']:.0f} %, A* {100 * simple['astar']:.0f} % "
+                          f"(aim at least {100 * claim['aims']['simple']:.0f} % each: "
+                          f"{'met' if claim['simple_holds'] else 'missed'})."]
     if summary.get("routes"):
         lines += ["", "| planner | difficulty | walks | displacement ratio (walked) | back-outs per walk "
                       "| refusals gone round per walk | replans per walk "
-                      "| replans changing the next 2 m without a refusal |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+                      "| replans changing the next 2 m without a refusal | topology changes per walk |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
         for row in summary["routes"]:
             changed = ("-" if row["changed_share"] is None else
                        f"{row['changed_replans']} ({100 * row['changed_share']:.1f} %)")
             shown = "-" if row["displacement_ratio"] is None else f"{row['displacement_ratio']:.3f}"
             name = PLANNER_NAMES.get(row["planner"], row["planner"])
             lines.append(f"| {name} | {row['difficulty']} | {row['walks']} | {shown} | {row['back_outs_per_walk']:.2f} "
-                         f"| {row['recoveries_per_walk']:.2f} | {row['replans_per_walk']:.1f} | {changed} |")
+                         f"| {row['recoveries_per_walk']:.2f} | {row['replans_per_walk']:.1f} | {changed} "
+                         f"| {row['topology_changes_per_walk']:.2f} |")
     if summary.get("route_calibration"):
         lines += ["", "CapPlanner's first plans: the chance of no fall and of every action walking as the plan "
                       "weighs them (the ensemble's doubt, refusals counted as it is tuned to), and the model's own "
