@@ -67,7 +67,7 @@ FIG9 ?= out/paper_fig9
 WORKERS ?= 2
 FIG9_SEED ?= 100
 FIG9_WALK ?= --route-check 2 --blc-ladder cycles+1,split,split+1,cycles+2
-CAPPLANNER_GRID ?= --failure-rewards -100,-200 --plan-failure-risks 1 --mission-lengths 1.42,2 --merge-thresholds 0.95
+CAPPLANNER_GRID ?= --failure-rewards -50,-100,-200 --plan-failure-risks 1 --mission-lengths 1.42,2 --merge-thresholds 0.95
 fig9: $(STAMP)
 	test -f $(FIG9)/model/report.json || \
 		$(VENV)/bin/qz capability train --dataset $(DATASET) --out $(FIG9)/model --learner $(LEARNER)
