@@ -158,6 +158,8 @@ def check_target_shift(value, field: str = "target_shift") -> float:
     """A target shift (:func:`place_targets`) as a float in [0, half a cell); anything else names
     ``field``."""
     try:
+        if isinstance(value, bool):
+            raise TypeError(value)
         shift = float(value)
     except (TypeError, ValueError):
         raise bad_value(field, value, "must be a number in metres") from None

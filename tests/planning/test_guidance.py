@@ -148,7 +148,7 @@ def test_place_targets_keeps_the_goal_back_outs_and_headings():
     assert missions[1].target == missions[2].target == (0.0, 0.0, 0.7)
 
 
-@pytest.mark.parametrize("value", [-0.1, 0.5, "far", None])
+@pytest.mark.parametrize("value", [-0.1, 0.5, "far", None, float("nan"), False])
 def test_a_bad_target_shift_names_the_field(value):
     from qz_drake.planning.guidance import check_target_shift
 
