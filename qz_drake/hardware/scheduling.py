@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import gc
 import os
+import threading
 import time
 
 from qz_drake.errors import bad_value
@@ -82,19 +83,35 @@ def nice_level(level: int, field: str = "--nice"):
     -20 it takes 88 times a nice-0 process's share and leaves the real-time class to the servo
     and the relay, which wait for their messages and use little of a core."""
     check_nice(level, field)
-    before = os.getpriority(os.PRIO_PROCESS, 0)
+    # On Linux a nice level is a thread's: the process's threads started before this (numpy's
+    # OpenBLAS pool, made at import) would stay at their own and wait for a core behind the
+    # normal processes while the main thread waits for them. Every thread of the process is
+    # set, and set back.
+    threads = _threads()
+    before = {tid: os.getpriority(os.PRIO_PROCESS, tid) for tid in threads}
     try:
-        os.setpriority(os.PRIO_PROCESS, 0, level)
+        for tid in threads:
+            os.setpriority(os.PRIO_PROCESS, tid, level)
         got = f"normal, nice {level}"
     except OSError as e:  # lowering the nice level needs the privilege
-        got = f"normal, nice {before} (nice {level} refused: {e.strerror or e})"
+        got = f"normal, nice {before[threads[0]]} (nice {level} refused: {e.strerror or e})"
     try:
         yield got
     finally:
-        try:
-            os.setpriority(os.PRIO_PROCESS, 0, before)
-        except OSError:  # raising it back needs no privilege; lowering it back might
-            pass
+        for tid, was in before.items():
+            try:
+                os.setpriority(os.PRIO_PROCESS, tid, was)
+            except OSError:  # raising it back needs no privilege; lowering it back might; gone
+                pass
+
+
+def _threads() -> list[int]:
+    """This process's thread ids, the calling thread first (0 where /proc cannot tell)."""
+    try:
+        others = sorted(int(t) for t in os.listdir("/proc/self/task") if int(t) != threading.get_native_id())
+    except OSError:  # not Linux
+        others = []
+    return [0, *others]
 
 
 class SteadyCollector:

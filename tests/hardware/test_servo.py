@@ -258,3 +258,26 @@ def test_the_simulated_robot_runs_at_a_nice_level_that_is_undone_when_its_block_
         with pytest.raises(QzError, match=f"--nice = {bad}"):
             with nice_level(bad):
                 pass
+
+
+def test_every_thread_of_the_simulated_robot_runs_at_its_nice_level():
+    """A nice level is a thread's on Linux: a thread started before the level was set (numpy's
+    OpenBLAS pool, a helper) kept nice 0 and, with the other core busy, the simulated robot's
+    statuses stopped for 57-65 ms while it waited for a core (session 54's busy demo walks)."""
+    import threading
+
+    from qz_drake.hardware.scheduling import nice_level
+
+    stop = threading.Event()
+    helper = threading.Thread(target=stop.wait)
+    helper.start()
+    try:
+        tid = helper.native_id
+        before = os.getpriority(os.PRIO_PROCESS, tid)
+        with nice_level(-5) as got:
+            if "refused" not in got:
+                assert os.getpriority(os.PRIO_PROCESS, tid) == -5 == os.getpriority(os.PRIO_PROCESS, 0)
+        assert os.getpriority(os.PRIO_PROCESS, tid) == before
+    finally:
+        stop.set()
+        helper.join()
