@@ -1,7 +1,7 @@
 """Two-process walks as a robot runs them: the controller against `qz robot-sim` at a real-time rate.
 
     python benchmarks/two_process_walks.py OUT.jsonl [--runs 10] [--rate 1] [--busy]
-        [--scenario scenarios/walk_flat.yaml] [--servo process|inline] [--hardware FILE]
+        [--scenario scenarios/walk_flat.yaml] [--servo process|inline] [--hardware FILE] [--keep DIR]
 
 Each run starts `qz lcm-relay` on a free port on 127.0.0.1, `qz robot-sim SCENARIO` (the
 simulated robot) and `qz simulate SCENARIO --station lcm --lcm-url URL` (the planning
@@ -98,6 +98,8 @@ def main() -> None:
     parser.add_argument("--scenario", type=Path, default=ROOT / "scenarios" / "walk_flat.yaml")
     parser.add_argument("--servo", choices=("process", "inline"), default="process")
     parser.add_argument("--hardware", type=Path, default=None)
+    parser.add_argument("--keep", type=Path, default=None, metavar="DIR",
+                        help="keep each run's output folder (metrics, plots, recording) as DIR/runK")
     args = parser.parse_args()
     stop = multiprocessing.Event()
     spinner = multiprocessing.Process(target=_spin, args=(stop,), daemon=True) if args.busy else None
@@ -106,10 +108,11 @@ def main() -> None:
     results = []
     try:
         with tempfile.TemporaryDirectory() as tmp:
+            folders = Path(tmp) if args.keep is None else args.keep
             for k in range(args.runs):
                 result = {"run": k, "rate": args.rate, "busy": args.busy, "servo": args.servo,
                           "scenario": args.scenario.name,
-                          **one_walk(args.scenario, args.rate, args.servo, args.hardware, Path(tmp) / f"run{k}")}
+                          **one_walk(args.scenario, args.rate, args.servo, args.hardware, folders / f"run{k}")}
                 results.append(result)
                 with args.out.open("a") as f:
                     f.write(json.dumps(result) + "\n")
