@@ -84,17 +84,23 @@ def nice_level(level: int, field: str = "--nice"):
     and the relay, which wait for their messages and use little of a core."""
     check_nice(level, field)
     # On Linux a nice level is a thread's: the process's threads started before this (numpy's
-    # OpenBLAS pool, made at import) would stay at their own and wait for a core behind the
-    # normal processes while the main thread waits for them. Every thread of the process is
+    # OpenBLAS pool, made at import) would stay at their own. Every thread of the process is
     # set, and set back.
-    threads = _threads()
-    before = {tid: os.getpriority(os.PRIO_PROCESS, tid) for tid in threads}
-    try:
-        for tid in threads:
+    before = {}
+    for tid in _threads():
+        try:
+            before[tid] = os.getpriority(os.PRIO_PROCESS, tid)
+        except ProcessLookupError:  # a thread that ended meanwhile
+            pass
+    got = f"normal, nice {level}"
+    for tid in list(before):
+        try:
             os.setpriority(os.PRIO_PROCESS, tid, level)
-        got = f"normal, nice {level}"
-    except OSError as e:  # lowering the nice level needs the privilege
-        got = f"normal, nice {before[threads[0]]} (nice {level} refused: {e.strerror or e})"
+        except ProcessLookupError:
+            del before[tid]
+        except OSError as e:  # lowering the nice level needs the privilege
+            got = f"normal, nice {before[0]} (nice {level} refused: {e.strerror or e})"
+            break
     try:
         yield got
     finally:
@@ -106,7 +112,8 @@ def nice_level(level: int, field: str = "--nice"):
 
 
 def _threads() -> list[int]:
-    """This process's thread ids, the calling thread first (0 where /proc cannot tell)."""
+    """This process's thread ids for getpriority / setpriority: the calling thread first (as 0),
+    then the others /proc lists (none where there is no /proc)."""
     try:
         others = sorted(int(t) for t in os.listdir("/proc/self/task") if int(t) != threading.get_native_id())
     except OSError:  # not Linux
