@@ -190,6 +190,35 @@ def _add_station_metrics(metrics: dict, station, root_context) -> None:
             metrics["reasons"] = ["safe_stop", *metrics["reasons"]]
 
 
+def _desired_at_state_times(logs, context) -> np.ndarray:
+    """The desired-state log (rows: the state, columns: samples) at the times the logged states
+    show the robot at. In the lockstep simulation those are the samples' own times. A planning
+    process's station (qz_drake.hardware.planning_station) runs ahead of the robot, up to the
+    servo's plan lead, and shows the newest status, taken at an earlier plan time, which it
+    logs as ``state_plan_time``: the plan is read there (linear between samples; NaN, before
+    the first status: the sample's own), so that the tracking error is the robot's, not the
+    lead's (a swing joint at 300 deg/s is 15 deg from the plan 50 ms on)."""
+    desired_log = logs["desired"].FindLog(context)
+    if logs.get("state_plan_time") is None:
+        return desired_log.data()
+    return desired_at(desired_log.sample_times(), desired_log.data(),
+                      logs["state_plan_time"].FindLog(context).data()[0])
+
+
+def desired_at(times: np.ndarray, desired: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """``desired`` (rows: the state, columns: the samples at ``times``) read at the times
+    ``at`` (one per sample), linear between samples, held beyond them; a NaN in ``at`` reads
+    the sample's own column."""
+    times, desired, at = np.asarray(times, dtype=float), np.asarray(desired, dtype=float), np.asarray(at, dtype=float)
+    n = min(len(at), len(times))
+    if n == 0:
+        return desired.copy()
+    when = np.where(np.isfinite(at[:n]), at[:n], times[:n])
+    aligned = desired.copy()
+    aligned[:, :n] = np.stack([np.interp(when, times, row) for row in desired])
+    return aligned
+
+
 def _optional_log(builder, station, name: str):
     """A logger of a simulation-only station output (leg-link forces), or None when the station
     does not observe it (the LCM hardware interface)."""
@@ -399,7 +428,7 @@ def walk(scenario: Scenario, *, meshcat: Meshcat | None = None, out_dir: str | P
 
         files = result.files
         files["recording"] = str(save_recording(meshcat, out / "recording.html", follow_robot=True))
-        desired = built.logs["desired"].FindLog(run.context).data().T
+        desired = _desired_at_state_times(built.logs, run.context).T
         files.update(plot_walk(result.times, result.states, result.foot_contact, desired, built.missions.log,
                                built.info, out))
         if built.route_source is not None:
@@ -462,6 +491,7 @@ def build_walk(scenario: Scenario, *, route_source: FixedRoute | None = None, me
     logs = dict(zip(("state", "contact", "trunk"), _log_station(builder, station)))
     logs["desired"] = LogVectorOutput(tracker.GetOutputPort("desired_state"), builder, 1.0 / LOG_RATE)
     logs["leg"], logs["self"] = (_optional_log(builder, station, name) for name in ("leg_link_force", "self_contact"))
+    logs["state_plan_time"] = _optional_log(builder, station, "state_plan_time")
     return BuiltWalk(diagram=builder.Build(), station=station, info=info, targets=targets, missions=missions,
                      route_source=route_source, logs=logs, wall_start=wall_start)
 
@@ -500,7 +530,8 @@ def run_walk(built: BuiltWalk, scenario: Scenario, *, max_duration: float | None
                 np.any(data("trunk") > 0.5)
                 or (logs["leg"] is not None and np.any(data("leg") > crit.leg_contact_force))
                 or (logs["self"] is not None and np.any(data("self") > crit.leg_contact_force))
-                or np.degrees(np.max(np.abs(data("state")[JOINT_Q] - data("desired")[:18]), initial=0.0))
+                or np.degrees(np.max(np.abs(data("state")[JOINT_Q] - _desired_at_state_times(logs, context)[:18]),
+                                     initial=0.0))
                 > crit.max_joint_error_deg):
             stopped = True
             break
@@ -530,7 +561,7 @@ def judge_walk_run(scenario: Scenario, built: BuiltWalk, run: WalkRun) -> Simula
     states = logs["state"].data().T
     contacts = logs["contact"].data().T
     trunk = logs["trunk"].data()[0]
-    desired = logs["desired"].data().T
+    desired = _desired_at_state_times(built.logs, context).T
     links = (None if logs["leg"] is None else logs["leg"].data().T,
              None if logs["self"] is None else logs["self"].data()[0])
     targets = built.targets

@@ -82,8 +82,13 @@ class TimeSeries:
 
     def at(self, key: float):
         """The value of the newest key at or before ``key``; None if there is none."""
+        found = self.entry(key)
+        return None if found is None else found[1]
+
+    def entry(self, key: float):
+        """(key, value) of the newest key at or before ``key``; None if there is none."""
         i = bisect.bisect_right(self.keys, key)
-        return self.values[i - 1] if i else None
+        return (self.keys[i - 1], self.values[i - 1]) if i else None
 
 
 # How much of the robot's statuses and the servo's clock the planning process keeps: how far
@@ -292,12 +297,16 @@ class StatusListener(LeafSystem):
         - joint_torque_measured
         - imu
         - foot_contact
+        - state_plan_time
 
     Once a period it takes the status the servo had taken in when its plan clock read this
     time (qz_servo maps the two clocks), and the newest pose before it. The simulation may
     fall behind the servo (a BLC solve): it then reads the statuses of its own time, kept for
     HISTORY_SPAN, so that its log and verdict compare the plan and the robot at one time, not
-    a plan with where the robot has since walked. Statuses and poses arrive through ``link``'s
+    a plan with where the robot has since walked. It is ahead of the servo most of the time
+    (up to ``plan_lead``), and then holds the newest status, which is the robot at an earlier
+    plan time: ``state_plan_time`` says which (NaN before the first status), and the walk
+    compares the state with the plan at that time (simulation.judge_walk_run). Statuses and poses arrive through ``link``'s
     LCM subscriptions (every one kept, where Drake's LcmSubscriberSystem keeps the newest).
 
     Args:
@@ -320,11 +329,17 @@ class StatusListener(LeafSystem):
         self._held = self.DeclareDiscreteState(initial_held(prior_state))
         # (the status used last: its utime; statuses used, statuses rejected)
         self._seen = self.DeclareAbstractState(AbstractValue.Make((0, 0, 0)))
+        # The servo's plan time at which the held status was taken in.
+        self._plan_time = self.DeclareDiscreteState(np.array([np.nan]))
         self.DeclarePeriodicUnrestrictedUpdateEvent(config.control_period, 0.0, self._update)
         for name, part in (("state", slice(0, STATE_SIZE)), ("joint_torque_measured", _TAU), ("imu", _IMU),
                            ("foot_contact", _CONTACT)):
             self.DeclareVectorOutputPort(name, part.stop - part.start, self._output(part),
                                          {self.discrete_state_ticket(self._held)})
+        self.DeclareVectorOutputPort(
+            "state_plan_time", 1,
+            lambda context, output: output.SetFromVector(context.get_discrete_state(self._plan_time).get_value()),
+            {self.discrete_state_ticket(self._plan_time)})
 
     def _keep(self, series: TimeSeries, data: bytes) -> None:
         utime = encoded_key(data)[0]
@@ -342,8 +357,8 @@ class StatusListener(LeafSystem):
 
     def _update(self, context, state):
         last, used, rejected = context.get_abstract_state(self._seen).get_value()
-        utime = self._link.status_utime_at_plan_time.at(context.get_time() + 1e-9)
-        data = None if utime is None else self._statuses.at(utime)
+        mapped = self._link.status_utime_at_plan_time.entry(context.get_time() + 1e-9)
+        data = None if mapped is None else self._statuses.at(mapped[1])
         if data is None:
             return
         m, problem = decode(qz_status, data)
@@ -359,6 +374,7 @@ class StatusListener(LeafSystem):
             held = context.get_discrete_state(self._held).get_value().copy()
             state.get_mutable_discrete_state(self._held).set_value(
                 decoded_status(held, m, track, self._max_extrapolation))
+            state.get_mutable_discrete_state(self._plan_time).set_value([mapped[0]])
         state.get_mutable_abstract_state(self._seen).set_value((m.utime, used, rejected))
 
 
@@ -387,6 +403,9 @@ class PlanningLcmStation(Diagram):
         - imu
         - foot_contact
         - trunk_contact
+        - state_plan_time
+
+    ``state_plan_time`` is the plan time the ``state`` shows the robot at (StatusListener).
 
     Args:
         scenario: the walk's scenario.
@@ -416,6 +435,7 @@ class PlanningLcmStation(Diagram):
         builder.ExportInput(self._publisher.GetInputPort("plan"), "plan")
         for name in ("state", "joint_torque_measured", "imu", "foot_contact"):
             builder.ExportOutput(self._listener.GetOutputPort(name), name)
+        builder.ExportOutput(self._listener.GetOutputPort("state_plan_time"), "state_plan_time")
         unknown = builder.AddSystem(ConstantVectorSource(np.array([np.nan])))
         builder.ExportOutput(unknown.get_output_port(), "trunk_contact")
         builder.BuildInto(self)
