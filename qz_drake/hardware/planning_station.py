@@ -306,8 +306,9 @@ class StatusListener(LeafSystem):
     a plan with where the robot has since walked. It is ahead of the servo most of the time
     (up to ``plan_lead``), and then holds the newest status, which is the robot at an earlier
     plan time: ``state_plan_time`` says which (NaN before the first status), and the walk
-    compares the state with the plan at that time (simulation.judge_walk_run). Statuses and poses arrive through ``link``'s
-    LCM subscriptions (every one kept, where Drake's LcmSubscriberSystem keeps the newest).
+    compares the state with the plan at that time (simulation.judge_walk_run). Statuses and
+    poses arrive through ``link``'s LCM subscriptions (every one kept, where Drake's
+    LcmSubscriberSystem keeps the newest).
 
     Args:
         link: the servo link (the LCM, the servo's clock).
