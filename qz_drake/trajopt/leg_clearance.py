@@ -29,6 +29,7 @@ import types
 
 import numpy as np
 
+from qz_drake.errors import TerrainError, bad_value
 from qz_drake.trajopt.constraints import SampledConstraint, _Block
 from qz_drake.trajopt.legs import LinkPoints, link_geometry, link_points
 from qz_drake.trajopt.splines import LinearSamples
@@ -235,19 +236,41 @@ class LinkCheck:
 
 def raw_ground(terrain):
     """The ground as the verdict reads it: a GridTerrain's raw cells as columns (as Drake's box
-    terrain is; a point takes the height of the cell it lies in), a closed-form terrain's own
-    function."""
+    terrain is; a point takes the height of the cell it lies in: RawCells), a closed-form
+    terrain's own function."""
     if not isinstance(terrain, GridTerrain):
         return terrain.height
-    terrain = terrain.given
-    heights, origin, res = terrain.heights, terrain.origin, terrain.resolution
-    H, W = heights.shape
+    return RawCells(terrain.given)
 
-    def height(x, y):
-        ix = np.clip(np.rint((np.asarray(x, dtype=float) - origin[0]) / res), 0, W - 1).astype(np.int64)
-        iy = np.clip(np.rint((np.asarray(y, dtype=float) - origin[1]) / res), 0, H - 1).astype(np.int64)
-        return heights[iy, ix]
-    return height
+
+class RawCells:
+    """A GridTerrain's raw cells as a function of (x, y): the height of the cell a point lies
+    in, the border cells extending outward."""
+
+    def __init__(self, terrain: GridTerrain):
+        self.heights, self.origin, self.resolution = terrain.heights, terrain.origin, terrain.resolution
+
+    def __call__(self, x, y) -> np.ndarray:
+        H, W = self.heights.shape
+        ix = np.clip(np.rint((np.asarray(x, dtype=float) - self.origin[0]) / self.resolution),
+                     0, W - 1).astype(np.int64)
+        iy = np.clip(np.rint((np.asarray(y, dtype=float) - self.origin[1]) / self.resolution),
+                     0, H - 1).astype(np.int64)
+        return self.heights[iy, ix]
+
+    def highest(self, x, y, dx, dy) -> np.ndarray:
+        """Per point of x, y (any shape): the highest cell under the points offset by each of
+        (dx, dy) (m,), as max over m of self(x + dx, y + dy) gives it (compiled)."""
+        from qz_drake.trajopt.grid_kernel import highest_cells
+
+        x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+        out = np.empty(x.size)
+        if not highest_cells(np.ascontiguousarray(x).reshape(-1), np.ascontiguousarray(y).reshape(-1),
+                             np.ascontiguousarray(dx, dtype=float), np.ascontiguousarray(dy, dtype=float),
+                             self.heights, self.origin[0], self.origin[1], self.resolution, out):
+            raise bad_value("terrain query", f"{int((np.isnan(x) | np.isnan(y)).sum())} points with NaN "
+                            "coordinates", "a point must be a number to have a height", TerrainError)
+        return out.reshape(x.shape)
 
 
 def sphere_clearance(centres, radius: float, ground) -> np.ndarray:
@@ -257,8 +280,11 @@ def sphere_clearance(centres, radius: float, ground) -> np.ndarray:
     centres = np.asarray(centres, dtype=float)
     angles = np.linspace(0.0, 2 * np.pi, 8, endpoint=False)
     offsets = np.concatenate([[[0.0, 0.0]], radius * np.stack([np.cos(angles), np.sin(angles)], -1)])
-    heights = ground(centres[..., 0, None] + offsets[:, 0], centres[..., 1, None] + offsets[:, 1])
-    return centres[..., 2] - radius - heights.max(axis=-1)
+    if isinstance(ground, RawCells):
+        highest = ground.highest(centres[..., 0], centres[..., 1], offsets[:, 0], offsets[:, 1])
+    else:
+        highest = ground(centres[..., 0, None] + offsets[:, 0], centres[..., 1, None] + offsets[:, 1]).max(axis=-1)
+    return centres[..., 2] - radius - highest
 
 
 def dense_link_check(robot, terrain, times, com, rpy, feet, radius: float | None = None) -> LinkCheck:

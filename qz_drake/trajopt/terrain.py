@@ -264,7 +264,8 @@ class GridTerrain(TerrainModel):
     def _patches(self, x, y):
         """Per point: its coordinates in its cell (s, t in [0, 1]), whether it lies inside the
         grid along x and along y, and the cell's corner data {(a, b): (value, x-slope, y-slope)}
-        at (i + a, j + b)."""
+        at (i + a, j + b). The numpy form of what ``_grid_kernel`` computes point by point
+        (``height_numpy``, ``height_derivatives_numpy``)."""
         x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
         H, W = self.heights.shape
         res = self.resolution
@@ -284,13 +285,13 @@ class GridTerrain(TerrainModel):
                 corners[a, b] = (f[j + b, i + a], fx[j + b, i + a], fy[j + b, i + a])
         return u - i, v - j, inside_u, inside_v, corners
 
-    def height(self, x, y) -> np.ndarray:
-        # The value alone (the guess and the dense verdict ask for heights only): the same
-        # arithmetic as height_derivatives' first output.
+    def height_numpy(self, x, y) -> np.ndarray:
+        """``height`` in numpy operations (the reference the compiled loop is tested equal to)."""
         s, t, _, _, corners = self._patches(x, y)
         return _hermite_combine(corners, _hermite_values(s), _hermite_values(t))
 
-    def height_derivatives(self, x, y):
+    def height_derivatives_numpy(self, x, y):
+        """``height_derivatives`` in numpy operations (the compiled loop's reference)."""
         s, t, inside_u, inside_v, corners = self._patches(x, y)
         res = self.resolution
         bu, bu1, bu2 = _hermite_values(s), _hermite_slopes(s), _hermite_curvatures(s)
@@ -302,6 +303,28 @@ class GridTerrain(TerrainModel):
         hxy = np.where(inside_u & inside_v, _hermite_combine(corners, bu1, bv1), 0.0) / res ** 2
         hyy = np.where(inside_v, _hermite_combine(corners, bu, bv2), 0.0) / res ** 2
         return h, hx, hy, hxx, hxy, hyy
+
+    def _compiled(self, x, y, derivatives: bool):
+        x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+        shape = x.shape
+        count = 6 if derivatives else 1
+        out = np.empty((count, x.size))
+        if not _grid_kernel()(np.ascontiguousarray(x).reshape(-1), np.ascontiguousarray(y).reshape(-1),
+                              self.heights, self._hx, self._hy, self.origin[0], self.origin[1],
+                              self.resolution, self.resolution ** 2, out):
+            raise bad_value("terrain query", f"{int((np.isnan(x) | np.isnan(y)).sum())} points with NaN "
+                            "coordinates", "a point must be a number to have a height", TerrainError)
+        rows = [row.reshape(shape) for row in out]
+        # 0-d inputs give numpy scalars, as the numpy operations did.
+        return [row[()] for row in rows] if shape == () else rows
+
+    def height(self, x, y) -> np.ndarray:
+        # The value alone (the guess and the dense verdict ask for heights only): the same
+        # arithmetic as height_derivatives' first output.
+        return self._compiled(x, y, False)[0]
+
+    def height_derivatives(self, x, y):
+        return tuple(self._compiled(x, y, True))
 
     def grid(self, xmin=None, xmax=None, ymin=None, ymax=None, resolution=None):
         """The wrapped map itself (the BLC saves the map it was given)."""
@@ -389,6 +412,15 @@ def _hermite_combine(corners, pu, pv):
                          + pu[2 * a] * pv[2 * b + 1] * sy)
     return out
 
+
+
+
+def _grid_kernel():
+    """grid_kernel.grid_values, compiled (numba, cached on disk) at a process's first grid
+    query, so that flat-ground solves never import numba."""
+    from qz_drake.trajopt.grid_kernel import grid_values
+
+    return grid_values
 
 def grid_window(origin, resolution: float, shape, region) -> tuple[slice, slice]:
     """(rows, columns) of the cells of a grid (heights[iy, ix] at origin + (ix, iy) *
