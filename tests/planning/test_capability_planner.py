@@ -175,6 +175,26 @@ def test_a_mission_the_blc_cannot_plan_is_split_then_its_action_forbidden_and_th
     np.testing.assert_allclose(replanned[-1].target[:2], GOAL)
 
 
+def test_the_route_in_the_context_is_shared_by_the_contexts_copies_and_replaced_not_changed():
+    """The missions live in the context as a MissionQueue: Drake's copies of the state (every
+    check, and Clone) share it, and a recovery replaces it, leaving a copy made before as it was."""
+    from qz_drake.systems.mission_sequencer import MissionQueue
+
+    planner = _planner(_world())
+    simulator, context = _standing(planner)
+    queue = context.get_abstract_state(0).get_value()
+    assert isinstance(queue, MissionQueue)
+    missions, index = queue
+    assert index == 0 and isinstance(missions, tuple) and missions
+    before = context.Clone()
+    assert before.get_abstract_state(0).get_value() is queue
+    _blc_fails(planner, simulator, context, 1)  # split: a new route
+    after = context.get_abstract_state(0).get_value()
+    assert after is not queue and after[0] != missions
+    assert before.get_abstract_state(0).get_value() is queue and queue[0] == missions
+    np.testing.assert_allclose(planner.GetOutputPort("target").Eval(before), missions[0].target)
+
+
 @pytest.mark.parametrize("every_topology", [True, False])
 def test_a_refused_move_is_forbidden_from_every_topology_the_robot_could_stand_in_there(every_topology):
     """The BLC refused a move in its topology from a cell and heading: the TLC does not come back
