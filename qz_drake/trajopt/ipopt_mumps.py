@@ -321,7 +321,9 @@ class VectorisedRows:
 
     The bindings' rows, in the order of ``bindings``, are rows 0..m-1 of ``evaluate``; the
     Jacobian entries ``evaluate_with_jacobian`` returns sit at (``rows``, ``cols``), ``cols``
-    being the program's decision-variable indices (duplicate positions add up).
+    being the program's decision-variable indices (duplicate positions add up). The values it
+    returns beside them must be ``evaluate``'s: Ipopt is handed either (ProgramNlp evaluates
+    the constraints with their Jacobian where it expects the Jacobian to be asked for next).
     """
 
     bindings: Sequence

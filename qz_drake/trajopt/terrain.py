@@ -413,14 +413,13 @@ def _hermite_combine(corners, pu, pv):
     return out
 
 
-
-
 def _grid_kernel():
     """grid_kernel.grid_values, compiled (numba, cached on disk) at a process's first grid
     query, so that flat-ground solves never import numba."""
     from qz_drake.trajopt.grid_kernel import grid_values
 
     return grid_values
+
 
 def grid_window(origin, resolution: float, shape, region) -> tuple[slice, slice]:
     """(rows, columns) of the cells of a grid (heights[iy, ix] at origin + (ix, iy) *
