@@ -745,12 +745,15 @@ def _unplanned(scenario, out, not_started: WalkNotStarted) -> SimulationResult:
 
 
 def _planned_base(plans, times):
-    """The planned base position at each time (the plan in force then), NaN before the first."""
+    """The planned base position at each time (the plan in force then: the last of ``plans``
+    started by then), NaN before the first; each time's position computed once."""
     out = np.full((len(times), 3), np.nan)
-    for plan in plans:
-        for k, t in enumerate(times):
-            if plan.start_time <= t:
-                out[k] = plan.base_position(min(t, plan.end_time))
+    owner = np.full(len(times), -1)
+    for i, plan in enumerate(plans):
+        owner[np.asarray(times) >= plan.start_time] = i
+    for k in np.flatnonzero(owner >= 0):
+        plan = plans[owner[k]]
+        out[k] = plan.base_position(min(times[k], plan.end_time))
     return out
 
 

@@ -21,6 +21,26 @@ def test_split_route_into_missions():
     assert targets[-1][2] == 1.0
 
 
+def test_the_planned_base_at_each_time_is_the_last_started_plans_and_nan_before_any():
+    """The tracking verdict's reference (simulation._planned_base): at each logged time the
+    plan in force is the last one of the walk's plans started by then (a plan handed out
+    ahead starts before the one before it ends), clamped to its end; before the first, NaN."""
+    from types import SimpleNamespace
+
+    from qz_drake.simulation import _planned_base
+
+    def plan(name, start, end):
+        return SimpleNamespace(start_time=start, end_time=end,
+                               base_position=lambda t: np.array([name, t, 0.0]))
+
+    plans = [plan(1.0, 0.5, 2.0), plan(2.0, 1.8, 3.0), plan(3.0, 3.5, 4.0)]
+    times = np.array([0.0, 0.5, 1.0, 1.8, 2.5, 3.2, 3.5, 5.0])
+    out = _planned_base(plans, times)
+    assert np.all(np.isnan(out[0]))
+    np.testing.assert_array_equal(out[1:], [[1.0, 0.5, 0], [1.0, 1.0, 0], [2.0, 1.8, 0], [2.0, 2.5, 0],
+                                            [2.0, 3.0, 0], [3.0, 3.5, 0], [3.0, 4.0, 0]])
+
+
 def test_walks_a_route_on_flat_ground(tmp_path):
     scenario = Scenario(name="walk", terrain=TerrainConfig(kind="flat", params={"size_x": 6.0}),
                         controller=ControllerConfig(kind="walk", route=[Waypoint(x=1.5), Waypoint(x=2.0, y=0.5)]))
