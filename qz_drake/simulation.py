@@ -749,9 +749,8 @@ def _planned_base(plans, times):
     started by then), NaN before the first; each time's position computed once."""
     out = np.full((len(times), 3), np.nan)
     owner = np.full(len(times), -1)
-    at = np.asarray(times)
     for i, plan in enumerate(plans):
-        owner[at >= plan.start_time] = i
+        owner[np.asarray(times) >= plan.start_time] = i
     for k in np.flatnonzero(owner >= 0):
         plan = plans[owner[k]]
         out[k] = plan.base_position(min(times[k], plan.end_time))
