@@ -609,6 +609,41 @@ def test_both_planners_walk_with_the_same_blc_retries_and_the_report_says_which(
                        progress=False)
 
 
+def test_both_planners_walk_with_the_drives_asked_for_and_a_bad_setting_names_its_option(monkeypatch, tmp_path):
+    """``control_mode`` and ``time_step`` reach every walk alike: the plant's step, and in position
+    mode the drives' PD with Eq. 7's gains (the trials' setting that labels a dataset); the report
+    says which; torque mode past 2 ms and an unknown mode are refused before any walk."""
+    import qz_drake.simulation as simulation
+    from qz_drake.errors import QzError
+    from qz_drake.experiments.fig9 import ExperimentConfig, TaskSpec, planner_differences, run_experiment, run_task
+
+    seen = []
+
+    def walk_stops_at_once(scenario, *args, **kwargs):
+        seen.append((scenario.station.control_mode, scenario.station.position_kp, scenario.station.position_kd,
+                     scenario.simulation.time_step, scenario.controller.kp, scenario.controller.kd))
+        raise RuntimeError("stopped before walking")
+
+    monkeypatch.setattr(simulation, "walk", walk_stops_at_once)
+    for planner in ("astar", "capplanner"):
+        run_task(TaskSpec("obstacles", "simple", 0, planner), ExperimentConfig(scale=0.3))
+        run_task(TaskSpec("obstacles", "simple", 0, planner),
+                 ExperimentConfig(scale=0.3, control_mode="position", time_step=0.004))
+    torque, position = seen[0], seen[1]
+    assert torque[0] == "torque" and torque[3] == 0.002
+    assert position[0] == "position" and position[3] == 0.004 and position[1:3] == position[4:6] == (1500.0, 30.0)
+    assert seen[2:] == seen[:2]
+    assert "Eq. 7 in the controller, 2 ms plant steps" in planner_differences({})[0]
+    assert "Eq. 7's PD in the drives, 4 ms plant steps" in planner_differences(
+        {"control_mode": "position", "time_step": 0.004})[0]
+    for bad, option in ((dict(time_step=0.004), "--time-step = 0.004"), (dict(control_mode="velocity"),
+                                                                         "--control-mode = 'velocity'"),
+                        (dict(control_mode="position", time_step=0.0), "--time-step = 0.0")):
+        with pytest.raises(QzError, match=option):
+            run_experiment(tmp_path, planners=("astar",), tasks=1, config=ExperimentConfig(**bad), progress=False)
+    assert not (tmp_path / "results.jsonl").exists()
+
+
 def test_the_experiments_capplanner_sets_out_on_any_path_it_has():
     """In Fig. 9 a declined task is a failed one, as A* never declines a route it has: the
     experiment's CapPlanner sets out whatever its path's predicted chance (a setting, recorded
@@ -705,6 +740,8 @@ def test_a_walking_scenario_sets_capplanners_mdp_by_name():
     ("tune-capplanner", ["--tasks", "0"], "--tasks"),
     ("tune-capplanner", ["--route-check", "-1"], "--route-check"),
     ("tune-astar", ["--route-check", "-2"], "--route-check"),
+    ("tune-astar", ["--time-step", "0.004"], "--time-step"),
+    ("tune-capplanner", ["--control-mode", "velocity"], "--control-mode"),
     ("tune-capplanner", ["--capplanner-topologies", "nominal,wings"], "--capplanner-topologies")])
 def test_tuning_bad_input_is_one_line_exit_2(tmp_path, command, args, field):
     run = subprocess.run(QZ + ["experiment", command, "--out", str(tmp_path)] + args,

@@ -56,6 +56,7 @@ def run_fig9(args) -> int:
                               capplanner_topologies=_topologies(args),
                               blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                               blc_terminal_stance=args.terminal_stance,
+                              control_mode=args.control_mode, time_step=args.time_step,
                               astar_learned_weight=args.astar_learned_weight,
                               astar_learned_veto=args.astar_learned_veto,
                               record_missions=args.record_missions, **tuned)
@@ -198,6 +199,7 @@ def run_tune_astar(args) -> int:
                                                 blc_retries=args.blc_retries, blc_ladder=args.blc_ladder,
                                                 route_check=args.route_check,
                                                 blc_terminal_stance=args.terminal_stance,
+                                                control_mode=args.control_mode, time_step=args.time_step,
                                                 record_missions=args.record_missions),
                         progress=not args.json)
     _print_tuning(report, args)
@@ -237,6 +239,7 @@ def run_tune_capplanner(args) -> int:
                                 capplanner_topologies=_topologies(args),
                                 blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                                 blc_terminal_stance=args.terminal_stance,
+                                control_mode=args.control_mode, time_step=args.time_step,
                                 record_missions=args.record_missions),
         progress=not args.json)
     _print_tuning(report, args)
@@ -273,6 +276,13 @@ def _back_out_argument(p) -> None:
     p.add_argument("--record-missions", action="store_true",
                    help="keep every mission of each walk in its record, a refused one with the start the BLC was "
                         "given (qz experiment score-missions; benchmarks/blc_refusals.py replay)")
+    p.add_argument("--control-mode", default="torque",
+                   help="how the joints are driven in every walk, for both planners: torque (Eq. 7 in the "
+                        "controller, at steps of at most 2 ms; every run so far) or position (Eq. 7's PD in the "
+                        "drives: the plant's implicit PD on the tracker's q and v), as a dataset's trials")
+    p.add_argument("--time-step", type=float, default=0.002,
+                   help="the plant's step in every walk [s] (torque: at most 0.002; position: 0.004 measured "
+                        "stable)")
     p.add_argument("--terminal-stance", choices=TERMINAL_STANCES, default="free",
                    help="where the feet stand when each mission ends, for both planners: free (as the BLC leaves "
                         "them) or canonical (the target's canonical stance, which CapPlanner's map then assumes; "

@@ -51,3 +51,14 @@ def test_the_tasks_are_the_keys_asked_for_or_the_first_short_walks(tmp_path):
     assert tasks(tmp_path, ["obstacles-hard-1001-capplanner"], 2) == [("obstacles", "hard", 1001, "capplanner")]
     with pytest.raises(SystemExit, match="obstacles-hard-1999-capplanner"):
         tasks(tmp_path, ["obstacles-hard-1999-capplanner"], 2)
+
+
+def test_a_new_setting_is_read_as_an_experiment_field_of_its_type_and_a_wrong_field_is_named():
+    parse = _script().parse_settings
+    assert parse(["control_mode=position", "time_step=0.004", "route_check=2", "record_missions=true"]) == {
+        "control_mode": "position", "time_step": 0.004, "route_check": 2, "record_missions": True}
+    assert parse([]) == {}
+    with pytest.raises(SystemExit, match="'drive=position'"):
+        parse(["drive=position"])
+    with pytest.raises(SystemExit, match="'time_step'"):
+        parse(["time_step"])

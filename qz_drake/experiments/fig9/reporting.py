@@ -39,8 +39,11 @@ def planner_differences(settings: dict) -> list[str]:
         retry = f"a refused mission solved again on the ladder {c['blc_ladder']}"
     if c.get("blc_terminal_stance", "free") == "canonical":
         retry += ", every mission ending in its target's canonical stance"
+    step_ms = 1000.0 * float(c.get("time_step", 0.002))
+    drives = (f"joint PD (Eq. 7 in the controller, {step_ms:g} ms plant steps)" if c.get("control_mode", "torque") ==
+              "torque" else f"joint PD (Eq. 7's PD in the drives, {step_ms:g} ms plant steps)")
     out = [f"Shared: the BLC ({c['blc_max_iterations']} Ipopt iterations a mission, {retry}), the IK tracker "
-           f"and joint PD, the strict verdict, the time budget ({c['time_factor']:g} x the straight-line walking "
+           f"and {drives}, the strict verdict, the time budget ({c['time_factor']:g} x the straight-line walking "
            f"time + {c['time_margin']:g} s), the speed and tripod phase."]
     if c["astar_max_recoveries"] == MAX_RECOVERIES:
         out.append(f"Both go round up to {MAX_RECOVERIES} missions the BLC refuses (split, then forbid / block and "

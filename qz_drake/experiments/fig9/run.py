@@ -20,7 +20,7 @@ from qz_drake.progress import ProgressReport
 from qz_drake.experiments.fig9.comparison import compare_planners, summarise
 from qz_drake.experiments.fig9.results import MODEL_IDENTITY, RESULTS, SETTINGS_BEFORE_THEY_EXISTED, read_results
 from qz_drake.experiments.fig9.tasks import (EXPERIMENT_PLANNERS, MODEL_PLANNERS, PLANNERS, ExperimentConfig, TaskSpec,
-                                             run_task)
+                                             check_drives, run_task)
 from qz_drake.experiments.worlds import DIFFICULTIES, TASKS_PER_CELL, TERRAINS, make_task
 
 # Most tasks per terrain and difficulty one run may plan: 20 times the experiment's.
@@ -106,6 +106,7 @@ def run_experiment(out, *, planners=EXPERIMENT_PLANNERS, terrains=TERRAINS, diff
     from qz_drake.planning.route_check import check_route_check
 
     check_route_check(config.route_check, "--route-check")
+    check_drives(config.control_mode, config.time_step)
     from qz_drake.planning.capplanner_route import check_topologies
 
     check_topologies(config.capplanner_topologies, "--capplanner-topologies")

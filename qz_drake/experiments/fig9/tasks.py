@@ -138,6 +138,41 @@ class ExperimentConfig:
     # target, its outcome; capability.walk_missions), for scoring a capability model on whole
     # walks (issue 37). Off for the experiment itself (the records stay small).
     record_missions: bool = False
+    # How the joints are driven in every walk, for both planners alike, and the plant's step,
+    # as the capability trials have them (capability.trials.TrialConfig's control_mode and
+    # time_step, which label a dataset): "torque", Eq. 7's PD computed by the controller at
+    # every step of at most 2 ms (every run before issue 53's drives); "position", the same PD
+    # (ControllerConfig's kp and kd) in the drives on the tracker's q_des and v_des (the
+    # plant's implicit PD actuators), stable at 4 ms (BENCHMARKS "capability", session 42). [s]
+    control_mode: str = "torque"
+    time_step: float = 0.002
+
+
+def check_drives(control_mode, time_step) -> None:
+    """The walks' drives (ExperimentConfig.control_mode, time_step) as the trials check theirs,
+    errors named by the command's options."""
+    from qz_drake.capability.trials import MAX_EXPLICIT_PD_STEP, MAX_TRIAL_STEP
+    from qz_drake.config import CONTROL_MODES
+    from qz_drake.errors import bad_value
+
+    if control_mode not in CONTROL_MODES:
+        raise bad_value("--control-mode", control_mode, f"expected one of {', '.join(CONTROL_MODES)}")
+    if isinstance(time_step, bool) or not isinstance(time_step, (int, float)) or not 0 < time_step <= MAX_TRIAL_STEP:
+        raise bad_value("--time-step", time_step, f"expected a step in (0, {MAX_TRIAL_STEP:g}] s")
+    if control_mode == "torque" and time_step > MAX_EXPLICIT_PD_STEP:
+        raise bad_value("--time-step", time_step, f"the explicit joint PD (--control-mode torque) needs steps of at "
+                                                  f"most {MAX_EXPLICIT_PD_STEP:g} s; use --control-mode position "
+                                                  f"for longer ones")
+
+
+def drive_station(control_mode: str, controller):
+    """The station of a walk driven in ``control_mode``: in position mode the drives' PD with
+    the gains of Eq. 7 (``controller``'s kp and kd; the trials' are the same)."""
+    from qz_drake.config import StationConfig
+
+    if control_mode == "torque":
+        return StationConfig()
+    return StationConfig(control_mode="position", position_kp=controller.kp, position_kd=controller.kd)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -265,15 +300,16 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
         xmin, xmax, ymin, ymax = task.heightmap.bounds
         region = [xmin, xmax, ymin, ymax]
         budget = config.time_factor * task.distance / config.speed + config.time_margin
+        controller = ControllerConfig(kind="walk", planner=walking_planner, mission_length=config.mission_length,
+                                      speed=config.speed, phase_duration=config.phase_duration,
+                                      capability_model=config.capability_model,
+                                      capability_mdp=_mdp_overrides(config),
+                                      route=[Waypoint(x=x, y=y, yaw=a, topology=t) for x, y, a, t in waypoints])
         scenario = Scenario(
             name=spec.key, terrain=TerrainConfig(kind="flat", region=region),
             robot=RobotConfig(initial_xy=list(task.start), initial_yaw=task.start_yaw),
-            simulation=SimulationConfig(duration=budget),
-            controller=ControllerConfig(kind="walk", planner=walking_planner, mission_length=config.mission_length,
-                                        speed=config.speed, phase_duration=config.phase_duration,
-                                        capability_model=config.capability_model,
-                                        capability_mdp=_mdp_overrides(config),
-                                        route=[Waypoint(x=x, y=y, yaw=a, topology=t) for x, y, a, t in waypoints]))
+            simulation=SimulationConfig(duration=budget, time_step=config.time_step),
+            station=drive_station(config.control_mode, controller), controller=controller)
         # One BLC for both planners, as paper 000 has it: first solves only (the trials' BLC, and
         # the one the A* settings were tuned with) unless ``blc_retries`` says otherwise, the
         # same for both; what differs is the TLC, including how it goes round a mission the BLC
