@@ -6,8 +6,9 @@ time side by side with the dataset's own settings.
         [--control-mode position] [--time-step 0.004] [--setup MODULE:FUNCTION] [--workers 2]
 
 EPISODES episodes are drawn as a recertification draws them (spread over every status, kind,
-topology, outcome and scene kind: failures are over-represented against the dataset) from a
-fixed key; each is run twice in worker processes, with the dataset's settings ("stored": they
+topology, outcome and scene kind: failures are over-represented against the dataset), or with
+``--uniform`` uniformly from the dataset's episodes (how many of its labels the setting would
+move), from a fixed key; each is run twice in worker processes, with the dataset's settings ("stored": they
 reproduce the stored records, the dataset being certified for this code) and with the
 variant, the two jobs of an episode side by side. ``--setup MODULE:FUNCTION`` (a module of
 benchmarks/) is called in the worker before each of the variant's episodes and the function
@@ -72,6 +73,9 @@ def main() -> None:
     parser.add_argument("--time-step", type=float, default=0.004)
     parser.add_argument("--setup", default=None, help="MODULE:FUNCTION of benchmarks/ around the variant's episodes")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--uniform", action="store_true",
+                        help="draw the episodes uniformly from the dataset (how many labels a setting moves) instead "
+                             "of as a recertification draws them (failures over-represented)")
     parser.add_argument("--summary-only", action="store_true", help="summarise OUT's runs again, run nothing")
     args = parser.parse_args()
     from qz_drake.capability.collect import _episode_sample
@@ -85,7 +89,7 @@ def main() -> None:
     variant = dataclasses.asdict(dataclasses.replace(TrialConfig(**settings), control_mode=args.control_mode,
                                                      time_step=args.time_step))
     arrays, _ = load_records(args.dataset)
-    specs, stored = _episode_sample(arrays, args.episodes, "trial_drives", int(manifest["seed"]))
+    specs, stored = _episode_sample(arrays, args.episodes, "trial_drives", int(manifest["seed"]), uniform=args.uniform)
     labels = {e: [_outcome(str(r["status"][0]), bool(r["success"][0]), bool(r["blc_success"][0])) for r in records]
               for e, records in stored.items()}
     results: dict = {}

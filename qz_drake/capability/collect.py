@@ -659,10 +659,11 @@ class RecertifyHooks:
     crashed: object
 
 
-def _episode_sample(arrays: dict, count: int, key: str, seed: int, specs_by_index=None):
+def _episode_sample(arrays: dict, count: int, key: str, seed: int, specs_by_index=None, uniform: bool = False):
     """(EpisodeSpecs, episode index -> its stored records in mission order) of up to ``count``
     episodes, chosen as recertification_sample chooses trials but by each episode's last record
-    (where an episode's outcome is: the first failure ends it)."""
+    (where an episode's outcome is: the first failure ends it); ``uniform``: drawn uniformly
+    from the episodes without a crash instead (seeded by ``key``), as the dataset has them."""
     import numpy as np
 
     from qz_drake.capability.episodes import EpisodeSpec
@@ -675,7 +676,14 @@ def _episode_sample(arrays: dict, count: int, key: str, seed: int, specs_by_inde
         first[int(index[i])] = int(i)
     positions = sorted(last.values())
     ends = {k: v[positions] for k, v in arrays.items()}
-    chosen = [int(ends["index"][j]) for j in recertification_sample(ends, count, key)]
+    if uniform:
+        import hashlib
+
+        rng = np.random.default_rng(int(hashlib.sha256(key.encode()).hexdigest()[:12], 16))
+        whole = sorted(e for e in last if not any(arrays["status"][i] == "error" for i in np.flatnonzero(index == e)))
+        chosen = sorted(int(e) for e in rng.choice(whole, size=min(count, len(whole)), replace=False))
+    else:
+        chosen = [int(ends["index"][j]) for j in recertification_sample(ends, count, key)]
     specs = [specs_by_index[e] if specs_by_index is not None else
              EpisodeSpec(seed, e, int(arrays["scene"][first[e]]), str(arrays["topology"][first[e]])) for e in chosen]
     stored = {e: [{k: v[i:i + 1] for k, v in arrays.items()} for i in order if int(index[i]) == e] for e in chosen}

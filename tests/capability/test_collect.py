@@ -377,3 +377,27 @@ def test_a_local_ray_address_is_one_the_command_starts_and_a_bad_one_is_named():
     for bad in ("localhost", "127.0.0.1:", ":8265"):
         with pytest.raises(QzError, match="--ray-address"):
             check_ray_address(bad)
+
+
+def test_a_uniform_episode_sample_is_distinct_whole_episodes_in_mission_order_and_fixed_by_its_key():
+    """benchmarks/trial_drives.py --uniform: episodes drawn as the dataset has them (no crashed
+    one), each with all its records in mission order; the same key draws the same episodes."""
+    import numpy as np
+
+    from qz_drake.capability.collect import _episode_sample
+
+    # Five episodes of 1-3 missions, their records out of order; episode 3 crashed.
+    index = np.array([2, 0, 1, 1, 0, 3, 4, 2, 2])
+    heading = np.array([1, 0, 0, 1, 1, 0, 0, 0, 2])
+    status = np.array(["executed"] * 5 + ["error"] + ["executed"] * 3)
+    arrays = {"index": index, "heading_sample": heading, "status": status, "scene": index * 10,
+              "topology": np.array(["nominal"] * 9), "kind": np.array(["forward"] * 9),
+              "success": np.ones(9, bool), "reason": np.array([""] * 9), "scene_kind": np.array(["stairs"] * 9)}
+    specs, stored = _episode_sample(arrays, 3, "key", 7, uniform=True)
+    chosen = [s.index for s in specs]
+    assert len(set(chosen)) == 3 and 3 not in chosen and set(chosen) <= {0, 1, 2, 4}
+    for s in specs:
+        assert s.scene == 10 * s.index
+        assert [int(r["heading_sample"][0]) for r in stored[s.index]] == sorted(heading[index == s.index].tolist())
+    assert [s.index for s in _episode_sample(arrays, 3, "key", 7, uniform=True)[0]] == chosen
+    assert len(_episode_sample(arrays, 10, "key", 7, uniform=True)[0]) == 4
