@@ -139,7 +139,9 @@ def main() -> int:
                                     "base_success": base["success"], "new_success": new["success"],
                                     "base_reason": base.get("reason", ""), "new_reason": new.get("reason", ""),
                                     "new_setting": json.loads(settings), "stored_base": args.stored_base,
-                                    "base_sim_s": _sim_time(base), "new_sim_s": _sim_time(new)}) + "\n")
+                                    "base_sim_s": _sim_time(base), "new_sim_s": _sim_time(new),
+                                    **{f"{side}_{k}": r.get(k) for side, r in (("base", base), ("new", new))
+                                       for k in ("missions", "displacement_ratio", "replans", "message")}}) + "\n")
     if walked:
         print(f"{same} of {walked} the same walk, {kept} the same outcome (success and reason)"
               + (f"; wall time new / base: median {statistics.median(ratios):.3f}" if ratios else ""))
