@@ -135,18 +135,24 @@ class LocalPool:
     ``crashed(spec, message, config) -> record`` makes the record of a spec whose worker died
     more than ``max_retries`` times. ``max_tasks``: a worker that has returned this many
     records is stopped and a fresh one started in its place (None: workers live as long as the
-    pool). A Drake diagram with LeafSystems written in Python is never freed in the process
-    that built it (drake#22515, #23161; measured with drake 1.51.1: a full-size Fig. 9 walk
-    leaves about 200 MB behind, a capability trial 8-36 MB), so a worker that builds one per
-    spec grows without bound: the decisive Fig. 9 run's two workers held 12 GB each after about
-    100 walks and the machine's 24 GB ran out.
+    pool); ``max_memory_mb``: so is a worker whose resident memory, read after a record, has
+    reached this many megabytes (None: no limit; read from /proc, so Linux only: elsewhere only
+    max_tasks applies). A Drake diagram with LeafSystems written in Python is never freed in
+    the process that built it (drake#22515, #23161; measured with drake 1.51.1: a full-size
+    Fig. 9 walk leaves about 200 MB behind, a capability trial 8-36 MB), so a worker that builds
+    one per spec grows without bound: the decisive Fig. 9 run's two workers held 12 GB each
+    after about 100 walks and the machine's 24 GB ran out.
     """
 
     def __init__(self, workers: int, config, max_retries: int, function=None, crashed=None,
-                 max_tasks: int | None = None):
+                 max_tasks: int | None = None, max_memory_mb: float | None = None):
         if max_tasks is not None and (isinstance(max_tasks, bool) or not isinstance(max_tasks, int)
                                       or max_tasks < 1):
             raise bad_value("max_tasks", max_tasks, "must be a whole number >= 1 or None")
+        if max_memory_mb is not None and (isinstance(max_memory_mb, bool) or not isinstance(max_memory_mb, (int, float))
+                                          or not max_memory_mb > 0):
+            raise bad_value("max_memory_mb", max_memory_mb, "must be a positive number of megabytes or None")
+        self._max_memory_mb = max_memory_mb
         self._ctx = mp.get_context("spawn")
         self._config = config
         self._function = function or execute
@@ -157,6 +163,8 @@ class LocalPool:
         self.retries = 0
         # Workers stopped after max_tasks records and replaced by fresh ones.
         self.recycled = 0
+        # The largest resident memory read of a worker after a record (MB; 0 until one is read).
+        self.peak_memory_mb = 0.0
 
     def _start(self):
         parent, child = self._ctx.Pipe()
@@ -215,7 +223,11 @@ class LocalPool:
                         w["spec"] = None
                         w["done"] += 1
                         on_record(record)
-                        if self._max_tasks is not None and w["done"] >= self._max_tasks and queue:
+                        memory = resident_memory_mb(w["process"].pid) if self._max_memory_mb is not None else None
+                        if memory is not None:
+                            self.peak_memory_mb = max(self.peak_memory_mb, memory)
+                        if queue and ((self._max_tasks is not None and w["done"] >= self._max_tasks)
+                                      or (memory is not None and memory >= self._max_memory_mb)):
                             self._recycle(i)
                         continue
                 if w["process"].sentinel in ready or not w["process"].is_alive():
@@ -240,6 +252,19 @@ class LocalPool:
             w["process"].join(timeout=10)
             if w["process"].is_alive():
                 w["process"].kill()
+
+
+def resident_memory_mb(pid: int) -> float | None:
+    """The resident memory of process ``pid`` in MB (VmRSS of /proc/PID/status); None where it
+    cannot be read (not Linux, the process gone)."""
+    try:
+        with open(f"/proc/{int(pid)}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
 
 
 # The Ray address that starts a Ray instance on this machine for one run (RayPool), with as many

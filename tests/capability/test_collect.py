@@ -87,6 +87,28 @@ def test_a_worker_is_replaced_by_a_fresh_process_after_max_tasks_and_no_record_i
         LocalPool(1, 0, 0, function=max, max_tasks=0)
 
 
+@pytest.mark.skipif(not Path("/proc/self/status").is_file(), reason="a process's memory is read from /proc (Linux)")
+def test_a_worker_holding_more_than_max_memory_is_replaced_and_no_record_is_lost():
+    """A Fig. 9 walk leaves a few hundred MB in its worker, so a worker is also replaced once it
+    holds max_memory_mb after a record: with a limit below any Python process's, every record
+    but the last is followed by a fresh worker; the memory read is the worker's own."""
+    from qz_drake.capability.collect import resident_memory_mb
+
+    assert resident_memory_mb(os.getpid()) > 1.0
+    assert resident_memory_mb(2 ** 22 + 12345) is None  # no such process
+    pool = LocalPool(1, 0, 0, function=max, max_memory_mb=1.0)
+    records, pids = [], []
+    try:
+        pool.run([3, -1, 5], lambda r: (records.append(r), pids.append(pool._workers[0]["process"].pid)))
+    finally:
+        pool.close()
+    assert records == [3, 0, 5]
+    assert pool.recycled == 2 and len(set(pids)) == 3 and pool.peak_memory_mb > 1.0
+    for bad in (0, -5, True, "3 GB"):
+        with pytest.raises(QzError, match="max_memory_mb"):
+            LocalPool(1, 0, 0, function=max, max_memory_mb=bad)
+
+
 def test_a_stale_manifest_is_refused_naming_the_field(reference, tmp_path):
     copy = tmp_path / "stale"
     shutil.copytree(reference, copy)

@@ -34,6 +34,10 @@ MAX_BLC_RETRIES = 10
 # decisive run's workers held at most 3.0 GB, and a fresh worker's start (a few seconds) is small
 # beside 20 walks (15-30 minutes).
 WALKS_PER_WORKER = 20
+# A local worker that holds this much after a walk is replaced too, whatever its count: with the
+# ladder and the route check a walk leaves more behind (the fresh run's workers reached 3.9 GB by
+# their 20th walk, session 56), and issue 55 allows a worker 4 GB. [MB]
+WORKER_MEMORY_MB = 3000.0
 
 
 def _crashed(spec: TaskSpec, message: str, config) -> dict:
@@ -200,7 +204,7 @@ def run_experiment(out, *, planners=EXPERIMENT_PLANNERS, terrains=TERRAINS, diff
             pool = RayPool(ray_address, config, 1, function=run_task, crashed=_crashed, max_calls=WALKS_PER_WORKER,
                            workers=workers) if ray_address else \
                 LocalPool(min(workers, len(todo)), config, 1, function=run_task, crashed=_crashed,
-                          max_tasks=WALKS_PER_WORKER)
+                          max_tasks=WALKS_PER_WORKER, max_memory_mb=WORKER_MEMORY_MB)
             try:
                 pool.run(todo, on_record)
             finally:
