@@ -8,8 +8,8 @@ time side by side with the dataset's own settings.
 EPISODES episodes are drawn as a recertification draws them (spread over every status, kind,
 topology, outcome and scene kind: failures are over-represented against the dataset), or with
 ``--uniform`` uniformly from the dataset's episodes (how many of its labels the setting would
-move), from a fixed key; each is run twice in worker processes, with the dataset's settings ("stored": they
-reproduce the stored records, the dataset being certified for this code) and with the
+move), from a fixed key; each is run twice in worker processes, with the dataset's settings
+("stored": they reproduce the stored records, the dataset being certified for this code) and with the
 variant, the two jobs of an episode side by side. ``--setup MODULE:FUNCTION`` (a module of
 benchmarks/) is called in the worker before each of the variant's episodes and the function
 it returns after it (a solver variant such as ``blc_row_screening:use``; with ``--control-mode

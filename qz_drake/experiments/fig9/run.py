@@ -30,13 +30,14 @@ MAX_BLC_RETRIES = 10
 
 
 # Walks a worker process (local or Ray's) makes before a fresh one takes its place: every walk's
-# diagram stays in the process that built it (LocalPool), about 200 MB a full-size walk; with 20 the
-# decisive run's workers held at most 3.0 GB, and a fresh worker's start (a few seconds) is small
-# beside 20 walks (15-30 minutes).
-WALKS_PER_WORKER = 20
-# A local worker that holds this much after a walk is replaced too, whatever its count: with the
-# ladder and the route check a walk leaves more behind (the fresh run's workers reached 3.9 GB by
-# their 20th walk, session 56), and issue 55 allows a worker 4 GB. [MB]
+# diagram stays in the process that built it (LocalPool), 100-200 MB a full-size walk. With 20 the
+# decisive run's workers held at most 3.0 GB, but with the ladder and the route check the fresh
+# run's first two reached 3.9 GB by their 20th walk (session 56; issue 55 allows a worker 4 GB):
+# 15 keeps a Ray worker near 3.2 GB, and a fresh worker's start (a few seconds) stays small beside
+# 15 walks.
+WALKS_PER_WORKER = 15
+# A local worker that holds this much after a walk is replaced too, whatever its count (Ray's
+# workers are replaced by the count alone). [MB]
 WORKER_MEMORY_MB = 3000.0
 
 
