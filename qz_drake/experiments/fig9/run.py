@@ -33,8 +33,8 @@ MAX_BLC_RETRIES = 10
 # diagram stays in the process that built it (LocalPool), 100-200 MB a full-size walk. With 20 the
 # decisive run's workers held at most 3.0 GB, but with the ladder and the route check the fresh
 # run's first two reached 3.9 GB by their 20th walk (session 56; issue 55 allows a worker 4 GB):
-# 15 keeps a Ray worker near 3.2 GB, and a fresh worker's start (a few seconds) stays small beside
-# 15 walks.
+# at their rate (1.1 GB, then about 140 MB a walk) 15 walks leave a Ray worker near 3.2 GB, and a
+# fresh worker's start (a few seconds) stays small beside them.
 WALKS_PER_WORKER = 15
 # A local worker that holds this much after a walk is replaced too, whatever its count (Ray's
 # workers are replaced by the count alone). [MB]
