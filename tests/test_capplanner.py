@@ -5,6 +5,7 @@ pipeline runs one tiny task per planner; qz plan's outputs and bad input."""
 import base64
 import dataclasses
 import json
+import os
 import re
 import subprocess
 import sys
@@ -950,6 +951,12 @@ def test_a_ray_worker_that_ran_max_calls_specs_is_replaced():
                    workers=1)
     pids = []
     try:
+        import ray
+
+        # The instance the pool started listens on loopback only, and the switch that made it so
+        # is not left behind for the rest of the process.
+        assert {node["NodeManagerAddress"] for node in ray.nodes()} == {"127.0.0.1"}
+        assert "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER" not in os.environ
         pool.run(list(range(6)), pids.append)
     finally:
         pool.close()

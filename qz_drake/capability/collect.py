@@ -329,10 +329,53 @@ def _crashed(spec: TrialSpec, message: str, config: TrialConfig) -> dict:
     return record
 
 
+# Ray binds a node to the machine's outward address, even when told 127.0.0.1, unless clusters
+# are switched off (its own switch for machines without them); then the node and everything it
+# starts listen on loopback only.
+_RAY_CLUSTER_SWITCH = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+
+
+def _is_loopback(address: str) -> bool:
+    import ipaddress
+
+    host = address.removeprefix("ray://").rpartition(":")[0].strip("[]")
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+@contextlib.contextmanager
+def _loopback_ray(ray, loopback: bool):
+    """While it is open, a Ray instance started here (and the node a driver joins from here)
+    listens on 127.0.0.1 only; the processes Ray starts meanwhile inherit the setting."""
+    if not loopback:
+        yield
+        return
+    constants = getattr(getattr(ray, "_private", None), "ray_constants", None)
+    saved_env = os.environ.get(_RAY_CLUSTER_SWITCH)
+    saved_constant = getattr(constants, "ENABLE_RAY_CLUSTER", None)
+    os.environ[_RAY_CLUSTER_SWITCH] = "0"
+    if constants is not None:
+        constants.ENABLE_RAY_CLUSTER = False
+    try:
+        yield
+    finally:
+        if saved_env is None:
+            os.environ.pop(_RAY_CLUSTER_SWITCH, None)
+        else:
+            os.environ[_RAY_CLUSTER_SWITCH] = saved_env
+        if constants is not None:
+            constants.ENABLE_RAY_CLUSTER = saved_constant
+
+
 class RayPool:
     """The same specs as Ray tasks on an existing cluster (``ray.init(address=...)``), or, with
     the address LOCAL_RAY, on a Ray instance started here with ``workers`` CPUs for this pool
-    and stopped by :meth:`close`.
+    and stopped by :meth:`close`. That instance, and the node of a driver joining a head at a
+    loopback address, listen on 127.0.0.1 only (Ray's default is every interface).
 
     ``max_calls``: a Ray worker process that has run this many specs exits and Ray starts a
     fresh one (None: workers live as long as the cluster), as LocalPool's ``max_tasks``: a
@@ -354,10 +397,13 @@ class RayPool:
         if address == LOCAL_RAY:
             check_workers(workers)
         try:
-            if address == LOCAL_RAY:
-                ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, runtime_env=runtime_env)
-            else:
-                ray.init(address=address, ignore_reinit_error=True, log_to_driver=False, runtime_env=runtime_env)
+            with _loopback_ray(ray, address == LOCAL_RAY or _is_loopback(address)):
+                if address == LOCAL_RAY:
+                    ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False,
+                             runtime_env=runtime_env)
+                else:
+                    ray.init(address=address, ignore_reinit_error=True, log_to_driver=False,
+                             runtime_env=runtime_env)
         except Exception as e:  # ConnectionError, ValueError, RuntimeError, depending on the address
             raise bad_value("--ray-address", address, f"no Ray cluster reachable ({type(e).__name__}: "
                                                        f"{str(e).splitlines()[0] if str(e) else ''})") from None

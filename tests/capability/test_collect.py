@@ -4,6 +4,7 @@ manifest; the CLI's bad input."""
 
 import json
 import os
+import secrets
 import shutil
 import socket
 import subprocess
@@ -189,14 +190,20 @@ def _free_port() -> int:
 
 
 @pytest.mark.slow
-def test_a_local_ray_cluster_gives_the_same_dataset_and_survives_a_killed_worker(reference, tmp_path):
+def test_a_local_ray_cluster_gives_the_same_dataset_and_survives_a_killed_worker(reference, tmp_path,
+                                                                                  monkeypatch):
     ray_bin = Path(sys.executable).with_name("ray")
     port = _free_port()
-    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
+    # A head on loopback only (Ray's own switch: without it the node takes the machine's outward
+    # address whatever --node-ip-address says), with its own token for Ray's token auth.
+    token = {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(16)}
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0", **token}
     subprocess.run([str(ray_bin), "start", "--head", "--node-ip-address=127.0.0.1", f"--port={port}",
                     "--num-cpus=2", "--include-dashboard=false", "--disable-usage-stats"],
                    check=True, capture_output=True, env=env, timeout=180)
     address = f"127.0.0.1:{port}"
+    for name, value in token.items():
+        monkeypatch.setenv(name, value)
     try:
         collect(tmp_path / "ray", ray_address=address, **SMALL)
         _same(reference, tmp_path / "ray")
