@@ -191,7 +191,10 @@ class TopologySwitchPlan:
         """Every leg's link capsules over the raw heightmap at 400 samples of the switch."""
         ground = raw_ground(as_terrain(self._heightmap))
         times = np.linspace(self.start_time, self.end_time, 400)
-        points = np.stack([self.link_points(t) for t in times])  # (n, 6, J, 3)
+        # A leg standing still has the same links at most of the samples: each leg's distinct
+        # joint references are taken once (the same numbers as link_points at every sample).
+        legs = {}
+        points = np.stack([self.link_points(t, legs) for t in times])  # (n, 6, J, 3)
         clearance = sphere_clearance(points, LINK_COLLISION_RADIUS, ground)
         # The robot stands as it stands: a link only counts where it is lower than at the start.
         allowed = np.minimum(min_clearance, clearance[0] - 0.005)
@@ -204,27 +207,38 @@ class TopologySwitchPlan:
                 f"{100 * clearance[k, leg, j]:.1f} cm over the terrain {times[k] - self.start_time:.2f} s "
                 f"into the switch (at least {100 * min_clearance:.1f} cm needed)")
 
-    def link_points(self, t: float) -> np.ndarray:
+    def link_points(self, t: float, cache: dict | None = None) -> np.ndarray:
         """(6, J, 3) points every 1.5 cm along each leg's thigh and shank collision capsules,
         world, at t (the legs' joint references: a flip's joint-space move, else the IK of
-        the foot with the leg's bend at t)."""
+        the foot with the leg's bend at t). ``cache``: a dict kept across calls on one plan,
+        holding each leg's points by its inputs (a reference, or a foot and bend)."""
         override = self.joint_override(t).reshape(NUM_LEGS, 3)
         feet = self.foot_positions(t)
         bends = self.topology_at(t).bends
         out = np.empty((NUM_LEGS, len(_LINK_FRACTIONS), 3))
-        l1, l2 = self.params.thigh_length, self.params.shank_length
         for i in range(NUM_LEGS):
-            q = override[i] if np.all(np.isfinite(override[i])) else self._ik(i, feet[i], bends[i])
-            m = kinematics.urdf_to_motor(q)
-            knee = l1 * np.array([np.cos(m[1]), np.sin(m[1]) * np.cos(m[0]), np.sin(m[1]) * np.sin(m[0])])
-            foot = kinematics.foot_position_leg_frame(m, self.params)
-            hip = np.zeros(3)
-            starts = np.where(_LINK_IS_THIGH[:, None], hip, knee)
-            ends = np.where(_LINK_IS_THIGH[:, None], knee, foot)
-            p_L = starts + _LINK_FRACTIONS[:, None] * (ends - starts)
-            p_B = p_L @ self.params.R_BL(i).T + self.params.hip_position(i)
-            out[i] = self._p_base + p_B @ self._R.T
+            flip = bool(np.all(np.isfinite(override[i])))
+            key = (i, True, override[i].tobytes()) if flip else (i, False, feet[i].tobytes(), bends[i])
+            points = None if cache is None else cache.get(key)
+            if points is None:
+                points = self._leg_link_points(i, override[i] if flip else self._ik(i, feet[i], bends[i]))
+                if cache is not None:
+                    cache[key] = points
+            out[i] = points
         return out
+
+    def _leg_link_points(self, i: int, q: np.ndarray) -> np.ndarray:
+        """(J, 3) world points along leg i's thigh and shank capsules at URDF angles q."""
+        m = kinematics.urdf_to_motor(q)
+        l1 = self.params.thigh_length
+        knee = l1 * np.array([np.cos(m[1]), np.sin(m[1]) * np.cos(m[0]), np.sin(m[1]) * np.sin(m[0])])
+        foot = kinematics.foot_position_leg_frame(m, self.params)
+        hip = np.zeros(3)
+        starts = np.where(_LINK_IS_THIGH[:, None], hip, knee)
+        ends = np.where(_LINK_IS_THIGH[:, None], knee, foot)
+        p_L = starts + _LINK_FRACTIONS[:, None] * (ends - starts)
+        p_B = p_L @ self.params.R_BL(i).T + self.params.hip_position(i)
+        return self._p_base + p_B @ self._R.T
 
     # -- sampling ----------------------------------------------------------------------------
     def _phase(self, leg: int, t: float) -> tuple[str, float]:

@@ -7,7 +7,7 @@ import pytest
 from qz_drake.config import ControllerConfig, Scenario, SimulationConfig, Waypoint
 from qz_drake.errors import ConfigError
 from qz_drake.robot import kinematics
-from qz_drake.robot.params import DEFAULT_PARAMS
+from qz_drake.robot.params import DEFAULT_PARAMS, NUM_LEGS
 from qz_drake.robot.topology import get_topology
 from qz_drake.simulation import simulate
 from qz_drake.station import standing_state
@@ -147,3 +147,16 @@ def test_a_switch_whose_knee_in_leg_would_rest_on_a_box_is_refused_before_it_sta
     # Every link of every leg clears flat ground by more than the capsule's radius all along.
     points = np.stack([plan.link_points(t) for t in np.linspace(plan.start_time, plan.end_time, 50)])
     assert points[..., 2].min() > 0.025
+
+
+def test_link_points_kept_by_their_inputs_are_the_points_of_every_sample():
+    """The switch's link check keeps each leg's points by its joint references: the same numbers
+    at every sample as computed afresh, and a standing leg's points computed once."""
+    plan, _ = _plan("front_bend")
+    cache = {}
+    times = np.linspace(plan.start_time, plan.end_time, 120)
+    for t in times:
+        np.testing.assert_array_equal(plan.link_points(t, cache), plan.link_points(t))
+    # The hind legs (2, 3, 4) never move: one entry each.
+    assert sum(1 for key in cache if key[0] in (2, 3, 4)) == 3
+    assert len(cache) < NUM_LEGS * len(times) / 2
