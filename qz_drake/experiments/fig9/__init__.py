@@ -14,7 +14,7 @@ Each module imports only those above it in this list; the names callers use are 
 """
 
 from qz_drake.experiments.fig9.comparison import claim_check, compare_planners, compare_runs, summarise
-from qz_drake.experiments.fig9.predict import predict_route, predict_routes, route_calibration
+from qz_drake.experiments.fig9.predict import predict_route, predict_routes, route_calibration, route_calibration_check
 from qz_drake.experiments.fig9.reporting import (discordant_pictures, discordant_tasks, planner_differences,
                                                  report, report_markdown)
 from qz_drake.experiments.fig9.results import (MODEL_IDENTITY, PREDICTIONS, RESULTS, read_config, read_results,
@@ -33,8 +33,8 @@ from qz_drake.experiments.fig9.tune import (TUNING_BODY_RADII, TUNING_DIFFICULTI
 __all__ = [
     "ExperimentConfig", "TaskSpec", "PLANNERS", "EXPERIMENT_PLANNERS", "run_task", "path_samples", "RESULTS", "PREDICTIONS",
     "MODEL_IDENTITY", "read_results", "read_settings", "read_config", "run_experiment", "summarise", "compare_planners",
-    "claim_check", "compare_runs", "predict_route", "predict_routes", "route_calibration", "report",
-    "report_markdown", "planner_differences", "discordant_tasks", "discordant_pictures", "tune_astar",
+    "claim_check", "compare_runs", "predict_route", "predict_routes", "route_calibration", "route_calibration_check",
+    "report", "report_markdown", "planner_differences", "discordant_tasks", "discordant_pictures", "tune_astar",
     "tune_capplanner", "astar_settings", "capplanner_settings", "TUNING_TASKS_PER_CELL", "TUNING_DIFFICULTIES",
     "TUNING_STEP_HEIGHTS", "TUNING_SLOPES_DEG", "TUNING_BODY_RADII", "TUNING_FAILURE_REWARDS",
     "TUNING_TOPOLOGY_CHANGE_COSTS", "TUNING_PLAN_FAILURE_RISKS", "TUNING_MISSION_LENGTHS",

@@ -112,3 +112,27 @@ def route_calibration(records: list[dict], predictions: list[dict]) -> list[dict
     rows += [row("all", d, [p for p in usable if p["difficulty"] == d]) for d in DIFFICULTIES]
     rows.append(row("all", "all", usable))
     return [r for r in rows if r["tasks"]]
+
+
+# What a route calibration row predicts, as the report names it.
+ROUTE_PREDICTIONS = {"expected_fall_free": "expected no-fall (the model's mean)",
+                     "predicted_fall_free": "the plan's predicted no-fall",
+                     "predicted_success": "the plan's predicted success"}
+
+
+def route_calibration_check(rows: list[dict], tolerance: float) -> dict:
+    """How close each of CapPlanner's route predictions (ROUTE_PREDICTIONS) comes to the share
+    walked, cell by cell (the (terrain, difficulty) rows of :func:`route_calibration` that set
+    out on at least one task; the pooled rows are left out): per prediction the cells within
+    ``tolerance``, the worst cell and its gap, and whether every cell is within."""
+    cells = [r for r in rows if "all" not in (r["terrain"], r["difficulty"]) and r["walked_rate"] is not None]
+    out = {"tolerance": float(tolerance), "cells": len(cells)}
+    for field in ROUTE_PREDICTIONS:
+        gaps = [(abs(r[field] - r["walked_rate"]), r) for r in cells if r.get(field) is not None]
+        if not gaps:
+            continue
+        gap, worst = max(gaps, key=lambda g: g[0])
+        within = [g <= tolerance + 1e-12 for g, _ in gaps]
+        out[field] = {"within": int(sum(within)), "cells": len(gaps), "worst_gap": float(gap),
+                      "worst_cell": f"{worst['terrain']} {worst['difficulty']}", "holds": all(within)}
+    return out

@@ -15,8 +15,8 @@ import numpy as np
 
 from qz_drake.errors import bad_value
 from qz_drake.experiments.fig9.comparison import (CLAIM_ALPHA, CLAIM_DIFFERENCE, CLAIM_POWER,
-                                                  claim_check, compare_planners, compare_runs, summarise)
-from qz_drake.experiments.fig9.predict import route_calibration
+                                                  claim_aims, claim_check, compare_planners, compare_runs, summarise)
+from qz_drake.experiments.fig9.predict import ROUTE_PREDICTIONS, route_calibration, route_calibration_check
 from qz_drake.experiments.fig9.results import (PREDICTIONS, RESULTS, SETTINGS_BEFORE_THEY_EXISTED, read_results,
                                                read_settings)
 from qz_drake.experiments.fig9.tasks import ExperimentConfig
@@ -152,6 +152,10 @@ def report(out, against=None) -> dict:
     if (out / PREDICTIONS).is_file():  # written by qz experiment report --predict
         predictions = [json.loads(line) for line in (out / PREDICTIONS).read_text().splitlines() if line.strip()]
         summary["route_calibration"] = route_calibration(records, predictions)
+        aims = claim_aims(records)
+        if aims["route_tolerance"] is not None:
+            summary["route_calibration_check"] = dict(
+                route_calibration_check(summary["route_calibration"], aims["route_tolerance"]), issue=aims["issue"])
     if against is not None:
         summary["against"] = _against(out, records, against)
     return summary
@@ -263,6 +267,14 @@ def report_markdown(summary: dict) -> str:
                          f"| {num(c['predicted_fall_free'])} | {num(c.get('predicted_success'))} "
                          f"| {num(c.get('expected_fall_free'))} | {num(c['walked_rate'])} | {c['declined']} "
                          f"| {c['declined_walked_by_astar']} |")
+        check = summary.get("route_calibration_check")
+        if check and check["cells"]:
+            parts = [f"{name} {check[field]['within']} of {check[field]['cells']} (worst {check[field]['worst_cell']}, "
+                     f"off by {check[field]['worst_gap']:.2f}: {'met' if check[field]['holds'] else 'missed'})"
+                     for field, name in ROUTE_PREDICTIONS.items() if field in check]
+            lines += ["", f"Cells where CapPlanner's prediction is within {check['tolerance']:.2f} of the share it "
+                          f"walked (the aim of issue {check['issue']}: every cell): "
+                          + "; ".join(parts) + "."]
     if summary.get("against"):
         other = summary["against"]
         changed = ", ".join(f"{k} {v[0]} (there {v[1]})" for k, v in other["changed_settings"].items())
