@@ -505,6 +505,32 @@ def test_capplanner_results_are_not_resumed_with_another_model(briefly_trained_m
     assert json.loads((tmp_path / "settings.json").read_text())[MODEL_IDENTITY] == shipped.identity
 
 
+def test_a_record_cut_off_in_writing_is_dropped_and_its_task_walked_again(tmp_path, capsys):
+    """A run killed while it wrote a record (a session's end) leaves a last line without its
+    newline: it is no record, its task is walked again on resume, and the file is cut back to
+    its last whole line before more are appended. A line damaged elsewhere is named."""
+    from qz_drake.errors import QzError
+    from qz_drake.experiments.fig9 import RESULTS, ExperimentConfig, TaskSpec, read_results, run_experiment
+
+    def walked(spec):
+        return {"key": spec.key, "terrain": spec.terrain, "difficulty": spec.difficulty, "seed": spec.seed,
+                "planner": spec.planner, "success": True, "reason": "", "displacement_ratio": 1.1,
+                "wall_time_s": 1.0}
+
+    first, second = (TaskSpec("obstacles", "simple", seed, "astar") for seed in (0, 1))
+    (tmp_path / RESULTS).write_text(json.dumps(walked(first)) + "\n" + json.dumps(walked(second))[:40])
+    assert [r["key"] for r in read_results(tmp_path)] == [first.key]
+    summary = run_experiment(tmp_path, planners=("astar",), terrains=("obstacles",), difficulties=("simple",),
+                             tasks=2, config=ExperimentConfig(scale=0.3), progress=False, reuse=walked)
+    assert (summary["already_done"], summary["reused"], summary["ran"]) == (1, 1, 0)
+    assert "dropped the last record, cut off in writing" in capsys.readouterr().err
+    lines = (tmp_path / RESULTS).read_text().splitlines()
+    assert [json.loads(line)["key"] for line in lines] == [first.key, second.key]
+    (tmp_path / RESULTS).write_text("{not a record\n" + "\n".join(lines) + "\n")
+    with pytest.raises(QzError, match=r"results.jsonl line 1 = '\{not a record': is not a JSON record"):
+        read_results(tmp_path)
+
+
 def test_results_written_before_a_setting_existed_still_resume(tmp_path):
     """A* tuning folders were written before CapPlanner's settings joined ExperimentConfig: a
     setting missing from settings.json reads as its default, so they resume (here: nothing left

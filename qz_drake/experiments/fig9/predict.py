@@ -12,8 +12,8 @@ import numpy as np
 
 from qz_drake.errors import bad_value
 from qz_drake.progress import ProgressReport
-from qz_drake.experiments.fig9.results import (MODEL_IDENTITY, PREDICTIONS, RESULTS, read_config, read_results,
-                                               read_settings)
+from qz_drake.experiments.fig9.results import (MODEL_IDENTITY, PREDICTIONS, RESULTS, drop_cut_off_record,
+                                               read_config, read_json_lines, read_results, read_settings)
 from qz_drake.experiments.fig9.tasks import ExperimentConfig, TaskSpec, _mdp_overrides
 from qz_drake.experiments.worlds import DIFFICULTIES, TERRAINS, make_task
 
@@ -66,8 +66,8 @@ def predict_routes(out, config: ExperimentConfig | None = None, model=None, prog
         raise bad_value("capability model", model.identity,
                         f"the run at {out} walked with model {identity}; predict with that one")
     path = out / PREDICTIONS
-    done = {p["key"]: p for p in (json.loads(line) for line in path.read_text().splitlines() if line.strip())} \
-        if path.is_file() else {}
+    drop_cut_off_record(path)
+    done = {p["key"]: p for p in read_json_lines(path)}
     # A prediction from before expected_fall_free existed is made again.
     todo = [r for r in records if "expected_fall_free" not in done.get(r["key"], {})]
     with path.open("a") as f, ProgressReport("predicting routes", len(records), unit="routes",

@@ -8,7 +8,6 @@ Markdown tables.
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
@@ -17,8 +16,8 @@ from qz_drake.errors import bad_value
 from qz_drake.experiments.fig9.comparison import (CLAIM_ALPHA, CLAIM_DIFFERENCE, CLAIM_POWER,
                                                   claim_aims, claim_check, compare_planners, compare_runs, summarise)
 from qz_drake.experiments.fig9.predict import ROUTE_PREDICTIONS, route_calibration, route_calibration_check
-from qz_drake.experiments.fig9.results import (PREDICTIONS, RESULTS, SETTINGS_BEFORE_THEY_EXISTED, read_results,
-                                               read_settings)
+from qz_drake.experiments.fig9.results import (PREDICTIONS, RESULTS, SETTINGS_BEFORE_THEY_EXISTED, read_json_lines,
+                                               read_results, read_settings)
 from qz_drake.experiments.fig9.tasks import ExperimentConfig
 from qz_drake.experiments.worlds import DIFFICULTIES, PLANNER_NAMES, TERRAINS, make_task
 
@@ -150,7 +149,7 @@ def report(out, against=None) -> dict:
                "wall_time_s": float(sum(r.get("wall_time_s", 0.0) for r in records)),
                "differences": planner_differences(read_settings(out)), "routes": route_rows(records)}
     if (out / PREDICTIONS).is_file():  # written by qz experiment report --predict
-        predictions = [json.loads(line) for line in (out / PREDICTIONS).read_text().splitlines() if line.strip()]
+        predictions = read_json_lines(out / PREDICTIONS)
         summary["route_calibration"] = route_calibration(records, predictions)
         aims = claim_aims(records)
         if aims["route_tolerance"] is not None:

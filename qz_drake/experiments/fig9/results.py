@@ -12,6 +12,7 @@ import dataclasses
 import json
 from pathlib import Path
 
+from qz_drake.errors import bad_value
 from qz_drake.experiments.fig9.tasks import ExperimentConfig
 
 # One record per task, appended as tasks finish.
@@ -35,12 +36,48 @@ SETTINGS_BEFORE_THEY_EXISTED = {"astar_max_recoveries": 0, "capplanner_min_route
                                 "capplanner_revisit_cost": 0.0, "capplanner_target_shift": 0.0}
 
 
-def read_results(out) -> list[dict]:
-    """The records of a results folder, in the order they were written ([] before the first)."""
-    path = Path(out) / RESULTS
+def read_json_lines(path) -> list[dict]:
+    """The records of a JSON-lines file that is appended to a record at a time ([] without the
+    file). A last line without its newline that does not parse is a record whose writing was cut
+    off (a run killed mid-write, or one still writing it): left out, so its task counts as not
+    done. Any other line that does not parse is damage no run leaves: a QzError naming the file
+    and the line."""
+    path = Path(path)
     if not path.is_file():
         return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    text = path.read_text()
+    lines = text.split("\n")
+    records = []
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError as e:
+            if number == len(lines):  # the last line, without its newline: cut off
+                break
+            raise bad_value(f"{path} line {number}", line[:60], f"is not a JSON record ({e.msg})") from None
+    return records
+
+
+def drop_cut_off_record(path) -> bool:
+    """Cuts a JSON-lines file back to its last whole line when its last line has no newline (a
+    record whose writing was cut off), before more are appended after it; True if it did."""
+    path = Path(path)
+    if not path.is_file() or path.stat().st_size == 0:
+        return False
+    with path.open("rb+") as f:
+        data = f.read()
+        if data.endswith(b"\n"):
+            return False
+        f.truncate(data.rfind(b"\n") + 1)
+    return True
+
+
+def read_results(out) -> list[dict]:
+    """The records of a results folder, in the order they were written ([] before the first;
+    a last record cut off in writing left out: :func:`read_json_lines`)."""
+    return read_json_lines(Path(out) / RESULTS)
 
 
 def read_settings(out: Path) -> dict:

@@ -12,13 +12,15 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import sys
 import time
 from pathlib import Path
 
 from qz_drake.errors import bad_value
 from qz_drake.progress import ProgressReport
 from qz_drake.experiments.fig9.comparison import compare_planners, summarise
-from qz_drake.experiments.fig9.results import MODEL_IDENTITY, RESULTS, SETTINGS_BEFORE_THEY_EXISTED, read_results
+from qz_drake.experiments.fig9.results import (MODEL_IDENTITY, RESULTS, SETTINGS_BEFORE_THEY_EXISTED,
+                                               drop_cut_off_record, read_results)
 from qz_drake.experiments.fig9.tasks import (EXPERIMENT_PLANNERS, MODEL_PLANNERS, PLANNERS, ExperimentConfig, TaskSpec,
                                              check_drives, run_task)
 from qz_drake.experiments.worlds import DIFFICULTIES, TASKS_PER_CELL, TERRAINS, make_task
@@ -184,6 +186,9 @@ def run_experiment(out, *, planners=EXPERIMENT_PLANNERS, terrains=TERRAINS, diff
         report = owned = ProgressReport("capplanner-vs-astar", len(specs), unit="walks",
                                         completed=len(specs) - len(todo), enabled=progress)
 
+    if drop_cut_off_record(out / RESULTS):
+        print(f"{out / RESULTS}: dropped the last record, cut off in writing; its task is walked again",
+              file=sys.stderr)
     with owned, (out / RESULTS).open("a") as sink:
         def on_record(record):
             sink.write(json.dumps(record) + "\n")
