@@ -508,7 +508,8 @@ def test_capplanner_results_are_not_resumed_with_another_model(briefly_trained_m
 def test_a_record_cut_off_in_writing_is_dropped_and_its_task_walked_again(tmp_path, capsys):
     """A run killed while it wrote a record (a session's end) leaves a last line without its
     newline: it is no record, its task is walked again on resume, and the file is cut back to
-    its last whole line before more are appended. A line damaged elsewhere is named."""
+    its last whole line before more are appended (a record whole but for its newline counts,
+    and gets it). A line damaged elsewhere is named."""
     from qz_drake.errors import QzError
     from qz_drake.experiments.fig9 import RESULTS, ExperimentConfig, TaskSpec, read_results, run_experiment
 
@@ -526,6 +527,12 @@ def test_a_record_cut_off_in_writing_is_dropped_and_its_task_walked_again(tmp_pa
     assert "dropped the last record, cut off in writing" in capsys.readouterr().err
     lines = (tmp_path / RESULTS).read_text().splitlines()
     assert [json.loads(line)["key"] for line in lines] == [first.key, second.key]
+    # A last record whole but for its newline counts, and gets its newline before the next.
+    (tmp_path / RESULTS).write_text("\n".join(lines))
+    assert run_experiment(tmp_path, planners=("astar",), terrains=("obstacles",), difficulties=("simple",),
+                          tasks=3, config=ExperimentConfig(scale=0.3), progress=False, reuse=walked)["reused"] == 1
+    assert [json.loads(line)["key"] for line in (tmp_path / RESULTS).read_text().splitlines()] == \
+        [first.key, second.key, TaskSpec("obstacles", "simple", 2, "astar").key]
     (tmp_path / RESULTS).write_text("{not a record\n" + "\n".join(lines) + "\n")
     with pytest.raises(QzError, match=r"results.jsonl line 1 = '\{not a record': is not a JSON record"):
         read_results(tmp_path)

@@ -355,6 +355,8 @@ def _loopback_ray(ray, loopback: bool):
         yield
         return
     constants = getattr(getattr(ray, "_private", None), "ray_constants", None)
+    if not hasattr(constants, "ENABLE_RAY_CLUSTER"):  # another Ray: the environment alone
+        constants = None
     saved_env = os.environ.get(_RAY_CLUSTER_SWITCH)
     saved_constant = getattr(constants, "ENABLE_RAY_CLUSTER", None)
     os.environ[_RAY_CLUSTER_SWITCH] = "0"

@@ -61,8 +61,9 @@ def read_json_lines(path) -> list[dict]:
 
 
 def drop_cut_off_record(path) -> bool:
-    """Cuts a JSON-lines file back to its last whole line when its last line has no newline (a
-    record whose writing was cut off), before more are appended after it; True if it did."""
+    """Makes a JSON-lines file ready for more records: a last line without its newline that
+    does not parse (a record whose writing was cut off) is cut away, and True returned; one that
+    parses (only its newline was lost) gets its newline, as :func:`read_json_lines` counts it."""
     path = Path(path)
     if not path.is_file() or path.stat().st_size == 0:
         return False
@@ -70,8 +71,14 @@ def drop_cut_off_record(path) -> bool:
         data = f.read()
         if data.endswith(b"\n"):
             return False
-        f.truncate(data.rfind(b"\n") + 1)
-    return True
+        start = data.rfind(b"\n") + 1
+        try:
+            json.loads(data[start:])
+        except ValueError:  # JSONDecodeError, or bytes that are not UTF-8
+            f.truncate(start)
+            return True
+        f.write(b"\n")
+    return False
 
 
 def read_results(out) -> list[dict]:
