@@ -16,6 +16,8 @@ was given (whether the refusal reproduces), then on each rung; with ``--walk LAD
 walked in Drake from that stance (the robot standing at the recorded base x, y, yaw with its
 feet where they were, on the ground) by the BLC with that ladder, judged by the strict verdict.
 ``--summary OUT.jsonl ...`` prints the table of BENCHMARKS.md "blc ladder" for the files given.
+``--blc NAME=VALUE`` (repeatable) changes a BlcParameters field for every solve and walk (e.g.
+``--blc leg_clearance_softmin=300``).
 
 The BLC is the Fig. 9 experiment's (30 Ipopt iterations, 30 s, MissionTiming's speed and
 phase), the missions the BLC system's (qz_drake.systems.blc_plan.blc_mission_planner), the
@@ -125,12 +127,22 @@ def sweep_start(planner, heightmap, x: float, y: float) -> dict:
     return row
 
 
+# BlcParameters fields given with --blc, for every solve and walk of this run.
+BLC_CHANGES: dict = {}
+
+
+def _blc(**fields):
+    """The BLC's parameters: ``fields`` and --blc's changes."""
+    from qz_drake.trajopt.parameters import BlcParameters
+
+    return BlcParameters(**{**fields, **BLC_CHANGES})
+
+
 def run(out: Path, world: str, feature: str, y: float | None) -> None:
     from qz_drake.config import MissionTiming
     from qz_drake.experiments.worlds import make_task
     from qz_drake.robot.params import DEFAULT_PARAMS
     from qz_drake.systems.blc_plan import blc_mission_planner
-    from qz_drake.trajopt.parameters import BlcParameters
 
     terrain, difficulty, seed = world.rsplit("-", 2)
     if 50 <= int(seed) <= 99:
@@ -141,7 +153,7 @@ def run(out: Path, world: str, feature: str, y: float | None) -> None:
     y = heightmap.origin[1] + heightmap.resolution * round((y - heightmap.origin[1]) / heightmap.resolution)
     edge = feature_edge(heightmap, y, feature)
     planner = blc_mission_planner(heightmap, DEFAULT_PARAMS, MissionTiming(),
-                                  BlcParameters(max_iterations=30, time_limit=30.0))
+                                  _blc(max_iterations=30, time_limit=30.0))
     done = set()
     if out.exists():
         done = {round(json.loads(line)["offset"], 3) for line in out.read_text().splitlines() if line.strip()}
@@ -168,7 +180,6 @@ def walk_from(task, m, ladder: str, settings) -> dict:
     from qz_drake.robot.params import DEFAULT_PARAMS
     from qz_drake.robot.topology import get_topology
     from qz_drake.simulation import walk
-    from qz_drake.trajopt.parameters import BlcParameters
 
     b = m["blc_start"]
     x, y, yaw = b["xy_yaw"]
@@ -190,7 +201,7 @@ def walk_from(task, m, ladder: str, settings) -> dict:
 
     try:
         result = walk(scenario, heightmap=task.heightmap, stop_on_failure=True, blc_ladder=ladder or None,
-                      blc_params=BlcParameters(max_iterations=settings["blc_max_iterations"],
+                      blc_params=_blc(max_iterations=settings["blc_max_iterations"],
                                                time_limit=settings["blc_time_limit"],
                                                terminal_stance=settings.get("blc_terminal_stance", "free")))
     except QzError as e:  # the stance cannot be stood in from standing (feet on two levels)
@@ -207,7 +218,6 @@ def replay(out: Path, runs, walk_ladder: str | None = None) -> None:
     from qz_drake.robot.params import DEFAULT_PARAMS
     from qz_drake.systems.blc_plan import blc_mission_planner
     from qz_drake.systems.mission_sequencer import MissionStart
-    from qz_drake.trajopt.parameters import BlcParameters
 
     done = set()
     if out.exists():
@@ -229,7 +239,7 @@ def replay(out: Path, runs, walk_ladder: str | None = None) -> None:
                 continue
             task = make_task(record["terrain"], record["difficulty"], int(record["seed"]))
             timing = MissionTiming(speed=settings["speed"], phase_duration=settings["phase_duration"])
-            planner = blc_mission_planner(task.heightmap, DEFAULT_PARAMS, timing, BlcParameters(
+            planner = blc_mission_planner(task.heightmap, DEFAULT_PARAMS, timing, _blc(
                 max_iterations=settings["blc_max_iterations"], time_limit=settings["blc_time_limit"],
                 terminal_stance=settings.get("blc_terminal_stance", "free")))
             b = m["blc_start"]
@@ -324,7 +334,14 @@ def main(argv=None) -> int:
                         help="results folders of walks with recorded missions: their refused missions")
     parser.add_argument("--walk", default=None, metavar="LADDER",
                         help="with --replay: walk each refused mission in Drake from its stance with this ladder")
+    parser.add_argument("--blc", action="append", default=[], metavar="NAME=VALUE",
+                        help="a BlcParameters field for every solve and walk (value as JSON; repeatable)")
     args = parser.parse_args(argv)
+    for item in args.blc:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            parser.error(f"--blc {item!r}: expected NAME=VALUE")
+        BLC_CHANGES[name] = json.loads(value)
     if args.summary:
         summary(args.out)
         return 0

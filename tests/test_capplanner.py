@@ -711,6 +711,33 @@ def test_both_planners_walk_with_the_drives_asked_for_and_a_bad_setting_names_it
     assert not (tmp_path / "results.jsonl").exists()
 
 
+def test_both_planners_walk_with_the_leg_clearance_rows_asked_for(monkeypatch, tmp_path):
+    """``blc_leg_clearance_softmin`` reaches both planners' BLC alike (the walk's and so its route
+    check's), the report says so, and a bad sharpness is refused before any walk, naming it."""
+    import qz_drake.simulation as simulation
+    from qz_drake.errors import QzError
+    from qz_drake.experiments.fig9 import ExperimentConfig, TaskSpec, planner_differences, run_experiment, run_task
+
+    seen = []
+
+    def walk_stops_at_once(scenario, *args, blc_params=None, **kwargs):
+        seen.append(blc_params.leg_clearance_softmin)
+        raise RuntimeError("stopped before walking")
+
+    monkeypatch.setattr(simulation, "walk", walk_stops_at_once)
+    for planner in ("astar", "capplanner"):
+        run_task(TaskSpec("obstacles", "simple", 0, planner), ExperimentConfig(scale=0.3))
+        run_task(TaskSpec("obstacles", "simple", 0, planner), ExperimentConfig(scale=0.3, blc_leg_clearance_softmin=300))
+    assert seen == [None, 300, None, 300]
+    assert "smooth minimum" not in planner_differences({})[0]
+    assert "smooth minimum over its links (sharpness 300 / m)" in planner_differences(
+        {"blc_leg_clearance_softmin": 300})[0]
+    with pytest.raises(QzError, match="blc.leg_clearance_softmin = -1"):
+        run_experiment(tmp_path, planners=("astar",), tasks=1, config=ExperimentConfig(blc_leg_clearance_softmin=-1),
+                       progress=False)
+    assert not (tmp_path / "results.jsonl").exists()
+
+
 def test_the_experiments_capplanner_sets_out_on_any_path_it_has():
     """In Fig. 9 a declined task is a failed one, as A* never declines a route it has: the
     experiment's CapPlanner sets out whatever its path's predicted chance (a setting, recorded

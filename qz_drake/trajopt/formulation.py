@@ -31,8 +31,8 @@ from qz_drake.trajopt.constraints import (AngularDynamicsConstraint, ForceConstr
                                           TerrainConstraint, acceleration_continuity_matrix,
                                           linear_dynamics_matrix, rotation_from_rpy)
 from qz_drake.trajopt.ipopt_mumps import VectorisedRows
-from qz_drake.trajopt.leg_clearance import (LegClearanceConstraint, LinkClearance, clearance_field,
-                                            constraint_points)
+from qz_drake.trajopt.leg_clearance import (LegClearanceConstraint, LegClearanceSoftminConstraint,
+                                            LinkClearance, clearance_field, constraint_points)
 from qz_drake.trajopt.legs import link_geometry
 from qz_drake.trajopt.splines import LinearSamples
 from qz_drake.trajopt.terrain import FlatTerrain, GridTerrain, grid_window
@@ -302,7 +302,7 @@ class BlcFormulation:
         would make every early row infeasible, though the plan can only move it away."""
         lc = self.link_clearance()
         start = lc.heights(self.start_position, self.start_rpy, self.start_feet)  # (L, J)
-        lower = c.lower.reshape(len(c.times), c.num_legs, c.num_points).copy()
+        lower = c.point_lower.reshape(len(c.times), c.num_legs, c.num_points).copy()
         for leg in range(c.num_legs):
             first = c.times <= first_step_end(self.variables.schedule, leg) + 1e-9
             lower[first, leg] = np.minimum(lower[first, leg], start[leg] - START_LINK_ALLOWANCE)
@@ -413,9 +413,12 @@ class BlcFormulation:
             def leg_clearance():
                 times = np.append(np.arange(0.0, v.duration - 1e-9, p.leg_clearance_dt), v.duration)
                 c = self.link_clearance()
+                if p.leg_clearance_softmin is not None:
+                    return LegClearanceSoftminConstraint(v, times, c.geometry, c.points, c.field, c.lower,
+                                                         p.leg_clearance_softmin)
                 return LegClearanceConstraint(v, times, c.geometry, c.points, c.field, c.lower)
             c = parts.get("leg_clearance", leg_clearance, field=self.clearance)
-            self.nonlinear.append(c.on(lower=self._start_relaxed_lower(c)))
+            self.nonlinear.append(c.with_point_lower(self._start_relaxed_lower(c)))
         if p.enabled("swing"):
             lift = (None if p.swing_lift_height is None or self._level_in_reach()
                     else parts.get("swing/lift", self._swing_lift))

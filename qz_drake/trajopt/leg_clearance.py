@@ -203,22 +203,90 @@ class LegClearanceConstraint(SampledConstraint):
         self._set_blocks([_Block(rows_all, self.rpy), _Block(rows_all, self.com),
                           _Block(leg_rows, self.feet)])
 
-    def _compute(self, x, with_partials):
-        n, L, J = len(self.times), self.num_legs, self.num_points
+    def _heights(self, x, with_partials):
+        """(n, L, J) every link point's height above the field and, with_partials, its gradient
+        (n, L, J, 9) with respect to (com, rpy, that leg's foot) of the same sample."""
+        n, L = len(self.times), self.num_legs
         rpy = self.rpy.value(x)
         com = self.com.value(x)
         feet = self.feet.value(x).reshape(L, n, 3).transpose(1, 0, 2)
         pts, grad = link_points(self.geometry, self.points, com, rpy, feet, with_partials)
         h, hx, hy, *_ = self.field.surface.height_derivatives(pts[..., 0], pts[..., 1])
-        g = (pts[..., 2] - h).reshape(-1)
+        if not with_partials:
+            return pts[..., 2] - h, None
+        # The z row of the gradient minus the field's slope times the x and y rows.
+        return pts[..., 2] - h, grad[..., 2, :] - hx[..., None] * grad[..., 0, :] - hy[..., None] * grad[..., 1, :]
+
+    def _compute(self, x, with_partials):
+        n, L, J = len(self.times), self.num_legs, self.num_points
+        height, dg = self._heights(x, with_partials)
+        g = height.reshape(-1)
         if not with_partials:
             return g, None
-        # dg/d(com, rpy, foot) of each row: the z row of the gradient minus the field's slope
-        # times the x and y rows.
-        dg = grad[..., 2, :] - hx[..., None] * grad[..., 0, :] - hy[..., None] * grad[..., 1, :]
         dg = dg.reshape(n, L * J, 9)
         d_feet = dg[..., 6:9].reshape(n, L, J, 3).transpose(1, 0, 2, 3).reshape(L * n, J, 3)
         return g, [dg[..., 3:6], dg[..., 0:3], d_feet]
+
+    @property
+    def point_lower(self) -> np.ndarray:
+        """Each link point's least clearance, rows ordered time, leg, point. [m]"""
+        return self.lower
+
+    def with_point_lower(self, lower) -> "LegClearanceConstraint":
+        """This constraint with other per-point bounds (a copy sharing the rest, as ``on``)."""
+        return self.on(lower=np.asarray(lower, dtype=float))
+
+
+class LegClearanceSoftminConstraint(LegClearanceConstraint):
+    """Every leg's links above the clearance field as one row per sample and leg: the smooth
+    minimum over the leg's J link points of each point's clearance beyond its bound,
+    s = -log(sum_j exp(-rho a_j)) / rho >= 0, a_j = p_z - F(p_x, p_y) - lower_j.
+
+    s lies between min_j a_j - log(J) / rho and min_j a_j, so a row that holds keeps every
+    point of its leg above its bound (at most log(J) / rho more room than the point rows ask
+    for, where all J points are equally close). A row depends on the body at its time and on
+    that leg's foot only, as each point's row did: J times fewer rows and Jacobian entries.
+    The point rows (LegClearanceConstraint) never bind on most samples (none of 3636 within
+    5 cm on a stairs task, issue 53) but cost Ipopt's linear algebra as much as rows that do.
+    """
+
+    def __init__(self, variables, times, geometry: dict, points: LinkPoints,
+                 field: ClearanceField, lower: float, sharpness: float):
+        super().__init__(variables, times, geometry, points, field, lower)
+        if not sharpness > 0:
+            raise bad_value("blc.leg_clearance_softmin", sharpness, "must be positive (1/m) or null")
+        n, L = len(self.times), self.num_legs
+        self.sharpness = float(sharpness)
+        self._point_lower = self.lower
+        self.lower, self.upper = np.zeros(n * L), np.full(n * L, np.inf)
+        self.rows_per_sample = L
+        rows_all = np.arange(n * L).reshape(n, L)
+        self._set_blocks([_Block(rows_all, self.rpy), _Block(rows_all, self.com),
+                          _Block(rows_all.T.reshape(L * n, 1), self.feet)])
+
+    @property
+    def point_lower(self) -> np.ndarray:
+        return self._point_lower
+
+    def with_point_lower(self, lower) -> "LegClearanceSoftminConstraint":
+        return self.on(_point_lower=np.asarray(lower, dtype=float))
+
+    def _compute(self, x, with_partials):
+        n, L, J = len(self.times), self.num_legs, self.num_points
+        height, dg = self._heights(x, with_partials)
+        a = height - self._point_lower.reshape(n, L, J)
+        # Taken about the least clearance, so that no exponential overflows.
+        least = a.min(axis=2)
+        weight = np.exp(-self.sharpness * (a - least[..., None]))
+        total = weight.sum(axis=2)
+        s = (least - np.log(total) / self.sharpness).reshape(-1)
+        if not with_partials:
+            return s, None
+        # ds/da_j is point j's softmax weight; each a_j's gradient is its point row's.
+        weight /= total[..., None]
+        ds = np.einsum("nlj,nljk->nlk", weight, dg)
+        d_feet = ds[..., 6:9].transpose(1, 0, 2).reshape(L * n, 1, 3)
+        return s, [ds[..., 3:6], ds[..., 0:3], d_feet]
 
 
 @dataclasses.dataclass

@@ -7,6 +7,7 @@ solver settings. One dataclass, YAML-loadable with ``pydrake.common.yaml.yaml_lo
 from __future__ import annotations
 
 import dataclasses
+import math
 
 from qz_drake.errors import ConfigError, bad_value
 
@@ -230,6 +231,11 @@ class BlcParameters:
     leg_clearance_smoothing: float = 0.0
     leg_clearance_margin: float = 0.02
     leg_clearance_relief: float = 0.05
+    # One row per leg and sample instead of one per link point: the leg's points' smooth
+    # minimum of this sharpness (leg_clearance.LegClearanceSoftminConstraint: never below the
+    # points' own bounds, at most log(points) / sharpness more room), J times fewer rows and
+    # Jacobian entries. None: a row per point. [1/m]
+    leg_clearance_softmin: float | None = None
     # The dense verdict checks every leg's capsules (every 1.5 cm along them) at its rate and
     # fails a plan whose link dips more than this into the ground (False: no link check). [m]
     dense_link_check: bool = True
@@ -294,6 +300,11 @@ class BlcParameters:
                      "terrain_foot_scale"):
             if not getattr(self, name) >= 0:
                 raise bad_value(f"blc.{name}", getattr(self, name), "must be non-negative")
+        sharpness = self.leg_clearance_softmin
+        if sharpness is not None and not (isinstance(sharpness, (int, float)) and not isinstance(sharpness, bool)
+                                          and math.isfinite(sharpness) and sharpness > 0):
+            raise bad_value("blc.leg_clearance_softmin", self.leg_clearance_softmin,
+                            "must be a positive sharpness [1/m] (or null: a row per link point)")
         if self.swing_lift_height is not None and not self.swing_lift_height >= 0:
             raise bad_value("blc.swing_lift_height", self.swing_lift_height,
                             "must be non-negative (or null: not required)")

@@ -84,7 +84,7 @@ def test_a_mission_ends_in_the_canonical_stance_the_map_assumes():
     heightmap = _map(step_x=0.5)
     robot = qingzhui()
     target_x = 0.5 - robot.nominal_footholds[0, 0]
-    params = BlcParameters(max_iterations=60, terminal_stance="canonical")
+    params = BlcParameters(max_iterations=60, time_limit=60.0, terminal_stance="canonical")
     terrain = as_terrain(heightmap)
     start, rpy, feet = standing_start(robot, terrain, target_x - 1.0, 0.0, 0.0)
     task = BlcTask(target=(target_x, 0.0, 0.0), start_position=tuple(start), start_rpy=tuple(rpy), start_feet=feet,
@@ -142,7 +142,7 @@ def test_a_mission_down_a_flight_refused_in_the_canonical_stance_plans_on_the_fr
     row = np.select([xs < 1.025, xs < 1.075, xs < 1.425, xs < 1.475], [0.36, 0.27, 0.18, 0.09], 0.0)
     heightmap = HeightMap(np.tile(row, (n, 1)), RES, origin)
     planner = blc_mission_planner(heightmap, DEFAULT_PARAMS, MissionTiming(),
-                                  BlcParameters(max_iterations=12, terminal_stance="canonical"))
+                                  BlcParameters(max_iterations=12, time_limit=60.0, terminal_stance="canonical"))
     start = measured_start(standing_state(heightmap, get_topology("nominal"), xy=(-0.1, 0.0), yaw=0.0), 0.0,
                            DEFAULT_PARAMS)
     lead_in, reason = planner(start, (0.9, 0.0, 0.0), "nominal", 0.0)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from qz_drake.config import TerrainConfig
+from qz_drake.errors import ConfigError
 from qz_drake.robot import kinematics
 from qz_drake.robot.params import DEFAULT_PARAMS
 from qz_drake.robot.topology import TOPOLOGY_NAMES, get_topology
@@ -120,9 +121,9 @@ def test_the_field_exists_only_where_the_ground_has_relief():
     assert clearance_field(terrain, 0.055, params.leg_clearance_relief, (-1, 3.5, -1, 1)) is not None
 
 
-def _formulation(topology, terrain, target=(0.3, 0.0, 0.0), duration=1.6, start_x=0.0):
+def _formulation(topology, terrain, target=(0.3, 0.0, 0.0), duration=1.6, start_x=0.0, params=None):
     robot = qingzhui(topology)
-    params = BlcParameters()
+    params = BlcParameters() if params is None else params
     schedule = make_gait("tripod", robot.num_legs, duration, stand_duration=params.stand_duration)
     start, rpy, feet = standing_start(robot, terrain, x=start_x)
     return BlcFormulation(robot, terrain, params, schedule, start_position=start, start_rpy=rpy,
@@ -138,6 +139,37 @@ def test_the_constraint_jacobian_matches_finite_differences():
     g = c.evaluate(x)
     assert np.any(g < 0.25)
     _check_jacobian(c, x, f.variables.num_vars)
+
+
+def test_the_smooth_minimum_holds_a_leg_only_where_all_its_points_hold():
+    """One row per sample and leg (leg_clearance_softmin): its Jacobian matches finite
+    differences, and its value lies between the least point clearance less log(J) / rho and
+    that least clearance, so a row that holds keeps every point of the leg above its bound."""
+    terrain = as_terrain(_step_map(start_x=1.0))
+    points = _formulation("nominal", terrain, start_x=0.15)
+    rho = 300.0
+    smooth = _formulation("nominal", terrain, start_x=0.15, params=BlcParameters(leg_clearance_softmin=rho))
+    [c] = [c for c in smooth.nonlinear if c.name == "leg_clearance"]
+    [each] = [c for c in points.nonlinear if c.name == "leg_clearance"]
+    n, L, J = len(c.times), c.num_legs, c.num_points
+    assert c.num_constraints == n * L and each.num_constraints == n * L * J
+    assert len(c.rows) * J == len(each.rows)  # J times fewer Jacobian entries
+    # Both carry the same per-point bounds (the start's relaxation included).
+    np.testing.assert_array_equal(c.point_lower, each.lower)
+    np.testing.assert_array_equal(c.lower, 0.0)
+    x = straight_line_guess(smooth) + 0.02 * np.random.default_rng(0).standard_normal(smooth.variables.num_vars)
+    _check_jacobian(c, x, smooth.variables.num_vars)
+    least = (each.evaluate(x) - each.lower).reshape(n, L, J).min(axis=2).reshape(-1)
+    s = c.evaluate(x)
+    assert np.all(s <= least + 1e-12)
+    assert np.all(s >= least - np.log(J) / rho - 1e-12)
+    assert np.any(least < 0.05)  # some points near the step
+
+
+@pytest.mark.parametrize("value", [0.0, -5.0, float("inf"), float("nan"), True])
+def test_a_bad_smooth_minimum_sharpness_is_refused_naming_it(value):
+    with pytest.raises(ConfigError, match="blc.leg_clearance_softmin"):
+        BlcParameters(leg_clearance_softmin=value)
 
 
 def test_no_leg_rows_for_a_robot_without_modelled_legs_or_on_flat_ground():

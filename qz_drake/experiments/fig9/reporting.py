@@ -38,6 +38,9 @@ def planner_differences(settings: dict) -> list[str]:
         retry = f"a refused mission solved again on the ladder {c['blc_ladder']}"
     if c.get("blc_terminal_stance", "free") == "canonical":
         retry += ", every mission ending in its target's canonical stance"
+    if c.get("blc_leg_clearance_softmin") is not None:
+        retry += (", each leg's clearance a smooth minimum over its links (sharpness "
+                  f"{c['blc_leg_clearance_softmin']:g} / m)")
     step_ms = 1000.0 * float(c.get("time_step", 0.002))
     drives = (f"joint PD (Eq. 7 in the controller, {step_ms:g} ms plant steps)" if c.get("control_mode", "torque") ==
               "torque" else f"joint PD (Eq. 7's PD in the drives, {step_ms:g} ms plant steps)")

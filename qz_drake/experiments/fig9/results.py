@@ -33,7 +33,8 @@ SETTINGS_BEFORE_THEY_EXISTED = {"astar_max_recoveries": 0, "capplanner_min_route
                                 "blc_ladder": "", "blc_terminal_stance": "free", "capplanner_edge_cost": 0.0,
                                 "route_check": 0, "capplanner_turns_with_moves": False,
                                 "capplanner_topologies": "", "capplanner_turn_edge_risk": 0.0,
-                                "capplanner_revisit_cost": 0.0, "capplanner_target_shift": 0.0}
+                                "capplanner_revisit_cost": 0.0, "capplanner_target_shift": 0.0,
+                                "blc_leg_clearance_softmin": None}
 
 
 def read_json_lines(path) -> list[dict]:

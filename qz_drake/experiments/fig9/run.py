@@ -114,6 +114,9 @@ def run_experiment(out, *, planners=EXPERIMENT_PLANNERS, terrains=TERRAINS, diff
 
     check_route_check(config.route_check, "--route-check")
     check_drives(config.control_mode, config.time_step)
+    from qz_drake.trajopt.parameters import BlcParameters
+
+    BlcParameters(leg_clearance_softmin=config.blc_leg_clearance_softmin)  # its error names the field
     from qz_drake.planning.capplanner_route import check_topologies
 
     check_topologies(config.capplanner_topologies, "--capplanner-topologies")

@@ -48,6 +48,10 @@ class ExperimentConfig:
     # planners alike: "free" (every run before issue 54) or "canonical" (trajopt/stance.py;
     # CapPlanner's map then asks about the same stance, capability_mdp.CapabilityMdpConfig.stance).
     blc_terminal_stance: str = "free"
+    # The legs' clearance as one smooth-minimum row per leg and sample of this sharpness
+    # (BlcParameters.leg_clearance_softmin), for both planners alike; None: a row per link
+    # point (every run before issue 53's measurement). [1/m]
+    blc_leg_clearance_softmin: float | None = None
     # CapPlanner's capability model folder; empty: the shipped one.
     capability_model: str = ""
     # World scale (1: the experiment; smaller: tiny tasks for tests, see worlds.make_task).
@@ -329,7 +333,8 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
                       on_judged=keep_missions if config.record_missions else None,
                       blc_params=BlcParameters(max_iterations=config.blc_max_iterations,
                                                time_limit=config.blc_time_limit,
-                                               terminal_stance=config.blc_terminal_stance))
+                                               terminal_stance=config.blc_terminal_stance,
+                                               leg_clearance_softmin=config.blc_leg_clearance_softmin))
         m = result.metrics
         walked = float(np.sum(np.linalg.norm(np.diff(result.states[:, BASE_XY], axis=0), axis=1))) \
             if len(result.states) > 1 else 0.0
