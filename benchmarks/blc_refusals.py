@@ -202,8 +202,8 @@ def walk_from(task, m, ladder: str, settings) -> dict:
     try:
         result = walk(scenario, heightmap=task.heightmap, stop_on_failure=True, blc_ladder=ladder or None,
                       blc_params=_blc(max_iterations=settings["blc_max_iterations"],
-                                               time_limit=settings["blc_time_limit"],
-                                               terminal_stance=settings.get("blc_terminal_stance", "free")))
+                                      time_limit=settings["blc_time_limit"],
+                                      terminal_stance=settings.get("blc_terminal_stance", "free")))
     except QzError as e:  # the stance cannot be stood in from standing (feet on two levels)
         return {"success": False, "reasons": ["stance_not_set_up"], "message": str(e)[:300], "blc_solves": 0}
     metrics = result.metrics
