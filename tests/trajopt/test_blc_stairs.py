@@ -57,6 +57,21 @@ def test_fig5_stairs_are_solved(stairs_maps, rise, distance, tmp_path):
     assert_plan_holds(data, f"stairs {rise} m / {distance} m")
 
 
+@pytest.mark.parametrize("rise", [0.10, 0.15, 0.20])
+@pytest.mark.parametrize("distance", [1.0, 1.5])
+def test_fig5_stairs_are_solved_with_one_leg_row_per_sample(stairs_maps, rise, distance, tmp_path):
+    """The smooth-minimum leg rows (leg_clearance_softmin, issue 53) solve the Fig. 5 stairs the
+    point rows solve, and the dense verdict finds every leg's links clear."""
+    params = BlcParameters(time_limit=60.0, leg_clearance_softmin=300.0)
+    solution = solve_blc(BlcTask(target=(distance, 0.0, 0.0), duration=1.0 + distance / 0.5),
+                         terrain=stairs_maps[rise], params=params)
+    assert solution.success, solution.reason
+    assert solution.dense.min_link_clearance >= -params.dense_link_tolerance
+    assert solution.iterations <= 40
+    data = dict(np.load(solution.save_npz(tmp_path / "stairs.npz")))
+    assert_plan_holds(data, f"stairs {rise} m / {distance} m, one leg row per sample")
+
+
 def test_a_final_foothold_is_not_left_where_the_final_box_meets_unsupported_ground(stairs_maps):
     """0.20 m stairs, a 1.0 m task: the body ends with its CoM at x = 1.0 m, so the front foot's
     last box spans x = 1.60-1.90 m, the nose of the second stair (0.4 m up) at 1.65 m. The
