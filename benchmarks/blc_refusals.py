@@ -337,11 +337,9 @@ def main(argv=None) -> int:
     parser.add_argument("--blc", action="append", default=[], metavar="NAME=VALUE",
                         help="a BlcParameters field for every solve and walk (value as JSON; repeatable)")
     args = parser.parse_args(argv)
-    for item in args.blc:
-        name, sep, value = item.partition("=")
-        if not sep or not name:
-            parser.error(f"--blc {item!r}: expected NAME=VALUE")
-        BLC_CHANGES[name] = json.loads(value)
+    from tree_runs import blc_changes
+
+    BLC_CHANGES.update(blc_changes(args.blc, "--blc"))
     if args.summary:
         summary(args.out)
         return 0

@@ -20,7 +20,7 @@ import argparse
 import json
 import statistics
 
-from tree_runs import run_in_tree
+from tree_runs import blc_changes, run_in_tree
 
 _RUN = r"""
 import hashlib, json, statistics, time
@@ -47,20 +47,6 @@ print(json.dumps(out))
 """
 
 
-def _changes(items: list, option: str) -> dict:
-    """NAME=VALUE items as a dict, each value parsed as JSON (a bare word stays a string)."""
-    out = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        if not sep or not name:
-            raise SystemExit(f"{option} {item!r}: expected NAME=VALUE")
-        try:
-            out[name] = json.loads(value)
-        except json.JSONDecodeError:
-            out[name] = value
-    return out
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("base")
@@ -73,7 +59,7 @@ def main() -> None:
     parser.add_argument("--new-blc", action="append", default=[], metavar="NAME=VALUE",
                         help="a BlcParameters field for the new tree's cases (value as JSON)")
     args = parser.parse_args()
-    changes = {"base": _changes(args.base_blc, "--base-blc"), "new": _changes(args.new_blc, "--new-blc")}
+    changes = {"base": blc_changes(args.base_blc, "--base-blc"), "new": blc_changes(args.new_blc, "--new-blc")}
     results = {"base": [], "new": []}
     for _ in range(args.runs):
         for label, root in (("base", args.base), ("new", args.new)):

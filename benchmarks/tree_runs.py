@@ -31,3 +31,23 @@ def run_in_tree(root, script: str, *args, env=None) -> dict:
     if run.returncode:
         sys.exit(run.stderr[-3000:])
     return json.loads(run.stdout.strip().splitlines()[-1])
+
+
+def blc_changes(items, option: str) -> dict:
+    """``option``'s NAME=VALUE items as BlcParameters fields, each value read as JSON (a bare
+    word stays text); a name that is not a field ends the program naming it."""
+    import dataclasses
+
+    from qz_drake.trajopt.parameters import BlcParameters
+
+    fields = {f.name for f in dataclasses.fields(BlcParameters)}
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or name not in fields:
+            sys.exit(f"{option} {item!r}: expected NAME=VALUE with a BlcParameters field")
+        try:
+            out[name] = json.loads(value)
+        except json.JSONDecodeError:
+            out[name] = value
+    return out
