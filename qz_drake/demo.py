@@ -16,7 +16,8 @@ import json
 import math
 from pathlib import Path
 
-from qz_drake.config import ControllerConfig, Scenario, SimulationConfig, TerrainConfig, Waypoint
+from qz_drake.config import (ControllerConfig, Scenario, SimulationConfig, TerrainConfig, WalkDrives, Waypoint,
+                             drive_station)
 from qz_drake.errors import bad_value
 from qz_drake.planning.capplanner_route import route_source_for
 from qz_drake.simulation import simulate
@@ -60,14 +61,17 @@ def nearer_goal(candidates=NEAR_GOALS, seed: int = DEMO_SEED, model=None) -> tup
 
 
 def demo_scenario(goal=DEMO_GOAL, seed: int = DEMO_SEED) -> Scenario:
-    """The CapPlanner walk of the demo (also scenarios/capplanner_long_range.yaml)."""
+    """The CapPlanner walk of the demo (also scenarios/capplanner_long_range.yaml), its joints
+    driven as the trials and Fig. 9's walks drive them (config.WalkDrives)."""
+    controller = ControllerConfig(kind="walk", planner="capplanner",
+                                  route=[Waypoint(x=float(goal[0]), y=float(goal[1]))])
     return Scenario(
         name="capplanner_long_range", random_seed=seed,
-        description=f"CapPlanner across the long_range world from (0, 0) to {tuple(goal)}.",
+        description=f"CapPlanner across the long_range world from (0, 0) to ({goal[0]:g}, {goal[1]:g}).",
         terrain=TerrainConfig(kind="long_range"),
-        simulation=SimulationConfig(duration=300.0),
-        controller=ControllerConfig(kind="walk", planner="capplanner",
-                                    route=[Waypoint(x=float(goal[0]), y=float(goal[1]))]))
+        simulation=SimulationConfig(duration=300.0, time_step=WalkDrives.time_step),
+        station=drive_station(WalkDrives.control_mode, controller.kp, controller.kd),
+        controller=controller)
 
 
 def run_demo(out_dir: str | Path, duration: float | None = None, goal=DEMO_GOAL, *, progress: bool = False) -> dict:

@@ -21,6 +21,12 @@ import time
 PLAIN_LINE_INTERVAL = 30.0
 
 
+# Seconds between two redraws of a bar at most. The bar is redrawn by the thread that reports
+# progress, never by a thread of its own: a garbage collection that runs in another thread frees
+# the Drake objects it finds there, and Drake's Meshcat aborts the process when it is freed off
+# the thread that made it (a `make test` worker died so while a bar's refresh thread ran).
+REDRAW_PERIOD = 0.1
+
 # Seconds of the recent past a bar's ETA takes the speed from. Rich's 30 s default sees no
 # progress at all within a 2-minute network or walk mission, and shows no ETA.
 SPEED_PERIOD = 600.0
@@ -82,7 +88,9 @@ class ProgressReport:
         if self._console.is_terminal:
             from rich.progress import Progress
 
-            self._bar = Progress(*bar_columns(), console=self._console, speed_estimate_period=SPEED_PERIOD)
+            self._bar = Progress(*bar_columns(), console=self._console, speed_estimate_period=SPEED_PERIOD,
+                                 auto_refresh=False)
+            self._redrawn = -math.inf
             self._task = self._bar.add_task(description, total=total, completed=self.completed,
                                             amount=self.amount(), status="")
             self._bar.start()
@@ -152,6 +160,10 @@ class ProgressReport:
         if self._bar is not None:
             self._bar.update(self._task, completed=self.completed, total=self.total, description=self.description,
                              amount=self.amount(), status=self.status)
+            now = time.perf_counter()
+            if line_now or now - self._redrawn >= REDRAW_PERIOD:
+                self._redrawn = now
+                self._bar.refresh()
         elif self.enabled:
             now = time.perf_counter()
             if line_now or now - self._last_line >= self.interval:

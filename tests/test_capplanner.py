@@ -695,20 +695,37 @@ def test_both_planners_walk_with_the_drives_asked_for_and_a_bad_setting_names_it
     for planner in ("astar", "capplanner"):
         run_task(TaskSpec("obstacles", "simple", 0, planner), ExperimentConfig(scale=0.3))
         run_task(TaskSpec("obstacles", "simple", 0, planner),
-                 ExperimentConfig(scale=0.3, control_mode="position", time_step=0.004))
-    torque, position = seen[0], seen[1]
+                 ExperimentConfig(scale=0.3, control_mode="torque", time_step=0.002))
+    # The default: the drives' PD at the walks' step (config.WalkDrives), Eq. 7's gains.
+    position, torque = seen[0], seen[1]
+    assert position[0] == "position" and position[3] == 0.008 and position[1:3] == position[4:6] == (1500.0, 30.0)
     assert torque[0] == "torque" and torque[3] == 0.002
-    assert position[0] == "position" and position[3] == 0.004 and position[1:3] == position[4:6] == (1500.0, 30.0)
     assert seen[2:] == seen[:2]
-    assert "Eq. 7 in the controller, 2 ms plant steps" in planner_differences({})[0]
+    assert "Eq. 7's PD in the drives, 8 ms plant steps" in planner_differences({})[0]
+    # A run's settings from before the fields existed: the controller's PD at 2 ms.
+    assert "Eq. 7 in the controller, 2 ms plant steps" in planner_differences({"blc_ladder": ""})[0]
     assert "Eq. 7's PD in the drives, 4 ms plant steps" in planner_differences(
         {"control_mode": "position", "time_step": 0.004})[0]
-    for bad, option in ((dict(time_step=0.004), "--time-step = 0.004"), (dict(control_mode="velocity"),
-                                                                         "--control-mode = 'velocity'"),
+    for bad, option in ((dict(control_mode="torque", time_step=0.004), "--time-step = 0.004"),
+                        (dict(control_mode="velocity"), "--control-mode = 'velocity'"),
                         (dict(control_mode="position", time_step=0.0), "--time-step = 0.0")):
         with pytest.raises(QzError, match=option):
             run_experiment(tmp_path, planners=("astar",), tasks=1, config=ExperimentConfig(**bad), progress=False)
     assert not (tmp_path / "results.jsonl").exists()
+
+
+def test_a_run_from_before_the_walks_defaults_reads_as_it_was_walked(tmp_path):
+    """The decisive run (issue 38) names neither the drives nor the leg rows: it was walked with
+    the controller's PD at 2 ms and a row per link point, and reads so, not with today's
+    defaults; a run of today's defaults names them."""
+    from qz_drake.experiments.fig9 import ExperimentConfig, read_config
+
+    decisive = Path(__file__).resolve().parents[1] / "data" / "fig9_decisive"
+    assert "control_mode" not in json.loads((decisive / "settings.json").read_text())
+    config = read_config(decisive)
+    assert (config.control_mode, config.time_step, config.blc_leg_clearance_softmin) == ("torque", 0.002, None)
+    (tmp_path / "settings.json").write_text(json.dumps(dataclasses.asdict(ExperimentConfig())))
+    assert read_config(tmp_path) == ExperimentConfig()
 
 
 def test_both_planners_walk_with_the_leg_clearance_rows_asked_for(monkeypatch, tmp_path):
@@ -730,6 +747,7 @@ def test_both_planners_walk_with_the_leg_clearance_rows_asked_for(monkeypatch, t
         run_task(TaskSpec("obstacles", "simple", 0, planner), ExperimentConfig(scale=0.3, blc_leg_clearance_softmin=300))
     assert seen == [None, 300, None, 300]
     assert "smooth minimum" not in planner_differences({})[0]
+    assert "smooth minimum" not in planner_differences({"blc_ladder": ""})[0]  # settings from before it
     assert "smooth minimum over its links (sharpness 300 / m)" in planner_differences(
         {"blc_leg_clearance_softmin": 300})[0]
     with pytest.raises(QzError, match="blc.leg_clearance_softmin = -1"):
@@ -834,8 +852,10 @@ def test_a_walking_scenario_sets_capplanners_mdp_by_name():
     ("tune-capplanner", ["--tasks", "0"], "--tasks"),
     ("tune-capplanner", ["--route-check", "-1"], "--route-check"),
     ("tune-astar", ["--route-check", "-2"], "--route-check"),
-    ("tune-astar", ["--time-step", "0.004"], "--time-step"),
+    ("tune-astar", ["--control-mode", "torque", "--time-step", "0.004"], "--time-step"),
     ("tune-capplanner", ["--control-mode", "velocity"], "--control-mode"),
+    ("tune-astar", ["--leg-clearance-softmin", "sharp"], "--leg-clearance-softmin = 'sharp'"),
+    ("tune-capplanner", ["--leg-clearance-softmin", "-3"], "--leg-clearance-softmin = '-3'"),
     ("tune-capplanner", ["--capplanner-topologies", "nominal,wings"], "--capplanner-topologies")])
 def test_tuning_bad_input_is_one_line_exit_2(tmp_path, command, args, field):
     run = subprocess.run(QZ + ["experiment", command, "--out", str(tmp_path)] + args,

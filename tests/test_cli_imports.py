@@ -48,6 +48,12 @@ def test_a_help_page_lists_the_names_of_the_modules_it_did_not_import():
     from qz_drake.trajopt.parameters import TERMINAL_STANCES as BLC_TERMINAL_STANCES
 
     assert TERMINAL_STANCES == BLC_TERMINAL_STANCES
+    from qz_drake.cli.arguments import LEG_CLEARANCE_SOFTMIN, WALK_CONTROL_MODE, WALK_TIME_STEP
+    from qz_drake.config import WalkDrives
+    from qz_drake.trajopt.parameters import BlcParameters
+
+    assert (WALK_CONTROL_MODE, WALK_TIME_STEP) == (WalkDrives.control_mode, WalkDrives.time_step)
+    assert LEG_CLEARANCE_SOFTMIN == BlcParameters.leg_clearance_softmin
     collect = _qz("capability", "collect", "--help")
     assert collect.returncode == 0, collect.stderr
     page = " ".join(collect.stdout.split())

@@ -51,6 +51,23 @@ def test_a_terminal_gets_a_bar_with_the_amount_and_an_eta():
     assert "ETA" in screen.getvalue() and "3 missions planned" in screen.getvalue()
 
 
+def test_a_bar_is_drawn_by_the_reporting_thread_only():
+    # No thread of the bar's own: a garbage collection in another thread would free Drake objects
+    # there, and Drake's Meshcat aborts the process when freed off its own thread.
+    import threading
+
+    screen = io.StringIO()
+    threads = set(threading.enumerate())
+    with ProgressReport("walking", 10.0, unit="s", console=Console(file=screen, force_terminal=True, width=100)) as r:
+        assert set(threading.enumerate()) == threads
+        r.update(4.0)
+        drawn = screen.getvalue()
+        assert "4/10 s" in drawn
+        r.update(5.0)  # within the redraw period: not drawn yet
+        r.update(6.0, line_now=True)  # a new stage or a status that must show: drawn at once
+        assert "6/10 s" in screen.getvalue()[len(drawn):]
+
+
 def test_watching_a_simulation_does_not_change_it():
     scenario = load_scenario(SCENARIOS / "stand_flat.yaml")
     plain = simulate(scenario, duration=0.6)

@@ -29,3 +29,23 @@ def test_walking_scenario_succeeds(path):
     assert m["success"], m
     assert m["trunk_terrain_contacts"] == 0 and m["max_tilt_deg"] < 30.0
     assert m["tracking_rms_m"] < 0.05
+
+
+def test_the_demo_scenario_file_is_the_demos_walk_driven_as_the_trials_and_fig9():
+    # `qz simulate scenarios/capplanner_long_range.yaml` walks what `qz demo` walks, and both drive
+    # the joints as the capability trials that label the model's data and Fig. 9's walks do.
+    import dataclasses
+
+    from qz_drake.capability.trials import TrialConfig
+    from qz_drake.config import WalkDrives
+    from qz_drake.demo import demo_scenario
+    from qz_drake.experiments.fig9 import ExperimentConfig
+
+    path = Path(__file__).resolve().parents[1] / "scenarios" / "capplanner_long_range.yaml"
+    demo = demo_scenario()
+    assert dataclasses.asdict(load_scenario(path)) == dataclasses.asdict(demo)
+    assert (demo.station.control_mode, demo.simulation.time_step) == (WalkDrives.control_mode, WalkDrives.time_step)
+    station, simulation = TrialConfig().station_and_simulation(demo.simulation.duration)
+    assert station == demo.station and simulation.time_step == demo.simulation.time_step
+    config = ExperimentConfig()
+    assert (config.control_mode, config.time_step) == (station.control_mode, simulation.time_step)

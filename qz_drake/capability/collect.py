@@ -23,7 +23,7 @@ from multiprocessing.connection import wait
 
 from qz_drake.capability.dataset import (CHAINED_PROTOCOLS, PROVENANCE_SETTINGS, TrialStore, fingerprints,
                                          settings_dict)
-from qz_drake.capability.trials import TrialConfig, TrialSpec, run_trial, trial_specs
+from qz_drake.capability.trials import TrialConfig, TrialSpec, run_trial, stored_trial_config, trial_specs
 from qz_drake.errors import bad_value
 
 # Recertification tolerances. On one machine trials are bit for bit reproducible; on another
@@ -854,10 +854,7 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
                                                                       "capability recertify`" if protocol == "routes"
                                                                       else ""))
     episodes = protocol in CHAINED
-    try:
-        config = TrialConfig(**settings)
-    except TypeError as e:
-        raise bad_value("dataset.settings", settings, f"not this code's TrialConfig ({e})") from None
+    config = stored_trial_config(settings)
     parts = fingerprints(config)
     old = manifest.get("fingerprints", {})
     changed = [k for k in sorted(set(parts) | set(old)) if parts.get(k) != old.get(k)]

@@ -302,7 +302,8 @@ class TrialStore:
         self._command = command
         if manifest_path.exists():
             self.manifest = read_manifest(self.path)
-            check_same(self.manifest, seed=seed, settings=settings, parts=parts, where=str(self.path))
+            check_same(with_settings_before_they_existed(self.manifest, settings), seed=seed, settings=settings,
+                       parts=parts, where=str(self.path))
             return
         if any(self.path.glob("shard-*.npz")):
             raise bad_value("--out", str(self.path), "holds shards but no manifest.json")
@@ -370,6 +371,20 @@ def read_manifest(path) -> dict:
     if manifest.get("format") != FORMAT:
         raise bad_value("dataset.format", manifest.get("format"), f"expected {FORMAT}")
     return manifest
+
+
+def with_settings_before_they_existed(manifest: dict, settings: dict) -> dict:
+    """``manifest`` with the trial settings its collection did not know yet (a field of
+    ``settings`` its own do not name) as they were then (trials.SETTINGS_BEFORE_THEY_EXISTED),
+    so that a dataset collected before a field existed compares with a collection asking for
+    those values, and differs from one asking for others by that field."""
+    from qz_drake.capability.trials import SETTINGS_BEFORE_THEY_EXISTED
+
+    stored = dict(manifest.get("settings", {}))
+    for key, value in SETTINGS_BEFORE_THEY_EXISTED.items():
+        if key in settings:
+            stored.setdefault(key, value)
+    return dict(manifest, settings=stored)
 
 
 def check_same(manifest: dict, *, seed=None, settings=None, parts=None, where: str = "dataset") -> None:
@@ -511,13 +526,13 @@ def merge_training_arrays(loaded, field: str = "--dataset") -> tuple[dict[str, n
     split keeps a scene's records together); else QzError naming ``field``. The manifest's
     ``fingerprint`` is a digest of the datasets' own, its ``fingerprints`` theirs with
     ``scenes`` digested alike, and ``sources`` lists each dataset with its records."""
-    from qz_drake.capability.trials import TrialConfig
+    from qz_drake.capability.trials import SETTINGS_BEFORE_THEY_EXISTED, TrialConfig
 
     if len(loaded) == 1:
         return loaded[0][1], loaded[0][2]
     label_keys = [f.name for f in dataclasses.fields(TrialConfig) if f.name not in SAMPLING_SETTINGS]
     first_path, _, first = loaded[0]
-    defaults = dataclasses.asdict(TrialConfig())
+    defaults = {**dataclasses.asdict(TrialConfig()), **SETTINGS_BEFORE_THEY_EXISTED}
 
     def labels(manifest):
         settings = manifest.get("settings", {})

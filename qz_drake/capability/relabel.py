@@ -28,7 +28,7 @@ from qz_drake.capability.collect import (CollectionSummary, LocalPool, Recertify
                                          _protocol_functions, collect_units, compare_records)
 from qz_drake.capability.dataset import (MANIFEST, PROVENANCE_SETTINGS, TrialStore, fingerprints, load_records,
                                          read_manifest, settings_dict)
-from qz_drake.capability.trials import TrialConfig
+from qz_drake.capability.trials import TrialConfig, stored_trial_config
 from qz_drake.errors import ConfigError, bad_value
 
 # Protocols whose episodes can be relabelled this way (chains walked in Drake).
@@ -49,10 +49,7 @@ def _source(source, hooks):
         raise bad_value("dataset", str(source), "a routes dataset is relabelled by `qz capability relabel`, which "
                                                 "knows its specs")
     extra = {k: settings.pop(k) for k in (hooks.extra if hooks is not None else ()) if k in settings}
-    try:
-        config = TrialConfig(**settings)
-    except TypeError as e:
-        raise bad_value("dataset.settings", settings, f"not this code's TrialConfig ({e})") from None
+    config = stored_trial_config(settings)
     return manifest, protocol, config, extra
 
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from qz_drake.capability.patches import (HEADING_STEP, KINDS, feet_in_heading_frame,
                                          ground_reference, move_distance, sample_patches)
-from qz_drake.config import MissionTiming
+from qz_drake.config import MissionTiming, WalkDrives, drive_station
 from qz_drake.errors import QzError
 from qz_drake.robot.topology import TOPOLOGY_NAMES
 
@@ -81,15 +81,15 @@ class TrialConfig:
     # with. "": the first solve only (every dataset before issue 54's). Kept in its canonical
     # form (rungs comma-separated, no spaces).
     blc_ladder: str = ""
-    # How the joints are driven (StationConfig.control_mode) and the plant's step. "torque":
-    # the controller computes Eq. 7 (kp, kd above) at every plant step, which must then be at
-    # most 2 ms (3 ms measured: slips and missed targets). "position": the drives run Eq. 7's
-    # PD on the tracker's q_des and v_des (the plant's implicit PD actuators, the same kp and
-    # kd), the controller adds the compensation and force feedforward at the tracker's rate,
-    # and no Python runs at the plant's step: stable at 4 ms (BENCHMARKS "capability", session
-    # 42). A dataset is labelled by one of them. [s]
-    control_mode: str = "torque"
-    time_step: float = 0.002
+    # How the joints are driven (StationConfig.control_mode) and the plant's step, as the walks
+    # (config.WalkDrives, the default). "position": the drives run Eq. 7's PD on the tracker's
+    # q_des and v_des (the plant's implicit PD actuators, the same kp and kd), the controller
+    # adds the compensation and force feedforward at the tracker's rate, and no Python runs at
+    # the plant's step. "torque": the controller computes Eq. 7 (kp, kd above) at every plant
+    # step, which must then be at most 2 ms (3 ms measured: slips and missed targets; every
+    # dataset before issue 53's defaults). A dataset is labelled by one of them. [s]
+    control_mode: str = WalkDrives.control_mode
+    time_step: float = WalkDrives.time_step
 
     def __post_init__(self):
         from qz_drake.config import CONTROL_MODES
@@ -125,11 +125,30 @@ class TrialConfig:
     def station_and_simulation(self, duration: float):
         """(StationConfig, SimulationConfig) of a trial's or episode's scenario lasting
         ``duration`` simulated seconds."""
-        from qz_drake.config import SimulationConfig, StationConfig
+        from qz_drake.config import SimulationConfig
 
-        station = (StationConfig() if self.control_mode == "torque" else
-                   StationConfig(control_mode="position", position_kp=self.kp, position_kd=self.kd))
-        return station, SimulationConfig(duration=duration, time_step=self.time_step)
+        return (drive_station(self.control_mode, self.kp, self.kd),
+                SimulationConfig(duration=duration, time_step=self.time_step))
+
+
+# What a dataset was labelled with where its manifest's settings do not name a TrialConfig
+# field (it was collected before the field existed): the values of that time, not today's
+# defaults. Every dataset before issue 53's defaults drove the joints by the controller's PD at
+# 2 ms; before issue 54 none had a ladder or a canonical end stance.
+SETTINGS_BEFORE_THEY_EXISTED = {"control_mode": "torque", "time_step": 0.002, "blc_ladder": "",
+                                "blc_terminal_stance": "free"}
+
+
+def stored_trial_config(settings: dict, field: str = "dataset.settings") -> TrialConfig:
+    """The TrialConfig a dataset's manifest ``settings`` (TrialConfig's fields only) name, with
+    SETTINGS_BEFORE_THEY_EXISTED where they do not name a field; a field this code does not know
+    is a QzError naming ``field``."""
+    from qz_drake.errors import bad_value
+
+    try:
+        return TrialConfig(**{**SETTINGS_BEFORE_THEY_EXISTED, **settings})
+    except TypeError as e:
+        raise bad_value(field, settings, f"not this code's TrialConfig ({e})") from None
 
 
 # Simulated time a mission may need beyond its own on the BLC ladder's longest rungs: split+N

@@ -20,6 +20,13 @@ from qz_drake.errors import ConfigError, bad_value
 # the BLC (tests/test_cli_imports.py holds the two equal).
 TERMINAL_STANCES = ("free", "canonical")
 
+# qz_drake.config.WalkDrives's fields and BlcParameters.leg_clearance_softmin: the defaults of the
+# options that decide how walks and trials are driven and solved, here so that building the
+# parser imports neither pydrake nor the BLC (tests/test_cli_imports.py holds them equal).
+WALK_CONTROL_MODE = "position"
+WALK_TIME_STEP = 0.008  # [s]
+LEG_CLEARANCE_SOFTMIN = None  # [1/m]; None: a row per link point
+
 # A number or a comma-separated list of numbers, e.g. -5,-3 or -1e-2: an option's value, not an
 # option. Maps are centred on the origin, so half of all coordinates are negative.
 _NEGATIVE_NUMBERS = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(,\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)*$")

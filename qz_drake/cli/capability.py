@@ -30,7 +30,8 @@ import shlex
 import sys
 from pathlib import Path
 
-from qz_drake.cli.arguments import TERMINAL_STANCES, LazyText, one_of, parse_names, terrain_names, topology_names
+from qz_drake.cli.arguments import (TERMINAL_STANCES, WALK_CONTROL_MODE, WALK_TIME_STEP, LazyText, one_of,
+                                    parse_names, terrain_names, topology_names)
 from qz_drake.errors import bad_value
 
 # qz_drake.capability.collect.PROTOCOLS, here so that building the parser does not import the
@@ -196,11 +197,12 @@ def run_recertify(args) -> int:
 
 def _label_arguments(p) -> None:
     """The options of a collection that decide its labels (TrialConfig's)."""
-    p.add_argument("--control-mode", default="torque",
-                   help="how the joints are driven: torque (Eq. 7 in the controller, at 2 ms steps) or position "
-                        "(Eq. 7's PD in the drives: the plant's implicit PD on the tracker's q and v)")
-    p.add_argument("--time-step", type=float, default=0.002,
-                   help="the plant's step [s] (torque: at most 0.002; position: 0.004 measured stable)")
+    p.add_argument("--control-mode", default=WALK_CONTROL_MODE,
+                   help="how the joints are driven: position (Eq. 7's PD in the drives: the plant's implicit PD on "
+                        "the tracker's q and v; the walks' default) or torque (Eq. 7 in the controller, at 2 ms "
+                        "steps; every dataset before issue 53's defaults)")
+    p.add_argument("--time-step", type=float, default=WALK_TIME_STEP,
+                   help=f"the plant's step [s] (default {WALK_TIME_STEP:g}; torque: at most 0.002)")
     p.add_argument("--terminal-stance", choices=TERMINAL_STANCES, default="free",
                    help="where the feet stand when each mission ends: free (as the BLC leaves them) or canonical "
                         "(the target's canonical stance, qz_drake.trajopt.stance)")

@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from qz_drake.cli.arguments import TERMINAL_STANCES
+from qz_drake.cli.arguments import LEG_CLEARANCE_SOFTMIN, TERMINAL_STANCES, WALK_CONTROL_MODE, WALK_TIME_STEP
 
 
 def _switches(text: str | None, flag: str) -> tuple[bool, ...] | None:
@@ -57,6 +57,7 @@ def run_fig9(args) -> int:
                               blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                               blc_terminal_stance=args.terminal_stance,
                               control_mode=args.control_mode, time_step=args.time_step,
+                              blc_leg_clearance_softmin=_leg_clearance_softmin(args),
                               astar_learned_weight=args.astar_learned_weight,
                               astar_learned_veto=args.astar_learned_veto,
                               record_missions=args.record_missions, **tuned)
@@ -200,6 +201,7 @@ def run_tune_astar(args) -> int:
                                                 route_check=args.route_check,
                                                 blc_terminal_stance=args.terminal_stance,
                                                 control_mode=args.control_mode, time_step=args.time_step,
+                              blc_leg_clearance_softmin=_leg_clearance_softmin(args),
                                                 record_missions=args.record_missions),
                         progress=not args.json)
     _print_tuning(report, args)
@@ -240,6 +242,7 @@ def run_tune_capplanner(args) -> int:
                                 blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                                 blc_terminal_stance=args.terminal_stance,
                                 control_mode=args.control_mode, time_step=args.time_step,
+                              blc_leg_clearance_softmin=_leg_clearance_softmin(args),
                                 record_missions=args.record_missions),
         progress=not args.json)
     _print_tuning(report, args)
@@ -276,13 +279,17 @@ def _back_out_argument(p) -> None:
     p.add_argument("--record-missions", action="store_true",
                    help="keep every mission of each walk in its record, a refused one with the start the BLC was "
                         "given (qz experiment score-missions; benchmarks/blc_refusals.py replay)")
-    p.add_argument("--control-mode", default="torque",
-                   help="how the joints are driven in every walk, for both planners: torque (Eq. 7 in the "
-                        "controller, at steps of at most 2 ms; every run so far) or position (Eq. 7's PD in the "
-                        "drives: the plant's implicit PD on the tracker's q and v), as a dataset's trials")
-    p.add_argument("--time-step", type=float, default=0.002,
-                   help="the plant's step in every walk [s] (torque: at most 0.002; position: 0.004 measured "
-                        "stable)")
+    p.add_argument("--control-mode", default=WALK_CONTROL_MODE,
+                   help="how the joints are driven in every walk, for both planners: position (Eq. 7's PD in the "
+                        "drives: the plant's implicit PD on the tracker's q and v; the default) or torque (Eq. 7 in "
+                        "the controller, at steps of at most 2 ms; every run before issue 53's defaults), as a "
+                        "dataset's trials")
+    p.add_argument("--time-step", type=float, default=WALK_TIME_STEP,
+                   help=f"the plant's step in every walk [s] (default {WALK_TIME_STEP:g}; torque: at most 0.002)")
+    p.add_argument("--leg-clearance-softmin", default=str(LEG_CLEARANCE_SOFTMIN).lower(), metavar="S|none",
+                   help="each leg's clearance in the BLC as one smooth minimum over its link points of sharpness S "
+                        "[1/m] for both planners (BlcParameters.leg_clearance_softmin, e.g. 300), or none: a row per "
+                        f"link point (default {str(LEG_CLEARANCE_SOFTMIN).lower()})")
     p.add_argument("--terminal-stance", choices=TERMINAL_STANCES, default="free",
                    help="where the feet stand when each mission ends, for both planners: free (as the BLC leaves "
                         "them) or canonical (the target's canonical stance, which CapPlanner's map then assumes; "
@@ -357,6 +364,28 @@ def _topologies(args) -> str:
     from qz_drake.robot.topology import TOPOLOGY_NAMES
 
     return ",".join(parse_names(args.capplanner_topologies, "--capplanner-topologies", TOPOLOGY_NAMES) or ())
+
+
+def _leg_clearance_softmin(args) -> float | None:
+    """--leg-clearance-softmin: a sharpness, or none (a row per link point); its errors name the
+    option."""
+    from qz_drake.errors import QzError, bad_value
+    from qz_drake.trajopt.parameters import BlcParameters
+
+    text = str(args.leg_clearance_softmin).strip()
+    if text.lower() == "none":
+        return None
+    try:
+        sharpness = float(text)
+    except ValueError:
+        raise bad_value("--leg-clearance-softmin", args.leg_clearance_softmin,
+                        "expected a sharpness in 1/m or none") from None
+    try:
+        BlcParameters(leg_clearance_softmin=sharpness)
+    except QzError as error:
+        raise bad_value("--leg-clearance-softmin", args.leg_clearance_softmin,
+                        "must be a positive finite sharpness [1/m] or none") from error
+    return sharpness
 
 
 def _hold_margin(args) -> float | None:

@@ -173,7 +173,7 @@ def test_collecting_into_a_complete_dataset_changes_no_file(reference, tmp_path)
     (["--ray-address", "127.0.0.1:9"], "--ray-address"),
     (["--log-every", "-1"], "--log-every"),
     (["--control-mode", "servo"], "trials.control_mode"),
-    (["--time-step", "0.004"], "trials.time_step"),
+    (["--control-mode", "torque", "--time-step", "0.004"], "trials.time_step"),  # the explicit PD past 2 ms
 ])
 def test_bad_collect_input_is_one_line_exit_2(tmp_path, args, field):
     run = subprocess.run(QZ + ["capability", "collect", "--out", str(tmp_path / "d"), "--scenes", "1"] + args,

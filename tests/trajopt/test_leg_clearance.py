@@ -130,9 +130,13 @@ def _formulation(topology, terrain, target=(0.3, 0.0, 0.0), duration=1.6, start_
                           start_feet=feet, target=(start_x + target[0], target[1], target[2]))
 
 
+# A row per link point (leg_clearance_softmin None, the default).
+POINT_ROWS = BlcParameters(leg_clearance_softmin=None)
+
+
 def test_the_constraint_jacobian_matches_finite_differences():
     terrain = as_terrain(_step_map(start_x=1.0))
-    f = _formulation("nominal", terrain, start_x=0.15)
+    f = _formulation("nominal", terrain, start_x=0.15, params=POINT_ROWS)
     [c] = [c for c in f.nonlinear if c.name == "leg_clearance"]
     x = straight_line_guess(f) + 0.02 * np.random.default_rng(0).standard_normal(f.variables.num_vars)
     # Points near the step's ramp in the field (where its slope matters) are among the rows.
@@ -146,7 +150,7 @@ def test_the_smooth_minimum_holds_a_leg_only_where_all_its_points_hold():
     differences, and its value lies between the least point clearance less log(J) / rho and
     that least clearance, so a row that holds keeps every point of the leg above its bound."""
     terrain = as_terrain(_step_map(start_x=1.0))
-    points = _formulation("nominal", terrain, start_x=0.15)
+    points = _formulation("nominal", terrain, start_x=0.15, params=POINT_ROWS)
     rho = 300.0
     smooth = _formulation("nominal", terrain, start_x=0.15, params=BlcParameters(leg_clearance_softmin=rho))
     [c] = [c for c in smooth.nonlinear if c.name == "leg_clearance"]

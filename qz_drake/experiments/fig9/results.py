@@ -34,7 +34,7 @@ SETTINGS_BEFORE_THEY_EXISTED = {"astar_max_recoveries": 0, "capplanner_min_route
                                 "route_check": 0, "capplanner_turns_with_moves": False,
                                 "capplanner_topologies": "", "capplanner_turn_edge_risk": 0.0,
                                 "capplanner_revisit_cost": 0.0, "capplanner_target_shift": 0.0,
-                                "blc_leg_clearance_softmin": None}
+                                "blc_leg_clearance_softmin": None, "control_mode": "torque", "time_step": 0.002}
 
 
 def read_json_lines(path) -> list[dict]:

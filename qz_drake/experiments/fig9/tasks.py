@@ -15,9 +15,10 @@ import time
 
 import numpy as np
 
-from qz_drake.config import MissionTiming
+from qz_drake.config import MissionTiming, WalkDrives, drive_station
 from qz_drake.state_layout import BASE_XY
 from qz_drake.experiments.worlds import make_task
+from qz_drake.trajopt.parameters import BlcParameters
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,9 +50,9 @@ class ExperimentConfig:
     # CapPlanner's map then asks about the same stance, capability_mdp.CapabilityMdpConfig.stance).
     blc_terminal_stance: str = "free"
     # The legs' clearance as one smooth-minimum row per leg and sample of this sharpness
-    # (BlcParameters.leg_clearance_softmin), for both planners alike; None: a row per link
-    # point (every run before issue 53's measurement). [1/m]
-    blc_leg_clearance_softmin: float | None = None
+    # (BlcParameters.leg_clearance_softmin, whose default this is), for both planners alike;
+    # None: a row per link point. [1/m]
+    blc_leg_clearance_softmin: float | None = BlcParameters.leg_clearance_softmin
     # CapPlanner's capability model folder; empty: the shipped one.
     capability_model: str = ""
     # World scale (1: the experiment; smaller: tiny tasks for tests, see worlds.make_task).
@@ -144,12 +145,12 @@ class ExperimentConfig:
     record_missions: bool = False
     # How the joints are driven in every walk, for both planners alike, and the plant's step,
     # as the capability trials have them (capability.trials.TrialConfig's control_mode and
-    # time_step, which label a dataset): "torque", Eq. 7's PD computed by the controller at
-    # every step of at most 2 ms (every run before issue 53's drives); "position", the same PD
-    # (ControllerConfig's kp and kd) in the drives on the tracker's q_des and v_des (the
-    # plant's implicit PD actuators), stable at 4 ms (BENCHMARKS "capability", session 42). [s]
-    control_mode: str = "torque"
-    time_step: float = 0.002
+    # time_step, which label a dataset; config.WalkDrives, the default): "position", Eq. 7's PD
+    # (ControllerConfig's kp and kd) in the drives on the tracker's q_des and v_des (the plant's
+    # implicit PD actuators); "torque", the same PD computed by the controller at every step of
+    # at most 2 ms (every run before issue 53's drives). [s]
+    control_mode: str = WalkDrives.control_mode
+    time_step: float = WalkDrives.time_step
 
 
 def check_drives(control_mode, time_step) -> None:
@@ -167,16 +168,6 @@ def check_drives(control_mode, time_step) -> None:
         raise bad_value("--time-step", time_step, f"the explicit joint PD (--control-mode torque) needs steps of at "
                                                   f"most {MAX_EXPLICIT_PD_STEP:g} s; use --control-mode position "
                                                   f"for longer ones")
-
-
-def drive_station(control_mode: str, controller):
-    """The station of a walk driven in ``control_mode``: in position mode the drives' PD with
-    the gains of Eq. 7 (``controller``'s kp and kd; the trials' are the same)."""
-    from qz_drake.config import StationConfig
-
-    if control_mode == "torque":
-        return StationConfig()
-    return StationConfig(control_mode="position", position_kp=controller.kp, position_kd=controller.kd)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -285,7 +276,6 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
     from qz_drake.planning.capability_planner import ROUTE_DECISIONS, route_count_key
     from qz_drake.planning.capplanner_route import route_source_for
     from qz_drake.simulation import walk
-    from qz_drake.trajopt.parameters import BlcParameters
 
     clock = time.perf_counter()
     task = make_task(spec.terrain, spec.difficulty, spec.seed, scale=config.scale)
@@ -313,7 +303,7 @@ def run_task(spec: TaskSpec, config: ExperimentConfig = ExperimentConfig()) -> d
             name=spec.key, terrain=TerrainConfig(kind="flat", region=region),
             robot=RobotConfig(initial_xy=list(task.start), initial_yaw=task.start_yaw),
             simulation=SimulationConfig(duration=budget, time_step=config.time_step),
-            station=drive_station(config.control_mode, controller), controller=controller)
+            station=drive_station(config.control_mode, controller.kp, controller.kd), controller=controller)
         # One BLC for both planners, as paper 000 has it: first solves only (the trials' BLC, and
         # the one the A* settings were tuned with) unless ``blc_retries`` says otherwise, the
         # same for both; what differs is the TLC, including how it goes round a mission the BLC
