@@ -23,8 +23,9 @@ PLAIN_LINE_INTERVAL = 30.0
 
 # Seconds between two redraws of a bar at most. The bar is redrawn by the thread that reports
 # progress, never by a thread of its own: a garbage collection that runs in another thread frees
-# the Drake objects it finds there, and Drake's Meshcat aborts the process when it is freed off
-# the thread that made it (a `make test` worker died so while a bar's refresh thread ran).
+# the Drake objects it finds there, off the thread that made them (a `make test` worker aborted,
+# "Fatal Python error: Aborted", while rich's refresh thread was collecting garbage during a
+# simulation; Drake's Meshcat, for one, must be used from the thread that made it).
 REDRAW_PERIOD = 0.1
 
 # Seconds of the recent past a bar's ETA takes the speed from. Rich's 30 s default sees no

@@ -53,7 +53,7 @@ def test_a_terminal_gets_a_bar_with_the_amount_and_an_eta():
 
 def test_a_bar_is_drawn_by_the_reporting_thread_only():
     # No thread of the bar's own: a garbage collection in another thread would free Drake objects
-    # there, and Drake's Meshcat aborts the process when freed off its own thread.
+    # there, off the thread that made them (a make test worker aborted so).
     import threading
 
     screen = io.StringIO()

@@ -201,7 +201,7 @@ def run_tune_astar(args) -> int:
                                                 route_check=args.route_check,
                                                 blc_terminal_stance=args.terminal_stance,
                                                 control_mode=args.control_mode, time_step=args.time_step,
-                              blc_leg_clearance_softmin=_leg_clearance_softmin(args),
+                                                blc_leg_clearance_softmin=_leg_clearance_softmin(args),
                                                 record_missions=args.record_missions),
                         progress=not args.json)
     _print_tuning(report, args)
@@ -242,7 +242,7 @@ def run_tune_capplanner(args) -> int:
                                 blc_retries=args.blc_retries, blc_ladder=args.blc_ladder, route_check=args.route_check,
                                 blc_terminal_stance=args.terminal_stance,
                                 control_mode=args.control_mode, time_step=args.time_step,
-                              blc_leg_clearance_softmin=_leg_clearance_softmin(args),
+                                blc_leg_clearance_softmin=_leg_clearance_softmin(args),
                                 record_missions=args.record_missions),
         progress=not args.json)
     _print_tuning(report, args)
