@@ -889,8 +889,10 @@ def _recertify(path, manifest, sample, workers, command, clock, reference_code=N
     machine = []
     if mismatches and reference_code is not None:
         indices = [m["index"] for m in mismatches]
-        reference = _run_with_code(reference_code, [s for s in specs if s.index in indices], settings, old,
-                                   protocol=protocol)
+        # Every setting named, as this code reads the manifest (a field it does not name is what
+        # the dataset was collected with, not the reference code's default).
+        reference = _run_with_code(reference_code, [s for s in specs if s.index in indices], settings_dict(config),
+                                   old, protocol=protocol)
         for m in list(mismatches):
             here = differing_fields(reference[m["index"]], records_to_arrays(rerun[m["index"]]),
                                     skip=TIME_FIELDS)

@@ -415,7 +415,7 @@ class BlcFormulation:
                 c = self.link_clearance()
                 if p.leg_clearance_softmin is not None:
                     return LegClearanceSoftminConstraint(v, times, c.geometry, c.points, c.field, c.lower,
-                                                         p.leg_clearance_softmin)
+                                                         p.leg_clearance_softmin, p.leg_clearance_softmin_mean)
                 return LegClearanceConstraint(v, times, c.geometry, c.points, c.field, c.lower)
             c = parts.get("leg_clearance", leg_clearance, field=self.clearance)
             self.nonlinear.append(c.with_point_lower(self._start_relaxed_lower(c)))

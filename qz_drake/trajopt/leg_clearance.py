@@ -244,21 +244,26 @@ class LegClearanceSoftminConstraint(LegClearanceConstraint):
 
     s lies between min_j a_j - log(J) / rho and min_j a_j, so a row that holds keeps every
     point of its leg above its bound (at most log(J) / rho more room than the point rows ask
-    for, where all J points are equally close). A row depends on the body at its time and on
+    for, where all J points are equally close). With ``mean`` the row is s >= -log(J) / rho
+    (the log-mean-exp >= 0): no more room than the point rows ask for, and a point at most
+    log(J) / rho below its bound. A row depends on the body at its time and on
     that leg's foot only, as each point's row did: J times fewer rows and Jacobian entries.
     The point rows (LegClearanceConstraint) never bind on most samples (none of 3636 within
     5 cm on a stairs task, issue 53) but cost Ipopt's linear algebra as much as rows that do.
     """
 
     def __init__(self, variables, times, geometry: dict, points: LinkPoints,
-                 field: ClearanceField, lower: float, sharpness: float):
+                 field: ClearanceField, lower: float, sharpness: float, mean: bool = False):
         super().__init__(variables, times, geometry, points, field, lower)
         if not sharpness > 0:
             raise bad_value("blc.leg_clearance_softmin", sharpness, "must be positive (1/m) or null")
         n, L = len(self.times), self.num_legs
         self.sharpness = float(sharpness)
         self._point_lower = self.lower
-        self.lower, self.upper = np.zeros(n * L), np.full(n * L, np.inf)
+        # ``mean`` (BlcParameters.leg_clearance_softmin_mean): the bound of the log-mean-exp,
+        # s + log(J) / rho >= 0, which lets a point sink at most log(J) / rho below its bound.
+        bound = -np.log(self.num_points) / self.sharpness if mean else 0.0
+        self.lower, self.upper = np.full(n * L, bound), np.full(n * L, np.inf)
         self.rows_per_sample = L
         rows_all = np.arange(n * L).reshape(n, L)
         self._set_blocks([_Block(rows_all, self.rpy), _Block(rows_all, self.com),

@@ -236,10 +236,17 @@ class BlcParameters:
     # points' own bounds, at most log(points) / sharpness more room), J times fewer rows and
     # Jacobian entries. None: a row per point. Not the default: on a noisy map (2 cm cells, 1-2
     # cm pixel noise, tests/trajopt/test_foot_scale_terrain.py) a metre took 104-182 Ipopt
-    # iterations at 150-600 / m against 18 with a row per point; with each row's bound lowered
-    # by log(J) / sharpness (points then up to that far below their own) 37 at 300, 30 at 1000
-    # (BENCHMARKS "blc and walks, the legs' clearance as one row per leg and sample"). [1/m]
+    # iterations at 150-600 / m against 18 with a row per point; in the mean form below 37 at
+    # 300, 30 at 1000 (BENCHMARKS "blc and walks, the legs' clearance as one row per leg and
+    # sample"). [1/m]
     leg_clearance_softmin: float | None = None
+    # With leg_clearance_softmin: each row bounds the leg's log-mean-exp instead of its
+    # log-sum-exp (the row's bound -log(J) / sharpness instead of 0), so a point may sink at
+    # most log(J) / sharpness below its own bound (2 mm at 1000 / m), where the conservative row
+    # keeps every point above it and so asks up to that much more where several points are near
+    # their bound at once (likely what slows the noisy metre above: 182 Ipopt iterations, 18
+    # with a row per point, 37 in this form at 300 / m, 30 at 1000 / m).
+    leg_clearance_softmin_mean: bool = False
     # The dense verdict checks every leg's capsules (every 1.5 cm along them) at its rate and
     # fails a plan whose link dips more than this into the ground (False: no link check). [m]
     dense_link_check: bool = True
@@ -309,6 +316,9 @@ class BlcParameters:
                                           and math.isfinite(sharpness) and sharpness > 0):
             raise bad_value("blc.leg_clearance_softmin", self.leg_clearance_softmin,
                             "must be a positive sharpness [1/m] (or null: a row per link point)")
+        if not isinstance(self.leg_clearance_softmin_mean, bool):
+            raise bad_value("blc.leg_clearance_softmin_mean", self.leg_clearance_softmin_mean,
+                            "expected true or false")
         if self.swing_lift_height is not None and not self.swing_lift_height >= 0:
             raise bad_value("blc.swing_lift_height", self.swing_lift_height,
                             "must be non-negative (or null: not required)")

@@ -385,6 +385,27 @@ def test_recertify_with_the_certified_code_tells_a_machines_difference_from_the_
         recertify(made_up, sample=1, reference_code=certified)
 
 
+@pytest.mark.slow  # a collection, then a second interpreter on a second source tree
+def test_the_certified_code_reruns_a_dataset_from_before_the_drive_fields_as_it_was_labelled(tmp_path,
+                                                                                              certified_code):
+    # A manifest that names neither the drives nor the step (every dataset before issue 53's
+    # defaults) was labelled with the controller's PD at 2 ms: the certified code, whose own
+    # defaults are the drives' PD, is handed those settings, not left to its defaults.
+    from qz_drake.capability.trials import TrialConfig
+
+    certified, fingerprints_of = certified_code
+    out = tmp_path / "torque"
+    assert collect(out, workers=1, config=TrialConfig(control_mode="torque", time_step=0.002), **SMALL).ran == 2
+    manifest = json.loads((out / "manifest.json").read_text())
+    settings = dict(manifest["settings"])
+    for key in ("control_mode", "time_step", "blc_ladder", "blc_terminal_stance"):
+        del manifest["settings"][key]
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    data, _, _ = _altered_copy(out, tmp_path / "collected_elsewhere", fingerprints_of(settings), "blc_iterations", 1)
+    result = recertify(data, sample=2, reference_code=certified)
+    assert result.identical and result.changed == ["verdict"] and len(result.machine_differences) == 2
+
+
 def test_a_text_longer_than_its_field_is_refused_not_cut():
     """numpy would cut a scene kind longer than its field silently (the first episode
     collection stored stairs_among_boxes as stairs_among_box): records_to_arrays refuses it."""

@@ -70,3 +70,15 @@ def test_a_metre_on_a_noisy_map_plans_at_the_foot_scale_and_its_swings_clear_the
             p = np.array([foot.value(t).ravel() for t in swing])
             clearance = p[:, 2] - solution.robot.foot_radius - given.height(p[:, 0], p[:, 1])
             assert clearance.min() >= -BlcParameters().dense_clearance_tolerance
+
+
+def test_a_metre_on_a_noisy_map_plans_with_one_mean_leg_row_per_sample():
+    """The smooth-minimum leg rows in their mean form (leg_clearance_softmin_mean) plan the noisy
+    metre within the budget the point rows need (18 iterations; the conservative rows 182, as
+    several points of a stance leg stand at their bound at once), the legs clear to the dense
+    verdict."""
+    params = BlcParameters(max_iterations=60, time_limit=120.0, leg_clearance_softmin=1000.0,
+                           leg_clearance_softmin_mean=True)
+    solution = solve_blc(BlcTask(target=(1.0, 0.0, 0.0)), terrain=_noisy_hills(), params=params)
+    assert solution.success, solution.reason
+    assert solution.dense.min_link_clearance >= -params.dense_link_tolerance

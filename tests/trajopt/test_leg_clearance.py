@@ -168,12 +168,20 @@ def test_the_smooth_minimum_holds_a_leg_only_where_all_its_points_hold():
     assert np.all(s <= least + 1e-12)
     assert np.all(s >= least - np.log(J) / rho - 1e-12)
     assert np.any(least < 0.05)  # some points near the step
+    # The mean form: the same function, its bound log(J) / rho lower.
+    mean = _formulation("nominal", terrain, start_x=0.15,
+                        params=BlcParameters(leg_clearance_softmin=rho, leg_clearance_softmin_mean=True))
+    [m] = [c for c in mean.nonlinear if c.name == "leg_clearance"]
+    np.testing.assert_array_equal(m.evaluate(x), s)
+    np.testing.assert_allclose(m.lower, -np.log(J) / rho)
 
 
 @pytest.mark.parametrize("value", [0.0, -5.0, float("inf"), float("nan"), True])
 def test_a_bad_smooth_minimum_sharpness_is_refused_naming_it(value):
     with pytest.raises(ConfigError, match="blc.leg_clearance_softmin"):
         BlcParameters(leg_clearance_softmin=value)
+    with pytest.raises(ConfigError, match="blc.leg_clearance_softmin_mean"):
+        BlcParameters(leg_clearance_softmin_mean="yes")
 
 
 def test_no_leg_rows_for_a_robot_without_modelled_legs_or_on_flat_ground():
